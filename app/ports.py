@@ -1,0 +1,115 @@
+"""The store port: what the use cases need from persistence. Two adapters implement it
+(``app.adapters.memory_store.MemoryStore`` and ``app.adapters.redis_store.RedisStore``) and pass one
+contract suite (``tests/contract``)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+from services.model import IntervalKey, Task, TaskId, TaxiId, Visit
+
+__all__ = [
+    "StoreUnavailable",
+    "StoredEpoch",
+    "CityState",
+    "EpochCommit",
+    "CommitResult",
+    "PutTasksResult",
+    "Store",
+]
+
+
+class StoreUnavailable(RuntimeError):
+    """The backing store cannot be reached (rendered as HTTP 503)."""
+
+
+@dataclass(frozen=True, slots=True)
+class StoredEpoch:
+    epoch_id: str
+    body_hash: str
+    time_s: float
+    response_json: str
+
+
+@dataclass(frozen=True, slots=True)
+class CityState:
+    """What a dispatch reads before solving one epoch.
+
+    ``version`` counts committed epochs of the city; a commit names the version it was computed on.
+    ``counts[k][cell]`` is Lambda (sparse: cells with a zero count are absent), for the intervals asked for.
+    ``visited[taxi]`` lists the (interval, cell) pairs that taxi is already counted in, for the taxis and
+    intervals asked for. ``tasks`` are all tasks of the city.
+    """
+
+    version: int
+    last_epoch_id: str | None
+    last_epoch_time_s: float | None
+    counts: dict[IntervalKey, dict[int, int]]
+    visited: dict[TaxiId, set[tuple[IntervalKey, int]]]
+    tasks: list[Task]
+
+
+@dataclass(frozen=True, slots=True)
+class EpochCommit:
+    epoch_id: str
+    body_hash: str
+    time_s: float
+    expected_version: int
+    visits: Sequence[Visit]
+    task_updates: Sequence[Task]
+    response_json: str
+    retention_s: int = 8 * 86400  # how long counts, visits and epoch records are kept
+    demand_json: str | None = None  # the epoch's requests, recorded for the fleet-sizing worker (issue 4)
+
+
+CommitStatus = Literal["committed", "duplicate", "version_mismatch", "stale"]
+
+
+@dataclass(frozen=True, slots=True)
+class CommitResult:
+    """``committed``: everything applied. ``duplicate``: an epoch with that id exists (``stored`` holds
+    it; nothing applied). ``version_mismatch``: another epoch committed since the state was read (nothing
+    applied; reload and solve again). ``stale``: ``time_s`` is older than the last committed epoch."""
+
+    status: CommitStatus
+    stored: StoredEpoch | None = None
+    new_version: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class PutTasksResult:
+    """``conflicts`` lists ids that exist with different content; when it is non-empty nothing is written."""
+
+    created: list[TaskId] = field(default_factory=list)
+    unchanged: list[TaskId] = field(default_factory=list)
+    conflicts: list[TaskId] = field(default_factory=list)
+
+
+class Store(Protocol):
+    def ping(self) -> None:
+        """Raise ``StoreUnavailable`` when the store cannot be reached."""
+
+    def get_epoch(self, city: str, epoch_id: str) -> StoredEpoch | None: ...
+
+    def load_state(
+        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+    ) -> CityState: ...
+
+    def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
+        """Atomically: check id unseen, version == expected, time >= last; then apply visits (each
+        (taxi, interval, cell) counted at most once ever: Lambda += 1 only for a new member), upsert the
+        task updates, store the epoch record and bump the version."""
+
+    def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
+        """Register tasks, idempotent per id (same content: unchanged; different content: conflict)."""
+
+    def list_tasks(self, city: str) -> list[Task]: ...
+
+    def interval_counts(self, city: str, interval: IntervalKey) -> dict[int, int]: ...
+
+    def list_intervals(self, city: str) -> list[IntervalKey]:
+        """Intervals with at least one count, ascending."""
+
+    def close(self) -> None: ...

@@ -1,0 +1,127 @@
+"""A served city: network, grid, sensing horizon, weights and dispatch parameters."""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass, field
+from zoneinfo import ZoneInfo
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.grid import EdgeCells, Grid
+from services.model import IntervalKey
+from services.network import Network
+
+__all__ = ["Horizon", "DispatchParams", "City"]
+
+
+@dataclass(frozen=True, slots=True)
+class Horizon:
+    """Operating horizon: ``n_intervals`` sensing intervals of ``interval_s`` from ``start`` local time.
+
+    Interval keys are global: ``k = floor((local_seconds - start_offset) / interval_s)`` where local seconds
+    count from 1970-01-01T00:00 local wall time; ``interval_s`` divides a day, so ``k mod per_day`` is the
+    position within the day and the interval is in the horizon iff that position is below ``n_intervals``.
+    """
+
+    timezone: str = "Asia/Shanghai"
+    start: dt.time = dt.time(8, 0)
+    interval_s: int = 3600
+    n_intervals: int = 4
+    epoch_s: int = 200
+
+    def __post_init__(self) -> None:
+        if self.interval_s <= 0 or 86400 % self.interval_s:
+            raise ValueError("interval_s must divide a day (86400 s)")
+        if not 1 <= self.n_intervals <= 86400 // self.interval_s:
+            raise ValueError("n_intervals must fit in a day")
+        if self.epoch_s <= 0:
+            raise ValueError("epoch_s must be positive")
+        ZoneInfo(self.timezone)
+
+    @property
+    def per_day(self) -> int:
+        return 86400 // self.interval_s
+
+    def _start_offset_s(self) -> int:
+        return self.start.hour * 3600 + self.start.minute * 60 + self.start.second
+
+    def interval_of(self, time_s: float) -> IntervalKey:
+        """The interval containing POSIX time ``time_s``."""
+        utc = dt.datetime.fromtimestamp(time_s, tz=dt.UTC)
+        offset = utc.astimezone(ZoneInfo(self.timezone)).utcoffset()
+        local_s = time_s + (offset.total_seconds() if offset else 0.0)
+        return IntervalKey(int(np.floor((local_s - self._start_offset_s()) / self.interval_s)))
+
+    def in_horizon(self, k: int) -> bool:
+        return (k % self.per_day) < self.n_intervals
+
+    def position(self, k: int) -> int:
+        """Index of interval ``k`` within its day's horizon (0..n_intervals-1 when in the horizon)."""
+        return k % self.per_day
+
+    def local_start(self, k: int) -> dt.datetime:
+        """Naive local wall-clock start of interval ``k``."""
+        local_s = k * self.interval_s + self._start_offset_s()
+        return dt.datetime(1970, 1, 1) + dt.timedelta(seconds=local_s)
+
+    def label(self, k: int) -> str:
+        """Human label of interval ``k``: its local start, ``YYYY-MM-DDTHH:MM``."""
+        return self.local_start(k).strftime("%Y-%m-%dT%H:%M")
+
+    def day_intervals(self, k: int) -> list[IntervalKey]:
+        """The horizon intervals of the day that interval ``k`` belongs to."""
+        first = k - (k % self.per_day)
+        return [IntervalKey(first + i) for i in range(self.n_intervals)]
+
+
+@dataclass(frozen=True, slots=True)
+class DispatchParams:
+    """Dispatch parameters of METHOD sections 3-7 (defaults are the paper's)."""
+
+    rho: float = 0.2
+    radius_m: float = 2000.0
+    speed_kmh: float = 35.0
+    kappas: tuple[float, ...] = (0.0, 0.3, 0.6, 0.9)
+    max_iter: int = 5
+    patience_s: float = 600.0
+    snap_limit_m: float = 500.0
+    unit_cost_cny_per_km: float = 1.5
+    subsidy_cny_per_vehicle_hour: float = 0.0
+    active_sensing: bool = True  # Step 3 on/off
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.rho < 1.0:
+            raise ValueError("rho must lie in (0, 1)")
+        if self.radius_m <= 0 or self.speed_kmh <= 0 or self.patience_s < 0 or self.snap_limit_m <= 0:
+            raise ValueError("radius, speed, snap limit must be positive and patience non-negative")
+        if not self.kappas or 0.0 not in self.kappas or any(not 0.0 <= k < 1.0 for k in self.kappas):
+            raise ValueError("kappas must contain 0 and lie in [0, 1)")
+        if self.max_iter < 0:
+            raise ValueError("max_iter must be non-negative")
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class City:
+    """Everything the core needs to serve one city.
+
+    ``cell_weight[c]`` is s_g (sums to 1 over the cells the network touches, 0 elsewhere);
+    ``interval_weight[i]`` is mu_t for position ``i`` of the horizon (sums to 1).
+    """
+
+    name: str
+    network: Network
+    grid: Grid
+    edge_cells: EdgeCells
+    horizon: Horizon = field(default_factory=Horizon)
+    params: DispatchParams = field(default_factory=DispatchParams)
+    cell_weight: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    interval_weight: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    source: str = ""  # attribution / provenance line
+
+    def mu(self, k: int) -> float:
+        """mu_t of interval ``k`` (0 outside the operating horizon)."""
+        if not self.horizon.in_horizon(k):
+            return 0.0
+        return float(self.interval_weight[self.horizon.position(k)])
