@@ -112,4 +112,7 @@ class Store(Protocol):
     def list_intervals(self, city: str) -> list[IntervalKey]:
         """Intervals with at least one count, ascending."""
 
+    def recorded_demand(self, city: str, day: str) -> list[str]:
+        """The ``demand_json`` of the epochs committed on UTC day ``day`` (``YYYYMMDD``), in commit order."""
+
     def close(self) -> None: ...
