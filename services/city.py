@@ -49,20 +49,21 @@ class Horizon:
 
     def interval_of(self, time_s: float) -> IntervalKey:
         """The interval containing POSIX time ``time_s``."""
-        utc = dt.datetime.fromtimestamp(time_s, tz=dt.UTC)
+        return IntervalKey(int(np.floor((time_s + self.shift_s(time_s)) / self.interval_s)))
+
+    def shift_s(self, time_s: float) -> float:
+        """UTC offset at ``time_s`` minus the horizon start offset: ``k = floor((t + shift) / interval_s)``."""
+        utc = dt.datetime.fromtimestamp(float(time_s), tz=dt.UTC)
         offset = utc.astimezone(ZoneInfo(self.timezone)).utcoffset()
-        local_s = time_s + (offset.total_seconds() if offset else 0.0)
-        return IntervalKey(int(np.floor((local_s - self._start_offset_s()) / self.interval_s)))
+        return (offset.total_seconds() if offset else 0.0) - self._start_offset_s()
 
     def intervals_of(self, times_s: NDArray[np.float64]) -> NDArray[np.int64]:
         """Vectorized ``interval_of`` using the UTC offset in force at ``times_s[0]`` (paths last minutes,
         and time-zone transitions happen at night, outside any sensible horizon)."""
         if len(times_s) == 0:
             return np.zeros(0, dtype=np.int64)
-        utc = dt.datetime.fromtimestamp(float(times_s[0]), tz=dt.UTC)
-        offset = utc.astimezone(ZoneInfo(self.timezone)).utcoffset()
-        off = offset.total_seconds() if offset else 0.0
-        return np.floor((np.asarray(times_s) + off - self._start_offset_s()) / self.interval_s).astype(np.int64)
+        shift = self.shift_s(float(times_s[0]))
+        return np.floor((np.asarray(times_s, dtype=np.float64) + shift) / self.interval_s).astype(np.int64)
 
     def in_horizon(self, k: int) -> bool:
         return (k % self.per_day) < self.n_intervals

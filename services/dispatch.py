@@ -1,18 +1,349 @@
 """One decision epoch: the three-step priority matching and Algorithm 2 (METHOD sections 4-6).
 
 ``decide`` is the single pure entry point: (city, counts, snapshot, tasks) -> Decision.
+
+1. Step 1 (Eq. 4-7): vacant instrumented taxis x waiting riders within the pickup radius; weight = the
+   marginal sensing gain of the service leg (pickup -> dropoff) for that taxi, departing when it reaches the
+   rider; maximize total gain, then minimize total wait.
+2. Step 2 (Eq. 8-11): vacant ordinary taxis x the remaining riders; maximize matches, then minimize wait.
+3. Step 3 (Eq. 13-16): vacant instrumented taxis still free x open POIs (grouped by node); maximize
+   matches, then total phi of the enhanced A* routes; then Algorithm 2 improves the routes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
+import numpy as np
+from numpy.typing import NDArray
+
+from services import kernels
 from services.city import City
-from services.model import CountsView, Decision, Snapshot, Task
+from services.matching import EXACT_LIMIT, lexicographic_weights, max_weight_matching, quantize
+from services.model import (
+    CountsView,
+    Decision,
+    IntervalKey,
+    Rider,
+    RiderId,
+    RiderMatch,
+    Snapshot,
+    Task,
+    TaskAssignment,
+    TaskId,
+    Taxi,
+    Visit,
+)
+from services.routing import GainTable, Route, gain_table, graph_arrays, improve_routes, path_nodes, plan_routes
+from services.sensing import timed_cells
+from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
 
-__all__ = ["decide"]
+__all__ = ["decide", "INITIAL_SLOTS"]
+
+INITIAL_SLOTS = 3
+"""Intervals (from the epoch's own) that gains are first tabulated for; more are added if a path needs them."""
+
+_WAIT_UNIT_S = 1e-3  # waits are compared to the millisecond
+
+
+@dataclass(frozen=True, slots=True)
+class _Leg:
+    edges: NDArray[np.int64]
+    length_m: float
+    time_s: float
+
+
+def _g_route(city: City, edges: NDArray[np.int64]) -> tuple[tuple[int, int], ...]:
+    """Ordered distinct cells crossed by the edges (first-entry order)."""
+    ec = city.edge_cells
+    if len(edges) == 0:
+        return ()
+    cells = np.concatenate([ec.cell[ec.ptr[e] : ec.ptr[e + 1]] for e in edges])
+    _, first = np.unique(cells, return_index=True)
+    return tuple(city.grid.col_row(int(c)) for c in cells[np.sort(first)])
+
+
+def _pickup_legs(
+    city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]
+) -> dict[tuple[int, int], _Leg]:
+    """(taxi index, rider index) -> fastest pickup leg, for pairs within the matching radius."""
+    ga = graph_arrays(city)
+    radius = city.params.radius_m
+    limit_s = radius / ga.min_speed_mps * (1 + 1e-9)
+    taxi_nodes = np.array([t.node for t in taxis], dtype=np.int64)
+    none = np.zeros(0, dtype=np.int64)
+    legs: dict[tuple[int, int], _Leg] = {}
+    for j, rider in enumerate(riders):
+        dist, pred_rev = kernels.dijkstra(ga.rev_indptr, ga.rev_head, ga.rev_time_s, rider.origin, limit_s, none)
+        succ = np.where(pred_rev >= 0, ga.rev_edge[np.maximum(pred_rev, 0)], -1)
+        for i in np.flatnonzero(np.isfinite(dist[taxi_nodes])):
+            edges = kernels.walk_succ(succ, ga.head, int(taxi_nodes[i]))
+            length = float(ga.length_m[edges].sum())
+            if length <= radius + 1e-6:
+                legs[(int(i), j)] = _Leg(edges, length, float(dist[taxi_nodes[i]]))
+    return legs
+
+
+def _service_leg(city: City, rider: Rider) -> _Leg:
+    ga = graph_arrays(city)
+    _dist, pred = kernels.dijkstra(
+        ga.indptr, ga.head, ga.time_s, rider.origin, np.inf, np.array([rider.destination], dtype=np.int64)
+    )
+    if rider.destination != rider.origin and pred[rider.destination] < 0:
+        raise ValueError(f"rider {rider.id}: destination unreachable from origin")
+    edges = kernels.walk_edges(pred, ga.tail, rider.destination)
+    return _Leg(edges, float(ga.length_m[edges].sum()), float(ga.time_s[edges].sum()))
+
+
+def _eval_leg(
+    city: City, table: GainTable, gain: NDArray[np.float64], gain_q: NDArray[np.int64], leg: _Leg, depart_s: float
+) -> tuple[float, int, int]:
+    ga = graph_arrays(city)
+    stamp, sid = table.stamps(1)
+    g, gq, _t, _terms, ms = kernels.eval_path(
+        leg.edges, depart_s, ga.time_s, ga.ec_ptr, ga.ec_cell, ga.ec_frac, table.shift_s,
+        float(city.horizon.interval_s), table.k0, gain, gain_q, stamp, sid,
+    )
+    return float(g), int(gq), int(ms)
+
+
+def _step1(
+    city: City,
+    counts: CountsView,
+    now: float,
+    k0: int,
+    riders: Sequence[Rider],
+    taxis: Sequence[Taxi],
+    pickups: dict[tuple[int, int], _Leg],
+    service: Sequence[_Leg],
+    n_slots: int,
+) -> tuple[list[tuple[int, int, float]], int, dict[str, float | int]]:
+    """Matched (taxi index, rider index, gain) of Step 1 and the slots needed."""
+    pairs = [(i, j) for (i, j) in pickups if i < len(taxis)]
+    if not pairs:
+        return [], n_slots, {"step1_candidates": 0}
+    while True:
+        table = gain_table(city, counts.counts, k0, n_slots, now)
+        term_max = float(table.base.max(initial=0.0))
+        crossings = max(int((city.edge_cells.ptr[leg.edges + 1] - city.edge_cells.ptr[leg.edges]).sum()) for leg in service)
+        n_match = min(len(taxis), len(riders))
+        wait_q = {p: int(quantize(np.array([pickups[p].time_s]), _WAIT_UNIT_S)[0]) for p in pairs}
+        k_sec = max(wait_q.values()) * n_match + 1
+        cap = EXACT_LIMIT // (4 * n_match * k_sec)
+        table.unit = max(term_max * max(crossings, 1) / max(cap, 1), 1e-300)
+        gains: dict[tuple[int, int], tuple[float, int]] = {}
+        max_slot = 0
+        per_taxi: dict[int, tuple[NDArray[np.float64], NDArray[np.int64]]] = {}
+        for i, j in pairs:
+            if i not in per_taxi:
+                per_taxi[i] = table.for_taxi(counts.visited.get(taxis[i].id))
+            g, gq, ms = _eval_leg(city, table, *per_taxi[i], service[j], now + pickups[(i, j)].time_s)
+            gains[(i, j)] = (g, gq)
+            max_slot = max(max_slot, ms)
+        if max_slot < n_slots:
+            break
+        n_slots = max_slot + 1
+    feasible = np.zeros((len(taxis), len(riders)), dtype=bool)
+    prim = np.zeros(feasible.shape, dtype=np.int64)
+    sec = np.zeros(feasible.shape, dtype=np.int64)
+    for (i, j), (_g, gq) in gains.items():
+        feasible[i, j] = True
+        prim[i, j] = gq
+        sec[i, j] = wait_q[(i, j)]
+    sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
+    out = [(int(i), int(j), gains[(int(i), int(j))][0]) for i, j in zip(sol.rows, sol.cols, strict=True)]
+    return out, n_slots, {"step1_candidates": len(pairs), "step1_gain_unit": table.unit}
+
+
+def _step2(
+    riders_left: Sequence[int], taxis: Sequence[int], pickups: dict[tuple[int, int], _Leg]
+) -> list[tuple[int, int]]:
+    """Step 2 over global taxi/rider indices: maximize matches, then minimize total wait."""
+    feasible = np.zeros((len(taxis), len(riders_left)), dtype=bool)
+    sec = np.zeros(feasible.shape, dtype=np.int64)
+    for a, i in enumerate(taxis):
+        for b, j in enumerate(riders_left):
+            leg = pickups.get((i, j))
+            if leg is not None:
+                feasible[a, b] = True
+                sec[a, b] = int(quantize(np.array([leg.time_s]), _WAIT_UNIT_S)[0])
+    prim = feasible.astype(np.int64)
+    sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
+    return [(taxis[int(a)], riders_left[int(b)]) for a, b in zip(sol.rows, sol.cols, strict=True)]
+
+
+def _step3(
+    city: City,
+    counts: CountsView,
+    now: float,
+    k0: int,
+    taxis: Sequence[Taxi],
+    targets: NDArray[np.int64],
+    n_slots: int,
+) -> tuple[list[tuple[int, Route]], int]:
+    """Step 3: (taxi index, route) for the matched taxi-POI pairs, before Algorithm 2."""
+    if len(taxis) == 0 or len(targets) == 0:
+        return [], n_slots
+    while True:
+        table = gain_table(city, counts.counts, k0, n_slots, now)
+        all_routes: list[list[Route]] = []
+        max_slot = 0
+        for taxi in taxis:
+            routes, ms = plan_routes(
+                city, table, taxi.id, taxi.node, counts.visited.get(taxi.id), targets, now
+            )
+            all_routes.append(routes)
+            max_slot = max(max_slot, ms)
+        if max_slot < n_slots:
+            break
+        n_slots = max_slot + 1
+    phi = np.array([[r.efficiency for r in routes] for routes in all_routes])
+    phi_max = float(phi.max(initial=0.0))
+    unit = phi_max / 2**24 if phi_max > 0 else 1.0
+    feasible = np.ones(phi.shape, dtype=bool)
+    sol = max_weight_matching(
+        lexicographic_weights(feasible, feasible.astype(np.int64), quantize(phi, unit), secondary_sense="max")
+    )
+    return [(int(i), all_routes[int(i)][int(j)]) for i, j in zip(sol.rows, sol.cols, strict=True)], n_slots
+
+
+def _visits(city: City, counts: CountsView, taxi: Taxi, edges: NDArray[np.int64], now: float) -> list[Visit]:
+    seen = counts.visited.get(taxi.id, frozenset())
+    return [Visit(taxi.id, k, c) for k, c in timed_cells(city, edges, now).pairs() if (k, c) not in seen]
 
 
 def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[Task]) -> Decision:
-    """Solve one epoch. Pure: reads nothing but its arguments, changes nothing."""
-    raise NotImplementedError
+    """Solve one epoch (METHOD sections 4-6). Pure: reads nothing but its arguments, changes nothing.
+
+    Parameters
+    ----------
+    city : the served city (network, grid, weights, parameters).
+    counts : Lambda per interval and the (interval, cell) pairs each taxi is already counted in, as of the
+        start of the epoch.
+    snapshot : waiting riders and taxi states, resolved to node indices.
+    tasks : every monitoring task of the city (any status).
+
+    Returns
+    -------
+    Decision with the rider matches of Steps 1-2, the monitoring routes of Step 3 (after Algorithm 2), the
+    task updates, the visits to count on commit, and per-step diagnostics in ``stats``.
+    """
+    p = city.params
+    now = snapshot.time_s
+    k0 = int(city.horizon.interval_of(now))
+    expired = tuple(r.id for r in snapshot.riders if now - r.requested_at_s > p.patience_s)
+    expired_set = set(expired)
+    riders = [r for r in snapshot.riders if r.id not in expired_set]
+    vacant = [t for t in snapshot.taxis if t.vacant]
+    instr = [t for t in vacant if t.instrumented]
+    ordinary = [t for t in vacant if not t.instrumented]
+    taxis = instr + ordinary  # instrumented first: indices < len(instr) are instrumented
+
+    pickups = _pickup_legs(city, riders, taxis)
+    service = [_service_leg(city, r) for r in riders]
+    n_slots = INITIAL_SLOTS
+
+    # Step 1
+    s1, n_slots, s1_stats = _step1(city, counts, now, k0, riders, instr, pickups, service, n_slots)
+    matches: list[RiderMatch] = []
+    planned: list[PlannedPath] = []
+    visits: list[Visit] = []
+    busy_taxis: set[int] = set()
+    taken: set[int] = set()
+    for i, j, gain in s1:
+        leg, svc = pickups[(i, j)], service[j]
+        edges = np.concatenate((leg.edges, svc.edges)).astype(np.int64)
+        taxi, rider = taxis[i], riders[j]
+        matches.append(
+            RiderMatch(1, taxi.id, rider.id, leg.length_m, leg.time_s, svc.length_m, svc.time_s, gain,
+                       path_nodes(city, taxi.node, edges), _g_route(city, edges))
+        )
+        planned.append(PlannedPath(taxi.id, taxi.node, edges, now))
+        visits.extend(_visits(city, counts, taxi, edges, now))
+        busy_taxis.add(i)
+        taken.add(j)
+
+    # Step 2
+    left = [j for j in range(len(riders)) if j not in taken]
+    ord_idx = list(range(len(instr), len(taxis)))
+    for i, j in _step2(left, ord_idx, pickups):
+        leg, svc = pickups[(i, j)], service[j]
+        edges = np.concatenate((leg.edges, svc.edges)).astype(np.int64)
+        matches.append(
+            RiderMatch(2, taxis[i].id, riders[j].id, leg.length_m, leg.time_s, svc.length_m, svc.time_s, 0.0,
+                       path_nodes(city, taxis[i].node, edges), _g_route(city, edges))
+        )
+        taken.add(j)
+    unmatched = tuple(riders[j].id for j in range(len(riders)) if j not in taken)
+
+    # Step 3: open tasks not already reached by a Step 1 path, grouped by POI node
+    passive1 = reaches(city, planned, tasks)
+    open_tasks = sorted(
+        (t for t in tasks if t.is_open(now) and t.id not in passive1), key=lambda t: (t.scheduled_at_s, t.id)
+    )
+    by_node: dict[int, TaskId] = {}
+    for t in open_tasks:
+        by_node.setdefault(t.node, t.id)
+    targets = np.fromiter(by_node, dtype=np.int64, count=len(by_node))
+    free = [t for i, t in enumerate(instr) if i not in busy_taxis]
+    assignments: list[TaskAssignment] = []
+    history: list[float] = []
+    passes = 0
+    if p.active_sensing and free and len(targets):
+        s3, n_slots = _step3(city, counts, now, k0, free, targets, n_slots)
+        routes, history, passes = improve_routes(city, counts, [r for _, r in s3], now, n_slots)
+        base = gain_table(city, counts.counts, k0, n_slots, now)
+        for (i, _), route in zip(s3, routes, strict=True):
+            taxi = free[i]
+            g, _gq, _ms = _eval_leg(city, base, *base.for_taxi(counts.visited.get(taxi.id)),
+                                    _Leg(route.edges, route.length_m, route.time_s), now)
+            task_id = by_node[route.target]
+            assignments.append(
+                TaskAssignment(
+                    taxi.id, task_id, path_nodes(city, taxi.node, route.edges), _g_route(city, route.edges),
+                    route.length_m, route.time_s, g, g / route.time_s if route.time_s > 0 else 0.0,
+                    p.unit_cost_cny_per_km * route.length_m / 1000.0, route.kappa,
+                )
+            )
+            planned.append(PlannedPath(taxi.id, taxi.node, route.edges, now, target_task=task_id))
+            visits.extend(_visits(city, counts, taxi, route.edges, now))
+
+    found = reaches(city, planned, tasks)
+    updates = {t.id: t for t in due_completions(tasks, now)}
+    updates.update({t.id: t for t in apply_reaches(tasks, found, now)})
+    task_updates = tuple(updates.values())
+    completed = tuple(t for t in task_updates if t.status == "completed")
+    touched = sorted({IntervalKey(k0 + s) for s in range(n_slots)} | {v.interval for v in visits})
+    stats: dict[str, float | int] = {
+        "interval": k0,
+        "riders": len(snapshot.riders),
+        "riders_expired": len(expired),
+        "vacant_instrumented": len(instr),
+        "vacant_ordinary": len(ordinary),
+        "step1_matches": len(s1),
+        "step2_matches": len(matches) - len(s1),
+        "step3_assignments": len(assignments),
+        "step1_sensing_gain": float(sum(g for _, _, g in s1)),
+        "total_wait_s": float(sum(m.wait_s for m in matches)),
+        "open_tasks": len(open_tasks),
+        "passive_reaches": sum(1 for r in found.values() if r.mode == "passive"),
+        "alg2_passes": passes,
+        "alg2_utility_initial": history[0] if history else 0.0,
+        "alg2_utility_final": history[-1] if history else 0.0,
+        "monitoring_cost_cny": float(sum(a.cost_cny for a in assignments)),
+        **s1_stats,
+    }
+    return Decision(
+        epoch_id=snapshot.epoch_id,
+        time_s=now,
+        rider_matches=tuple(matches),
+        task_assignments=tuple(assignments),
+        tasks_completed=completed,
+        task_updates=task_updates,
+        unmatched_rider_ids=unmatched,
+        expired_rider_ids=tuple(RiderId(r) for r in expired),
+        visits=tuple(dict.fromkeys(visits)),
+        intervals_touched=tuple(touched),
+        stats=stats,
+    )

@@ -1,0 +1,261 @@
+"""Compiled inner loops (numba): Dijkstra on CSR arrays, tree walks and exact path evaluation.
+
+Everything here works on flat arrays only; ``routing`` and ``dispatch`` wrap it. Each function has one
+job and is small enough to check by reading; ``tests/unit/test_kernels.py`` compares them with scipy and
+with plain-Python reference implementations.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["dijkstra", "walk_edges", "walk_succ", "eval_path", "eval_targets", "entered_utility"]
+
+_NOPYTHON = {"cache": True, "nogil": True}
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def _heap_push(keys: NDArray[np.float64], vals: NDArray[np.int64], size: int, key: float, val: int) -> int:
+    i = size
+    keys[i] = key
+    vals[i] = val
+    while i > 0:
+        parent = (i - 1) >> 1
+        if keys[parent] <= keys[i]:
+            break
+        keys[parent], keys[i] = keys[i], keys[parent]
+        vals[parent], vals[i] = vals[i], vals[parent]
+        i = parent
+    return size + 1
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def _heap_pop(keys: NDArray[np.float64], vals: NDArray[np.int64], size: int) -> int:
+    size -= 1
+    keys[0] = keys[size]
+    vals[0] = vals[size]
+    i = 0
+    while True:
+        left = 2 * i + 1
+        if left >= size:
+            break
+        child = left
+        if left + 1 < size and keys[left + 1] < keys[left]:
+            child = left + 1
+        if keys[i] <= keys[child]:
+            break
+        keys[child], keys[i] = keys[i], keys[child]
+        vals[child], vals[i] = vals[i], vals[child]
+        i = child
+    return size
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def dijkstra(
+    indptr: NDArray[np.int64],
+    head: NDArray[np.int32],
+    cost: NDArray[np.float64],
+    source: int,
+    limit: float,
+    targets: NDArray[np.int64],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Single-source shortest paths over CSR ``(indptr, head, cost)``.
+
+    Stops when every node in ``targets`` is settled (all nodes when ``targets`` is empty) or when the
+    next distance exceeds ``limit``. Returns ``dist`` (inf when not settled) and ``pred_edge`` (the edge
+    entering each settled node on its shortest path, -1 at the source and elsewhere). Ties keep the
+    first edge found (deterministic for a given CSR order).
+    """
+    n = indptr.shape[0] - 1
+    dist = np.full(n, np.inf)
+    pred = np.full(n, -1, dtype=np.int64)
+    done = np.zeros(n, dtype=np.bool_)
+    is_target = np.zeros(n, dtype=np.bool_)
+    remaining = 0
+    for t in targets:
+        if not is_target[t]:
+            is_target[t] = True
+            remaining += 1
+    m = head.shape[0]
+    keys = np.empty(m + 1)
+    vals = np.empty(m + 1, dtype=np.int64)
+    size = _heap_push(keys, vals, 0, 0.0, source)
+    tentative = np.full(n, np.inf)
+    tentative[source] = 0.0
+    while size > 0:
+        d = keys[0]
+        u = vals[0]
+        size = _heap_pop(keys, vals, size)
+        if done[u]:
+            continue
+        if d > limit:
+            break
+        done[u] = True
+        dist[u] = d
+        if is_target[u]:
+            remaining -= 1
+            if remaining == 0:
+                break
+        for e in range(indptr[u], indptr[u + 1]):
+            v = head[e]
+            nd = d + cost[e]
+            if nd < tentative[v]:
+                tentative[v] = nd
+                pred[v] = e
+                size = _heap_push(keys, vals, size, nd, v)
+    for v in range(n):
+        if not done[v]:
+            pred[v] = -1
+    return dist, pred
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def walk_edges(pred_edge: NDArray[np.int64], tail: NDArray[np.int32], target: int) -> NDArray[np.int64]:
+    """Edges of the tree path ending at ``target``, in travel order (empty at the root)."""
+    count = 0
+    v = target
+    while pred_edge[v] >= 0:
+        count += 1
+        v = tail[pred_edge[v]]
+    out = np.empty(count, dtype=np.int64)
+    v = target
+    i = count - 1
+    while pred_edge[v] >= 0:
+        e = pred_edge[v]
+        out[i] = e
+        v = tail[e]
+        i -= 1
+    return out
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def walk_succ(succ_edge: NDArray[np.int64], head: NDArray[np.int32], start: int) -> NDArray[np.int64]:
+    """Edges from ``start`` to the root of a reverse (in-)tree, following ``succ_edge``, in travel order."""
+    count = 0
+    v = start
+    while succ_edge[v] >= 0:
+        count += 1
+        v = head[succ_edge[v]]
+    out = np.empty(count, dtype=np.int64)
+    v = start
+    for i in range(count):
+        out[i] = succ_edge[v]
+        v = head[out[i]]
+    return out
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def eval_path(
+    edges: NDArray[np.int64],
+    depart_s: float,
+    edge_time: NDArray[np.float64],
+    ec_ptr: NDArray[np.int64],
+    ec_cell: NDArray[np.int32],
+    ec_frac: NDArray[np.float64],
+    interval_shift_s: float,
+    interval_s: float,
+    k0: int,
+    gain: NDArray[np.float64],
+    gain_q: NDArray[np.int64],
+    stamp: NDArray[np.int64],
+    stamp_id: int,
+) -> tuple[float, int, float, int, int]:
+    """Exact marginal gain of one path (METHOD section 3).
+
+    ``gain[slot, cell]`` is the term for interval ``k0 + slot`` (0 where the taxi is already counted),
+    ``gain_q`` its integer quantization. A (slot, cell) pair counts at its first entry only; ``stamp``
+    (same shape, values < ``stamp_id`` on entry) records pairs seen on this path. Returns (gain, integer
+    gain, travel time, number of counted terms, largest slot reached; -1 slot overflow is reported as a
+    slot >= gain.shape[0]).
+    """
+    n_slots = gain.shape[0]
+    t = depart_s
+    g = 0.0
+    gq = 0
+    terms = 0
+    max_slot = 0
+    for i in range(edges.shape[0]):
+        e = edges[i]
+        te = edge_time[e]
+        for j in range(ec_ptr[e], ec_ptr[e + 1]):
+            entry = t + ec_frac[j] * te
+            slot = int(np.floor((entry + interval_shift_s) / interval_s)) - k0
+            if slot > max_slot:
+                max_slot = slot
+            if slot >= n_slots:
+                continue
+            c = ec_cell[j]
+            if stamp[slot, c] == stamp_id:
+                continue
+            stamp[slot, c] = stamp_id
+            if gain[slot, c] > 0.0:
+                g += gain[slot, c]
+                gq += gain_q[slot, c]
+                terms += 1
+        t += te
+    return g, gq, t - depart_s, terms, max_slot
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def eval_targets(
+    pred_edge: NDArray[np.int64],
+    tail: NDArray[np.int32],
+    targets: NDArray[np.int64],
+    depart_s: float,
+    edge_time: NDArray[np.float64],
+    edge_len: NDArray[np.float64],
+    ec_ptr: NDArray[np.int64],
+    ec_cell: NDArray[np.int32],
+    ec_frac: NDArray[np.float64],
+    interval_shift_s: float,
+    interval_s: float,
+    k0: int,
+    gain: NDArray[np.float64],
+    gain_q: NDArray[np.int64],
+    stamp: NDArray[np.int64],
+    stamp_base: int,
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], int]:
+    """``eval_path`` for the tree path to every target; unreachable targets get NaN time.
+
+    Returns gains, integer gains, travel times, lengths and the largest slot reached.
+    """
+    k = targets.shape[0]
+    out_g = np.zeros(k)
+    out_q = np.zeros(k, dtype=np.int64)
+    out_t = np.full(k, np.nan)
+    out_l = np.full(k, np.nan)
+    max_slot = 0
+    for i in range(k):
+        tgt = targets[i]
+        edges = walk_edges(pred_edge, tail, tgt)
+        g, gq, tt, _terms, ms = eval_path(
+            edges, depart_s, edge_time, ec_ptr, ec_cell, ec_frac, interval_shift_s, interval_s, k0,
+            gain, gain_q, stamp, stamp_base + i,
+        )
+        length = 0.0
+        for e in edges:
+            length += edge_len[e]
+        out_g[i] = g
+        out_q[i] = gq
+        out_t[i] = tt
+        out_l[i] = length
+        if ms > max_slot:
+            max_slot = ms
+    return out_g, out_q, out_t, out_l, max_slot
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def entered_utility(
+    ec_ptr: NDArray[np.int64], ec_cell: NDArray[np.int32], cell_value: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Per edge, the sum of ``cell_value`` over the cells the edge *enters* (all but its first cell)."""
+    m = ec_ptr.shape[0] - 1
+    out = np.zeros(m)
+    for e in range(m):
+        s = 0.0
+        for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
+            s += cell_value[ec_cell[j]]
+        out[e] = s
+    return out

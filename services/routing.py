@@ -1,0 +1,306 @@
+"""Paths on the network and the enhanced A* drive-by sensing routes (Algorithm 1 and 2; METHOD section 5).
+
+Algorithm 1 for one taxi is a best-first search on the utility-discounted cost
+``c_e = t_e (1 - kappa u_e)``; with ``u_e`` fixed for the epoch this is a static non-negative weight, so one
+one-to-many Dijkstra tree per (taxi, kappa) serves every POI at once (the straight-line A* heuristic would
+only prune the search; the tree it settles is the same). Each candidate route is then evaluated exactly
+(first visit per cell and interval) and the kappa with the largest phi = gain / time is kept; kappa = 0 is
+the plain fastest path, so the result is never worse than the fastest path.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services import kernels
+from services.city import City
+from services.model import CountsView, IntervalKey, TaxiId
+
+__all__ = [
+    "GraphArrays",
+    "graph_arrays",
+    "GainTable",
+    "gain_table",
+    "Route",
+    "plan_routes",
+    "joint_utility",
+    "improve_routes",
+    "path_nodes",
+]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class GraphArrays:
+    """Flat arrays of a city's network in the forms the kernels want (forward and reverse CSR)."""
+
+    indptr: NDArray[np.int64]
+    head: NDArray[np.int32]
+    tail: NDArray[np.int32]
+    time_s: NDArray[np.float64]
+    length_m: NDArray[np.float64]
+    rev_indptr: NDArray[np.int64]
+    rev_head: NDArray[np.int32]  # reverse edge j goes head_j <- ... i.e. to the original tail
+    rev_edge: NDArray[np.int64]  # original edge id of reverse edge j
+    rev_time_s: NDArray[np.float64]
+    ec_ptr: NDArray[np.int64]
+    ec_cell: NDArray[np.int32]
+    ec_frac: NDArray[np.float64]
+    min_speed_mps: float
+
+
+@functools.lru_cache(maxsize=16)
+def graph_arrays(city: City) -> GraphArrays:
+    """Build (once per city) the forward and reverse CSR arrays."""
+    net = city.network
+    order = np.lexsort((net.edge_u, net.edge_v))
+    rev_indptr = np.zeros(net.n_nodes + 1, dtype=np.int64)
+    np.add.at(rev_indptr, net.edge_v.astype(np.int64) + 1, 1)
+    rev_indptr = np.cumsum(rev_indptr)
+    speed = net.edge_length_m / np.maximum(net.edge_time_s, 1e-12)
+    return GraphArrays(
+        indptr=net.indptr.astype(np.int64),
+        head=net.edge_v.astype(np.int32),
+        tail=net.edge_u.astype(np.int32),
+        time_s=net.edge_time_s.astype(np.float64),
+        length_m=net.edge_length_m.astype(np.float64),
+        rev_indptr=rev_indptr,
+        rev_head=net.edge_u[order].astype(np.int32),
+        rev_edge=order.astype(np.int64),
+        rev_time_s=net.edge_time_s[order].astype(np.float64),
+        ec_ptr=city.edge_cells.ptr.astype(np.int64),
+        ec_cell=city.edge_cells.cell.astype(np.int32),
+        ec_frac=city.edge_cells.frac.astype(np.float64),
+        min_speed_mps=float(speed[speed > 0].min()) if (speed > 0).any() else 1.0,
+    )
+
+
+def path_nodes(city: City, start: int, edges: NDArray[np.int64]) -> tuple[int, ...]:
+    """Node sequence of a path given its start node and edges."""
+    if len(edges) == 0:
+        return (int(start),)
+    return (int(city.network.edge_u[edges[0]]), *(int(v) for v in city.network.edge_v[edges]))
+
+
+@dataclass(slots=True)
+class GainTable:
+    """Marginal terms mu_t s_g ((L+1)^rho - L^rho) for intervals ``k0 .. k0+S-1`` (rows) and all cells.
+
+    ``base`` ignores who is asking; ``for_taxi`` zeroes the pairs the taxi is already counted in. ``unit``
+    is the quantum of the integer copy used for exact tie-breaking (``matching``).
+    """
+
+    city: City
+    k0: int
+    base: NDArray[np.float64]
+    unit: float = 1.0
+    _shift: float = 0.0
+    _stamp: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
+    _next_stamp: int = 1
+
+    @property
+    def n_slots(self) -> int:
+        return int(self.base.shape[0])
+
+    @property
+    def shift_s(self) -> float:
+        """``interval_shift_s`` for the kernels: slot = floor((t + shift) / interval) - k0."""
+        return float(self._shift)
+
+    def for_taxi(
+        self, visited: frozenset[tuple[IntervalKey, int]] | None
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        g = self.base
+        if visited:
+            g = g.copy()
+            for k, c in visited:
+                s = int(k) - self.k0
+                if 0 <= s < g.shape[0]:
+                    g[s, c] = 0.0
+        return g, np.rint(g / self.unit).astype(np.int64)
+
+    def stamps(self, n: int) -> tuple[NDArray[np.int64], int]:
+        """A scratch array for the kernels and the first of ``n`` fresh stamp ids."""
+        if self._stamp.shape != self.base.shape:
+            self._stamp = np.zeros(self.base.shape, dtype=np.int64)
+            self._next_stamp = 1
+        first = self._next_stamp
+        self._next_stamp += n
+        return self._stamp, first
+
+
+def gain_table(
+    city: City,
+    counts: Mapping[IntervalKey, NDArray[np.int64]],
+    k0: int,
+    n_slots: int,
+    depart_s: float,
+    extra: Mapping[tuple[int, int], int] | None = None,
+) -> GainTable:
+    """Marginal terms for intervals ``k0..k0+n_slots-1`` given ``counts`` (+ ``extra`` planned visits)."""
+    rho = city.params.rho
+    n_cells = city.grid.n_cells
+    base = np.zeros((n_slots, n_cells))
+    for s in range(n_slots):
+        k = IntervalKey(k0 + s)
+        lam = counts.get(k)
+        lam_f = np.zeros(n_cells) if lam is None else lam.astype(np.float64)
+        if extra:
+            lam_f = lam_f.copy()
+            for (kk, c), n in extra.items():
+                if kk == k:
+                    lam_f[c] += n
+        base[s] = city.mu(k) * city.cell_weight * (np.power(lam_f + 1.0, rho) - np.power(lam_f, rho))
+    return GainTable(city=city, k0=k0, base=base, _shift=city.horizon.shift_s(depart_s))
+
+
+@dataclass(frozen=True, slots=True)
+class Route:
+    """One monitoring route: taxi, target node, kappa used, edges and its exact evaluation."""
+
+    taxi_id: TaxiId
+    source: int
+    target: int
+    kappa: float
+    edges: NDArray[np.int64]
+    gain: float
+    time_s: float
+    length_m: float
+
+    @property
+    def efficiency(self) -> float:
+        """phi = gain / travel time (Eq. 12); 0 for a zero-length route."""
+        return self.gain / self.time_s if self.time_s > 0 else 0.0
+
+
+def _kappa_costs(
+    ga: GraphArrays, cell_value: NDArray[np.float64], kappas: Sequence[float]
+) -> list[tuple[float, NDArray[np.float64]]]:
+    """Edge costs t_e (1 - kappa u_e) for each kappa; kappas > 0 are dropped when u is all zero."""
+    u = kernels.entered_utility(ga.ec_ptr, ga.ec_cell, cell_value)
+    umax = float(u.max()) if len(u) else 0.0
+    out: list[tuple[float, NDArray[np.float64]]] = []
+    for kappa in kappas:
+        if kappa == 0.0:
+            out.append((0.0, ga.time_s))
+        elif umax > 0.0:
+            out.append((float(kappa), ga.time_s * (1.0 - kappa * (u / umax))))
+    return out
+
+
+def plan_routes(
+    city: City,
+    table: GainTable,
+    taxi_id: TaxiId,
+    source: int,
+    visited: frozenset[tuple[IntervalKey, int]] | None,
+    targets: NDArray[np.int64],
+    depart_s: float,
+) -> tuple[list[Route], int]:
+    """Algorithm 1 from one taxi to every target: the best-phi route over the kappa family.
+
+    Returns one ``Route`` per target (same order) and the largest interval slot any route reached.
+    Ties in phi keep the smaller kappa, so kappa = 0 (the fastest path) wins unless beaten.
+    """
+    ga = graph_arrays(city)
+    gain, gain_q = table.for_taxi(visited)
+    best: list[Route | None] = [None] * len(targets)
+    max_slot = 0
+    interval_s = float(city.horizon.interval_s)
+    for kappa, cost in _kappa_costs(ga, gain[0], city.params.kappas):
+        _dist, pred = kernels.dijkstra(ga.indptr, ga.head, cost, source, np.inf, targets)
+        stamp, first = table.stamps(len(targets))
+        g, _gq, t, length, ms = kernels.eval_targets(
+            pred, ga.tail, targets, depart_s, ga.time_s, ga.length_m, ga.ec_ptr, ga.ec_cell, ga.ec_frac,
+            table.shift_s, interval_s, table.k0, gain, gain_q, stamp, first,
+        )
+        max_slot = max(max_slot, int(ms))
+        for i, tgt in enumerate(targets):
+            if np.isnan(t[i]):
+                continue
+            cand_eff = g[i] / t[i] if t[i] > 0 else 0.0
+            cur = best[i]
+            if cur is None or cand_eff > cur.efficiency:
+                edges = kernels.walk_edges(pred, ga.tail, int(tgt))
+                best[i] = Route(taxi_id, source, int(tgt), kappa, edges, float(g[i]), float(t[i]), float(length[i]))
+    missing = [int(targets[i]) for i, r in enumerate(best) if r is None]
+    if missing:
+        raise ValueError(f"targets unreachable from node {source}: {missing[:5]}")
+    return [r for r in best if r is not None], max_slot
+
+
+def route_pairs(
+    city: City, route: Route, visited: frozenset[tuple[IntervalKey, int]] | None, depart_s: float
+) -> set[tuple[int, int]]:
+    """The (interval, cell) pairs a route would add to Lambda (first visits not already counted)."""
+    from services.sensing import timed_cells
+
+    tc = timed_cells(city, route.edges, depart_s)
+    seen = visited or frozenset()
+    return {p for p in tc.pairs() if p not in seen}
+
+
+def joint_utility(
+    city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], pair_sets: Sequence[set[tuple[int, int]]]
+) -> float:
+    """Marginal Gamma of several taxis' routes together: sum mu s ((L + n)^rho - L^rho), n = taxis per pair."""
+    n: Counter[tuple[int, int]] = Counter()
+    for ps in pair_sets:
+        n.update(ps)
+    rho = city.params.rho
+    total = 0.0
+    for (k, c), cnt in n.items():
+        lam_arr = counts.get(IntervalKey(k))
+        lam = float(lam_arr[c]) if lam_arr is not None else 0.0
+        total += city.mu(k) * float(city.cell_weight[c]) * ((lam + cnt) ** rho - lam**rho)
+    return total
+
+
+def improve_routes(
+    city: City,
+    counts: CountsView,
+    routes: list[Route],
+    depart_s: float,
+    n_slots: int,
+) -> tuple[list[Route], list[float], int]:
+    """Algorithm 2: re-plan each taxi's route against the others' planned visits; keep improvements.
+
+    Each taxi keeps its POI. A re-planned route replaces the current one only if the joint utility of all
+    routes rises. Stops after a pass without change or ``max_iter`` passes. Returns the routes, the joint
+    utility after the initial matching and after every pass (non-decreasing), and the number of passes.
+    """
+    k0 = int(city.horizon.intervals_of(np.array([depart_s]))[0])
+    visited = [counts.visited.get(r.taxi_id, frozenset()) for r in routes]
+    pairs = [route_pairs(city, r, v, depart_s) for r, v in zip(routes, visited, strict=True)]
+    history = [joint_utility(city, counts.counts, pairs)]
+    passes = 0
+    for _ in range(city.params.max_iter):
+        passes += 1
+        changed = False
+        for i, r in enumerate(routes):
+            others: Counter[tuple[int, int]] = Counter()
+            for j, ps in enumerate(pairs):
+                if j != i:
+                    others.update(ps)
+            table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra=others)
+            (cand,), _ = plan_routes(
+                city, table, r.taxi_id, r.source, visited[i], np.array([r.target], dtype=np.int64), depart_s
+            )
+            if np.array_equal(cand.edges, r.edges):
+                continue
+            cand_pairs = route_pairs(city, cand, visited[i], depart_s)
+            trial = [*pairs[:i], cand_pairs, *pairs[i + 1 :]]
+            u_new = joint_utility(city, counts.counts, trial)
+            if u_new > history[-1] * (1 + 1e-12) + 1e-300:
+                routes[i] = cand
+                pairs[i] = cand_pairs
+                history.append(u_new)
+                changed = True
+        if not changed:
+            break
+    return routes, history, passes
