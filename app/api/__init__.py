@@ -1,0 +1,1 @@
+"""HTTP layer: routers, dependencies, auth, error rendering and the body-size limit."""

@@ -1,0 +1,93 @@
+"""Annotated dependencies: the use cases, metrics, settings and bearer-token auth with scopes."""
+
+from __future__ import annotations
+
+import hmac
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, Path, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from app.errors import Forbidden, Unauthorized
+from app.metrics import Metrics
+from app.settings import Scope, Settings
+from app.usecases import DispatchService
+
+__all__ = [
+    "Principal",
+    "ServiceDep",
+    "MetricsDep",
+    "SettingsDep",
+    "ReadAccess",
+    "DispatchAccess",
+    "CityName",
+]
+
+
+def get_service(request: Request) -> DispatchService:
+    """The app's use cases."""
+    service: DispatchService = request.app.state.service
+    return service
+
+
+def get_metrics(request: Request) -> Metrics:
+    """The app's metrics."""
+    metrics: Metrics = request.app.state.metrics
+    return metrics
+
+
+def get_settings(request: Request) -> Settings:
+    """The app's settings."""
+    settings: Settings = request.app.state.settings
+    return settings
+
+
+ServiceDep = Annotated[DispatchService, Depends(get_service)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+
+_bearer = HTTPBearer(
+    auto_error=False,
+    description="A token from SD_TOKENS; GET /v1/... needs scope `read`, POST needs `dispatch`.",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Principal:
+    """An authenticated caller (identified by a token prefix, never the whole token)."""
+
+    name: str
+    scopes: frozenset[Scope]
+
+
+def _principal(
+    settings: SettingsDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> Principal:
+    if credentials is None or not credentials.credentials:
+        raise Unauthorized("missing bearer token (Authorization: Bearer <token>)")
+    given = credentials.credentials.encode()
+    match: list[Scope] | None = None
+    for token, scopes in settings.tokens.items():
+        if hmac.compare_digest(token.encode(), given):
+            match = scopes
+    if match is None:
+        raise Unauthorized("unknown bearer token")
+    return Principal(name=credentials.credentials[:4] + "…", scopes=frozenset(match))
+
+
+def _require(scope: Scope) -> Callable[[Principal], Principal]:
+    def check(principal: Annotated[Principal, Depends(_principal)]) -> Principal:
+        if scope not in principal.scopes:
+            raise Forbidden(f"this token lacks the {scope!r} scope")
+        return principal
+
+    check.__name__ = f"require_{scope}"
+    return check
+
+
+ReadAccess = Annotated[Principal, Depends(_require("read"))]
+DispatchAccess = Annotated[Principal, Depends(_require("dispatch"))]
+CityName = Annotated[str, Path(min_length=1, max_length=64, description="City name, e.g. chengdu.")]

@@ -1,0 +1,81 @@
+"""Write routes: register monitoring tasks and post decision epochs (scope `dispatch`)."""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Response
+
+from app.api.deps import CityName, DispatchAccess, MetricsDep, ServiceDep
+from app.api.responses import WRITE_ERRORS
+from app.errors import ServiceError
+from app.ports import StoreUnavailable
+from app.schemas import EpochIn, EpochOut, TaskIn, TasksPutOut
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/v1/cities", tags=["dispatch"], responses=WRITE_ERRORS)
+
+
+@router.post("/{city}/tasks", response_model=TasksPutOut, summary="Register monitoring tasks")
+def post_tasks(
+    city: CityName,
+    tasks: Annotated[list[TaskIn], Body(description="Tasks to register; idempotent per id.")],
+    _: DispatchAccess,
+    service: ServiceDep,
+) -> TasksPutOut:
+    """Register tasks: an id already stored with the same content is unchanged, with other content 409."""
+    return service.put_tasks(city, tasks)
+
+
+@router.post(
+    "/{city}/epochs",
+    response_model=EpochOut,
+    summary="Solve and commit one decision epoch",
+    responses={
+        200: {
+            "description": "The decision; a replay of a committed epoch returns the stored decision.",
+            "headers": {
+                "Idempotent-Replayed": {
+                    "description": "`true` when this is the stored response of an earlier identical post.",
+                    "schema": {"type": "string", "enum": ["true"]},
+                }
+            },
+        }
+    },
+)
+def post_epoch(
+    city: CityName,
+    epoch: Annotated[EpochIn, Body()],
+    _: DispatchAccess,
+    service: ServiceDep,
+    metrics: MetricsDep,
+) -> Response:
+    """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
+    started = time.perf_counter()
+    try:
+        outcome = service.submit_epoch(city, epoch)
+    except ServiceError as err:
+        metrics.epochs.labels(outcome=err.kind).inc()
+        raise
+    except StoreUnavailable:
+        metrics.epochs.labels(outcome="store_unavailable").inc()
+        raise
+    except Exception:
+        metrics.epochs.labels(outcome="error").inc()
+        raise
+    finally:
+        metrics.epoch_latency.observe(time.perf_counter() - started)
+    headers: dict[str, str] = {}
+    if outcome.replayed:
+        metrics.epochs.labels(outcome="replayed").inc()
+        headers["Idempotent-Replayed"] = "true"
+    else:
+        metrics.epochs.labels(outcome="committed").inc()
+        for step, n in outcome.matches_by_step.items():
+            metrics.matches.labels(step=str(step)).inc(n)
+        metrics.task_assignments.inc(outcome.n_task_assignments)
+        if outcome.attempts > 1:
+            metrics.commit_retries.inc(outcome.attempts - 1)
+    return Response(content=outcome.response_json, media_type="application/json", headers=headers)

@@ -1,0 +1,107 @@
+"""The one error renderer: every failure becomes ``{"error", "detail", "fields"}`` with its status."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from app.errors import (
+    BadRequest,
+    FieldIssue,
+    InternalError,
+    InvalidInput,
+    MethodNotAllowed,
+    NotFound,
+    ServiceError,
+    StoreUnavailableError,
+    UnsupportedMediaType,
+    format_loc,
+)
+from app.metrics import Metrics
+from app.ports import StoreUnavailable
+
+__all__ = ["install_error_handlers", "error_response", "from_validation_errors"]
+
+log = logging.getLogger(__name__)
+
+_SOURCES = {"body", "query", "path", "header", "cookie"}
+
+
+def error_response(err: ServiceError, metrics: Metrics | None = None) -> JSONResponse:
+    """Render ``err`` (and count it)."""
+    if metrics is not None:
+        metrics.errors.labels(kind=err.kind).inc()
+    return JSONResponse(err.body(), status_code=err.status, headers=dict(err.headers) or None)
+
+
+def _msg(error: dict[str, Any]) -> str:
+    msg = str(error.get("msg", "invalid"))
+    return msg.removeprefix("Value error, ")
+
+
+def from_validation_errors(errors: Any) -> ServiceError:
+    """Turn pydantic/FastAPI validation errors into one ``ServiceError`` (400 for unparsable JSON)."""
+    issues: list[FieldIssue] = []
+    for error in errors:
+        loc = list(error.get("loc", ()))
+        if error.get("type") == "json_invalid":
+            ctx = error.get("ctx") or {}
+            return BadRequest(
+                f"the body is not valid JSON: {ctx.get('error', 'parse error')}", [FieldIssue("body", _msg(error))]
+            )
+        if loc == ["body"] and isinstance(error.get("input"), bytes | bytearray):
+            # FastAPI hands over raw bytes when the Content-Type is not JSON
+            return UnsupportedMediaType(
+                "send the body as JSON with Content-Type: application/json",
+                [FieldIssue("body", "not application/json")],
+            )
+        if loc and loc[0] in _SOURCES:
+            loc = loc[1:]
+        issues.append(FieldIssue(format_loc(loc) or "body", _msg(error)))
+    first = issues[0] if issues else FieldIssue("body", "invalid")
+    more = f" (and {len(issues) - 1} more)" if len(issues) > 1 else ""
+    return InvalidInput(f"{first.loc}: {first.msg}{more}", issues)
+
+
+def install_error_handlers(app: FastAPI, metrics: Metrics) -> None:
+    """Route every exception type through ``error_response``."""
+
+    async def service_error(_: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, ServiceError)
+        return error_response(exc, metrics)
+
+    async def validation_error(_: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, RequestValidationError)
+        return error_response(from_validation_errors(exc.errors()), metrics)
+
+    async def http_error(_: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, StarletteHTTPException)
+        err: ServiceError
+        if exc.status_code == 404:
+            err = NotFound("no such route")
+        elif exc.status_code == 405:
+            err = MethodNotAllowed("method not allowed on this route")
+        elif 400 <= exc.status_code < 500:
+            err = BadRequest(str(exc.detail))
+        else:
+            err = InternalError(str(exc.detail))
+        return error_response(err, metrics)
+
+    async def store_unavailable(_: Request, exc: Exception) -> JSONResponse:
+        log.warning("store unavailable: %s", exc)
+        return error_response(StoreUnavailableError(f"the store cannot be reached: {exc}"), metrics)
+
+    async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
+        return error_response(InternalError(f"internal error ({type(exc).__name__}); it has been logged"), metrics)
+
+    app.add_exception_handler(ServiceError, service_error)
+    app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(StoreUnavailable, store_unavailable)
+    app.add_exception_handler(Exception, unexpected)

@@ -1,0 +1,69 @@
+"""ASGI middleware that refuses bodies above ``max_body_bytes`` (by Content-Length and by actual bytes)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from app.errors import BadRequest, PayloadTooLarge, ServiceError
+
+__all__ = ["BodyLimit"]
+
+
+class BodyLimit:
+    """Buffer a request body up to ``max_bytes``; answer 413 above, without calling the app."""
+
+    def __init__(
+        self, app: ASGIApp, max_bytes: int, render: Callable[[ServiceError], ASGIApp]
+    ) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+        self.render = render
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Check the declared and the actual size, then replay the buffered body to the app."""
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = None
+        for name, value in scope.get("headers", []):
+            if name == b"content-length":
+                try:
+                    declared = int(value)
+                except ValueError:
+                    await self.render(BadRequest("invalid Content-Length header"))(scope, receive, send)
+                    return
+        too_large = PayloadTooLarge(f"request body exceeds {self.max_bytes} bytes")
+        if declared is not None and declared > self.max_bytes:
+            await self.render(too_large)(scope, receive, send)
+            return
+        chunks: list[bytes] = []
+        size = 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":
+                # client went away: hand the app the disconnect
+                await self.app(scope, _replay([message], receive), send)
+                return
+            body = message.get("body", b"")
+            size += len(body)
+            if size > self.max_bytes:
+                await self.render(too_large)(scope, receive, send)
+                return
+            chunks.append(body)
+            if not message.get("more_body", False):
+                break
+        whole: Message = {"type": "http.request", "body": b"".join(chunks), "more_body": False}
+        await self.app(scope, _replay([whole], receive), send)
+
+
+def _replay(messages: list[Message], receive: Receive) -> Receive:
+    pending = list(messages)
+
+    async def replayed() -> Message:
+        if pending:
+            return pending.pop(0)
+        return await receive()
+
+    return replayed

@@ -1,0 +1,47 @@
+"""Operational routes: liveness, readiness and Prometheus metrics (no auth)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Response
+
+from app.api.deps import MetricsDep, ServiceDep, SettingsDep
+from app.api.responses import errors
+from app.errors import Unavailable
+from app.metrics import CONTENT_TYPE
+from app.schemas import HealthOut, ReadyOut
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["ops"])
+
+
+@router.get("/healthz", response_model=HealthOut, summary="The process is up")
+def healthz() -> HealthOut:
+    """Liveness: answers as long as the process serves requests."""
+    return HealthOut(status="ok")
+
+
+@router.get("/readyz", response_model=ReadyOut, summary="Store reachable and cities loaded", responses=errors(503))
+def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
+    """Readiness: the store answers a ping and every city loads (503 otherwise)."""
+    service.store.ping()
+    names = service.city_names()
+    if not names:
+        raise Unavailable("no cities are installed")
+    for name in names:
+        try:
+            service.city(name)
+        except Exception as exc:  # a broken city bundle makes the instance not ready, not crashed
+            raise Unavailable(f"city {name!r} failed to load: {exc}") from exc
+    return ReadyOut(status="ready", store=settings.store, cities=names)
+
+
+@router.get(
+    "/metrics",
+    summary="Prometheus metrics",
+    response_class=Response,
+    responses={200: {"content": {CONTENT_TYPE.split(";")[0]: {"schema": {"type": "string"}}}}},
+)
+def metrics(m: MetricsDep) -> Response:
+    """Prometheus text exposition of this instance's metrics."""
+    return Response(content=m.render(), media_type=CONTENT_TYPE)

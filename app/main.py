@@ -1,0 +1,121 @@
+"""Composition root: ``create_app(settings, registry=None, store=None)`` wires settings, cities, store and API."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from starlette.types import ASGIApp
+
+from app.api import cities, dispatch, ops
+from app.api.handlers import error_response, install_error_handlers
+from app.api.limits import BodyLimit
+from app.errors import ServiceError
+from app.metrics import Metrics
+from app.ports import Store
+from app.settings import Settings
+from app.usecases import CityCatalog, DecideFn, DispatchService, Limits
+
+__all__ = ["create_app", "make_store", "make_registry", "API_VERSION"]
+
+log = logging.getLogger(__name__)
+
+API_VERSION = "1.0.0"
+
+_DESCRIPTION = """\
+Online dispatch for ride-hailing fleets that do drive-by sensing: every decision epoch the platform posts
+waiting riders and taxis; the service answers with a three-step priority matching (instrumented taxis
+first, by sensing gain), sensing-aware monitoring routes to points of interest, and keeps the grid counts
+of distinct instrumented vehicles per cell and interval, committing every epoch exactly once.
+
+Errors always have the shape `{"error": kind, "detail": text, "fields": [{"loc", "msg"}]}`.
+"""
+
+
+def make_store(settings: Settings) -> Store:
+    """The store the settings ask for."""
+    if settings.store == "redis":
+        from app.adapters.redis_store import RedisStore
+
+        return RedisStore(settings.redis_url)
+    from app.adapters.memory_store import MemoryStore
+
+    return MemoryStore()
+
+
+def make_registry(settings: Settings) -> CityCatalog:
+    """The city registry: bundled cities plus the user directory."""
+    from app.cities import BUNDLED_DIR, CityRegistry
+
+    return CityRegistry(settings.bundled_cities_dir or BUNDLED_DIR, settings.cities_dir)
+
+
+def _default_decide() -> DecideFn:
+    from services.dispatch import decide
+
+    return decide
+
+
+def create_app(
+    settings: Settings | None = None,
+    registry: CityCatalog | None = None,
+    store: Store | None = None,
+    *,
+    decide: DecideFn | None = None,
+) -> FastAPI:
+    """Build the FastAPI app; a store passed in is the caller's to close, one built here is closed here."""
+    settings = settings or Settings()
+    owns_store = store is None
+    the_store = store if store is not None else make_store(settings)
+    the_registry = registry if registry is not None else make_registry(settings)
+    metrics = Metrics()
+    service = DispatchService(
+        the_registry,
+        the_store,
+        decide or _default_decide(),
+        limits=Limits(settings.max_riders, settings.max_taxis, settings.max_tasks),
+        retention_s=settings.retention_s,
+        commit_attempts=settings.commit_attempts,
+    )
+
+    @asynccontextmanager
+    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        # load the cities in the background so the first request (and /readyz) find them ready
+        threading.Thread(target=_warm, args=(the_registry,), name="warm-cities", daemon=True).start()
+        try:
+            yield
+        finally:
+            if owns_store:
+                the_store.close()
+
+    app = FastAPI(
+        title="sensedispatch",
+        version=API_VERSION,
+        description=_DESCRIPTION,
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.service = service
+    app.state.metrics = metrics
+    install_error_handlers(app, metrics)
+
+    def render(err: ServiceError) -> ASGIApp:
+        return error_response(err, metrics)
+
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes, render=render)
+    app.include_router(ops.router)
+    app.include_router(cities.router)
+    app.include_router(dispatch.router)
+    return app
+
+
+def _warm(registry: CityCatalog) -> None:
+    """Load every city once (errors surface later, per request and in /readyz)."""
+    for name in registry.names():
+        try:
+            registry.get(name)
+        except Exception:
+            log.exception("city %s failed to load", name)

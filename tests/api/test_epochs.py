@@ -1,0 +1,238 @@
+"""Exactly-once epochs over HTTP: commit, replay, conflicts, stale epochs, retries; on both stores."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import pytest
+
+from app.adapters import MemoryStore
+from app.ports import CityState, CommitResult, EpochCommit, Store
+from services.model import IntervalKey, TaxiId
+from tests.api import payloads
+from tests.api.conftest import CITY, MakeClient, auth, fingerprint
+from tests.api.fakes import FakeDecide, node_id
+
+URL = f"/v1/cities/{CITY}/epochs"
+
+
+def test_full_epoch_commits_counts_and_tasks(make_client: MakeClient, any_store: Store) -> None:
+    client = make_client(store=any_store)
+    assert client.post(f"/v1/cities/{CITY}/tasks", json=payloads.tasks(), headers=auth()).status_code == 200
+    r = client.post(URL, json=payloads.epoch(), headers=auth())
+    assert r.status_code == 200, r.text
+    assert "Idempotent-Replayed" not in r.headers
+    body = r.json()
+    assert set(body) == {"epoch_id", "time", "rider_matches", "task_assignments", "tasks_completed",
+                         "unmatched_rider_ids", "expired_rider_ids", "stats"}
+    assert body["epoch_id"] == "e1"
+    m1, m2 = body["rider_matches"]
+    assert (m1["step"], m1["taxi_id"], m1["rider_id"]) == (1, "t0", "r1")
+    assert m1["path"] == [node_id(0, 1), node_id(0, 0), node_id(4, 4)]  # external ids
+    assert (m2["step"], m2["taxi_id"], m2["rider_id"]) == (2, "t1", "r2")
+    assert m2["path"][1] == node_id(3, 3)  # lon/lat snapped to the nearest node
+    assert [t["id"] for t in body["tasks_completed"]] == ["poi-a"]
+    assert body["tasks_completed"][0]["mode"] == "passive"
+    stats = body["stats"]
+    assert stats["step1_matches"] == 1 and stats["step2_matches"] == 1
+    assert stats["interval"] == "2026-11-23T08:00" and stats["gamma"] == 0.25
+    assert "solve_ms" in stats
+
+    state = any_store.load_state(CITY, any_store.list_intervals(CITY), [TaxiId("t0")])
+    assert state.version == 1 and state.last_epoch_id == "e1"
+    assert sum(sum(c.values()) for c in state.counts.values()) == 2  # t0 crossed two cells
+    tasks = {t["id"]: t for t in client.get(f"/v1/cities/{CITY}/tasks", headers=auth()).json()["tasks"]}
+    assert tasks["poi-a"]["status"] == "completed" and tasks["poi-a"]["taxi_id"] == "t0"
+    assert tasks["poi-b"]["status"] == "pending"
+
+
+def test_replay_returns_stored_response_and_changes_nothing(make_client: MakeClient, any_store: Store) -> None:
+    decide = FakeDecide()
+    client = make_client(store=any_store, decide=decide)
+    first = client.post(URL, json=payloads.epoch(), headers=auth())
+    before = fingerprint(any_store)
+    again = client.post(URL, json=payloads.epoch(), headers=auth())
+    assert again.status_code == 200
+    assert again.headers["Idempotent-Replayed"] == "true"
+    assert again.content == first.content
+    assert fingerprint(any_store) == before
+    assert len(decide.calls) == 1  # not solved again
+
+
+def test_same_id_different_body_is_409(make_client: MakeClient, any_store: Store) -> None:
+    client = make_client(store=any_store)
+    client.post(URL, json=payloads.epoch(), headers=auth())
+    before = fingerprint(any_store)
+    changed = payloads.epoch()
+    changed["taxis"][1]["status"] = "busy"
+    r = client.post(URL, json=changed, headers=auth())
+    assert r.status_code == 409
+    assert r.json()["error"] == "epoch_conflict"
+    assert r.json()["fields"][0]["loc"] == "epoch_id"
+    assert fingerprint(any_store) == before
+
+
+def test_stale_epoch_is_409(make_client: MakeClient, any_store: Store) -> None:
+    client = make_client(store=any_store)
+    assert client.post(URL, json=payloads.epoch("e2", 10), headers=auth()).status_code == 200
+    before = fingerprint(any_store)
+    r = client.post(URL, json=payloads.epoch("e1", 5), headers=auth())
+    assert r.status_code == 409
+    assert r.json()["error"] == "stale_epoch" and r.json()["fields"][0]["loc"] == "time"
+    assert fingerprint(any_store) == before
+    # the same time as the last epoch is not stale
+    assert client.post(URL, json=payloads.epoch("e3", 10), headers=auth()).status_code == 200
+
+
+def test_visits_counted_once_per_taxi_and_interval(make_client: MakeClient, any_store: Store) -> None:
+    client = make_client(store=any_store)
+    client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
+    client.post(URL, json=payloads.epoch("e2", 3.33), headers=auth())  # same interval, same taxi, same cells
+    counts = any_store.interval_counts(CITY, any_store.list_intervals(CITY)[0])
+    assert sorted(counts.values()) == [1, 1]
+
+
+def test_loads_epoch_interval_and_next_two(make_client: MakeClient) -> None:
+    decide = FakeDecide()
+    client = make_client(decide=decide)
+    r = client.post(URL, json=payloads.epoch(), headers=auth())
+    k = r.json()["stats"]["interval_key"]
+    assert decide.calls[0]["intervals"] == [k, k + 1, k + 2]
+
+
+def test_reloads_and_solves_again_when_decision_reaches_further(make_client: MakeClient) -> None:
+    store = MemoryStore()
+    decide = FakeDecide(extra_intervals=[5])
+    client = make_client(store=store, decide=decide)
+    r = client.post(URL, json=payloads.epoch(), headers=auth())
+    assert r.status_code == 200
+    k = r.json()["stats"]["interval_key"]
+    assert [c["intervals"] for c in decide.calls] == [[k, k + 1, k + 2], [k, k + 1, k + 2, k + 5]]
+    assert fingerprint(store)[0] == 1
+
+
+class RacingStore:
+    """A MemoryStore on which another process commits an epoch between our load and our commit,
+    ``races`` times (or forever)."""
+
+    def __init__(self, races: int | None) -> None:
+        self.inner = MemoryStore()
+        self.races = races
+        self.commits = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def load_state(self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]) -> CityState:
+        state = self.inner.load_state(city, intervals, taxi_ids)
+        if self.races is None or self.races > 0:
+            if self.races is not None:
+                self.races -= 1
+            other = EpochCommit(f"other-{self.commits}", "h", 0.0, state.version, (), (), "{}")
+            assert self.inner.commit_epoch(city, other).status == "committed"
+        return state
+
+    def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
+        self.commits += 1
+        return self.inner.commit_epoch(city, commit)
+
+
+def test_version_mismatch_solves_again(make_client: MakeClient) -> None:
+    store = RacingStore(races=2)
+    decide = FakeDecide()
+    client = make_client(store=store, decide=decide)  # type: ignore[arg-type]
+    r = client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
+    assert r.status_code == 200, r.text
+    assert len(decide.calls) == 3 and r.json()["stats"]["attempts"] == 3
+    assert "sd_commit_retries_total 2.0" in client.get("/metrics").text
+
+
+def test_endless_version_mismatch_is_503_busy(make_client: MakeClient) -> None:
+    store = RacingStore(races=None)
+    decide = FakeDecide()
+    client = make_client(store=store, decide=decide, commit_attempts=8)  # type: ignore[arg-type]
+    r = client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
+    assert r.status_code == 503
+    assert r.json()["error"] == "busy"
+    assert len(decide.calls) == 8
+    assert store.inner.get_epoch(CITY, "e1") is None
+
+
+def test_duplicate_at_commit_is_a_replay(make_client: MakeClient) -> None:
+    """Two identical posts racing: the loser's commit finds the winner's record and replays it."""
+    store = MemoryStore()
+    decide = FakeDecide()
+    client = make_client(store=store, decide=decide)
+    first = client.post(URL, json=payloads.epoch(), headers=auth())
+
+    class Late:
+        def __getattr__(self, name: str) -> Any:
+            return getattr(store, name)
+
+        def get_epoch(self, city: str, epoch_id: str) -> None:
+            return None  # as if the winner had not committed yet when we looked
+
+    late = make_client(store=Late(), decide=FakeDecide())  # type: ignore[arg-type]
+    r = late.post(URL, json=payloads.epoch(), headers=auth())
+    assert r.status_code == 200 and r.headers["Idempotent-Replayed"] == "true"
+    assert r.content == first.content
+    changed = payloads.epoch()
+    changed["riders"] = []
+    assert late.post(URL, json=changed, headers=auth()).json()["error"] == "epoch_conflict"
+
+
+def test_demand_recorded_for_the_worker(make_client: MakeClient) -> None:
+    store = MemoryStore()
+    client = make_client(store=store)
+    client.post(URL, json=payloads.epoch(), headers=auth())
+    import json
+
+    (doc,) = [json.loads(d) for d in store.recorded_demand(CITY, "20261123")]
+    assert doc["epoch_id"] == "e1"
+    assert [(r["id"], r["origin"], r["destination"]) for r in doc["riders"]] == [
+        ("r1", node_id(0, 0), node_id(4, 4)), ("r2", node_id(3, 3), node_id(1, 0))
+    ]
+
+
+def test_unknown_exception_is_500_with_the_error_shape(make_client: MakeClient) -> None:
+    store = MemoryStore()
+    client = make_client(store=store, decide=FakeDecide(fail=RuntimeError("boom")), raise_errors=False)
+    before = fingerprint(store)
+    r = client.post(URL, json=payloads.epoch(), headers=auth())
+    assert r.status_code == 500
+    assert r.json() == {"error": "internal", "detail": r.json()["detail"], "fields": []}
+    assert "RuntimeError" in r.json()["detail"]
+    assert fingerprint(store) == before
+    assert 'sd_epochs_total{outcome="error"} 1.0' in client.get("/metrics").text
+
+
+@pytest.mark.parametrize("n_epochs", [3])
+def test_sequence_of_epochs_on_redis(make_client: MakeClient, redis_store: Store, n_epochs: int) -> None:
+    client = make_client(store=redis_store)
+    for i in range(n_epochs):
+        r = client.post(URL, json=payloads.epoch(f"e{i}", 20 * i), headers=auth())
+        assert r.status_code == 200, r.text
+    st = redis_store.load_state(CITY, [], [])
+    assert (st.version, st.last_epoch_id) == (n_epochs, f"e{n_epochs - 1}")
+    r = client.get(f"/v1/cities/{CITY}/coverage", headers=auth())
+    assert r.status_code == 200 and r.json()["interval"] == "2026-11-23T08:00"
+
+
+def test_commit_carries_retention(make_client: MakeClient) -> None:
+    seen: list[EpochCommit] = []
+    inner = MemoryStore()
+
+    class Spy:
+        def __getattr__(self, name: str) -> Any:
+            return getattr(inner, name)
+
+        def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
+            seen.append(commit)
+            return inner.commit_epoch(city, commit)
+
+    client = make_client(store=Spy(), retention_s=7200)  # type: ignore[arg-type]
+    client.post(URL, json=payloads.epoch(), headers=auth())
+    assert seen[0].retention_s == 7200
+    assert dataclasses.asdict(seen[0])["expected_version"] == 0
