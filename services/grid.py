@@ -43,6 +43,16 @@ _MIN_PIECE_M = 1e-9
 
 @dataclass(frozen=True, slots=True)
 class Grid:
+    """A square grid in a network's projected plane (see the module docstring for the cell rules).
+
+    Attributes
+    ----------
+    crs : str               projection of the coordinates (the network's)
+    origin_x_m, origin_y_m : float  lower-left corner, multiples of ``cell_m``
+    cell_m : float          side of a cell in metres
+    n_cols, n_rows : int    cells are ``row * n_cols + col``, rows growing northward
+    """
+
     crs: str
     origin_x_m: float  # lower-left corner, a multiple of cell_m
     origin_y_m: float

@@ -9,6 +9,7 @@ node in the projected plane (METHOD section 2): :meth:`Network.snap`, :meth:`Net
 
 from __future__ import annotations
 
+import operator
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -122,7 +123,7 @@ class Network:
 
     # ------------------------------------------------------------------ ids
 
-    def index_of(self, node_id: int) -> int:
+    def index_of(self, node_id: int | np.integer[Any]) -> int:
         """Index of the node with external id ``node_id``.
 
         Raises
@@ -134,8 +135,8 @@ class Network:
         if not index and self.n_nodes:
             index.update(zip(self.node_ids.tolist(), range(self.n_nodes), strict=True))
         try:
-            return index[int(node_id)]
-        except (KeyError, TypeError, ValueError):
+            return index[operator.index(node_id)]  # an int or numpy integer; never a float truncated
+        except (KeyError, TypeError):
             raise SnapError(f"unknown node id {node_id!r}") from None
 
     # ----------------------------------------------------------- projection

@@ -81,6 +81,9 @@ def test_build_rejects_bad_input() -> None:
 def test_index_of_unknown_raises_snap_error() -> None:
     with pytest.raises(SnapError, match="unknown node id 11"):
         square().index_of(11)
+    with pytest.raises(SnapError, match="unknown node id 10.5"):
+        square().index_of(10.5)  # type: ignore[arg-type]
+    assert square().index_of(np.int64(30)) == 2
 
 
 def test_largest_strongly_connected() -> None:
