@@ -35,14 +35,22 @@ from services.model import (
     Taxi,
     Visit,
 )
-from services.routing import GainTable, Route, gain_table, graph_arrays, improve_routes, path_nodes, plan_routes
+from services.routing import (
+    GainTable,
+    Route,
+    gain_table,
+    graph_arrays,
+    improve_routes,
+    path_nodes,
+    plan_routes,
+)
 from services.sensing import timed_cells
 from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
 
 __all__ = ["decide", "INITIAL_SLOTS"]
 
 INITIAL_SLOTS = 3
-"""Intervals (from the epoch's own) that gains are first tabulated for; more are added if a path needs them."""
+"""Intervals (from the epoch's own) whose gains are tabulated first; more are added if a path needs them."""
 
 _WAIT_UNIT_S = 1e-3  # waits are compared to the millisecond
 
@@ -64,31 +72,56 @@ def _g_route(city: City, edges: NDArray[np.int64]) -> tuple[tuple[int, int], ...
     return tuple(city.grid.col_row(int(c)) for c in cells[np.sort(first)])
 
 
-def _pickup_legs(
-    city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]
-) -> dict[tuple[int, int], _Leg]:
-    """(taxi index, rider index) -> fastest pickup leg, for pairs within the matching radius."""
+@dataclass(frozen=True, slots=True)
+class _Pickups:
+    """Candidate pairs within the radius: (taxi index, rider index) -> (pickup length, wait), and per
+    rider the in-tree toward its origin from which a pickup leg is read off when the pair is matched."""
+
+    pairs: dict[tuple[int, int], tuple[float, float]]
+    succ: list[NDArray[np.int64]]
+    taxi_nodes: NDArray[np.int64]
+
+    def leg(self, city: City, i: int, j: int) -> _Leg:
+        ga = graph_arrays(city)
+        edges = kernels.walk_succ(self.succ[j], ga.head, int(self.taxi_nodes[i]))
+        length, wait = self.pairs[(i, j)]
+        return _Leg(edges, length, wait)
+
+
+def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> _Pickups:
+    """Fastest pickup paths of every taxi within the matching radius of every rider (one in-tree each)."""
     ga = graph_arrays(city)
     radius = city.params.radius_m
     limit_s = radius / ga.min_speed_mps * (1 + 1e-9)
     taxi_nodes = np.array([t.node for t in taxis], dtype=np.int64)
     none = np.zeros(0, dtype=np.int64)
-    legs: dict[tuple[int, int], _Leg] = {}
+    pairs: dict[tuple[int, int], tuple[float, float]] = {}
+    succ: list[NDArray[np.int64]] = []
     for j, rider in enumerate(riders):
-        dist, pred_rev = kernels.dijkstra(ga.rev_indptr, ga.rev_head, ga.rev_time_s, rider.origin, limit_s, none)
-        succ = np.where(pred_rev >= 0, ga.rev_edge[np.maximum(pred_rev, 0)], -1)
-        for i in np.flatnonzero(np.isfinite(dist[taxi_nodes])):
-            edges = kernels.walk_succ(succ, ga.head, int(taxi_nodes[i]))
-            length = float(ga.length_m[edges].sum())
-            if length <= radius + 1e-6:
-                legs[(int(i), j)] = _Leg(edges, length, float(dist[taxi_nodes[i]]))
-    return legs
+        dist, pred_rev, length = kernels.dijkstra(
+            ga.rev_indptr, ga.rev_head, ga.rev_time_s, rider.origin, limit_s, none, ga.rev_length_m
+        )
+        succ.append(np.where(pred_rev >= 0, ga.rev_edge[np.maximum(pred_rev, 0)], -1))
+        if len(taxi_nodes) == 0:
+            continue
+        lt = length[taxi_nodes]
+        ok = np.flatnonzero(np.isfinite(dist[taxi_nodes]) & (lt <= radius + 1e-6))
+        wt = dist[taxi_nodes]
+        for i in ok.tolist():
+            pairs[(i, j)] = (float(lt[i]), float(wt[i]))
+    return _Pickups(pairs, succ, taxi_nodes)
 
 
 def _service_leg(city: City, rider: Rider) -> _Leg:
     ga = graph_arrays(city)
-    _dist, pred = kernels.dijkstra(
-        ga.indptr, ga.head, ga.time_s, rider.origin, np.inf, np.array([rider.destination], dtype=np.int64)
+    _dist, pred, _ = kernels.dijkstra(
+        ga.indptr,
+        ga.head,
+        ga.time_s,
+        rider.origin,
+        np.inf,
+        np.array([rider.destination], dtype=np.int64),
+        ga.length_m,
     )
     if rider.destination != rider.origin and pred[rider.destination] < 0:
         raise ValueError(f"rider {rider.id}: destination unreachable from origin")
@@ -97,13 +130,29 @@ def _service_leg(city: City, rider: Rider) -> _Leg:
 
 
 def _eval_leg(
-    city: City, table: GainTable, gain: NDArray[np.float64], gain_q: NDArray[np.int64], leg: _Leg, depart_s: float
+    city: City,
+    table: GainTable,
+    gain: NDArray[np.float64],
+    gain_q: NDArray[np.int64],
+    leg: _Leg,
+    depart_s: float,
 ) -> tuple[float, int, int]:
     ga = graph_arrays(city)
     stamp, sid = table.stamps(1)
     g, gq, _t, _terms, ms = kernels.eval_path(
-        leg.edges, depart_s, ga.time_s, ga.ec_ptr, ga.ec_cell, ga.ec_frac, table.shift_s,
-        float(city.horizon.interval_s), table.k0, gain, gain_q, stamp, sid,
+        leg.edges,
+        depart_s,
+        ga.time_s,
+        ga.ec_ptr,
+        ga.ec_cell,
+        ga.ec_frac,
+        table.shift_s,
+        float(city.horizon.interval_s),
+        table.k0,
+        gain,
+        gain_q,
+        stamp,
+        sid,
     )
     return float(g), int(gq), int(ms)
 
@@ -115,59 +164,82 @@ def _step1(
     k0: int,
     riders: Sequence[Rider],
     taxis: Sequence[Taxi],
-    pickups: dict[tuple[int, int], _Leg],
+    pickups: _Pickups,
     service: Sequence[_Leg],
     n_slots: int,
 ) -> tuple[list[tuple[int, int, float]], int, dict[str, float | int]]:
     """Matched (taxi index, rider index, gain) of Step 1 and the slots needed."""
-    pairs = [(i, j) for (i, j) in pickups if i < len(taxis)]
+    pairs = [(i, j) for (i, j) in pickups.pairs if i < len(taxis)]
     if not pairs:
         return [], n_slots, {"step1_candidates": 0}
+    ga = graph_arrays(city)
+    pair_taxi = np.array([i for i, _ in pairs], dtype=np.int64)
+    pair_leg = np.array([j for _, j in pairs], dtype=np.int64)
+    wait = np.array([pickups.pairs[p][1] for p in pairs])
+    wait_q = quantize(wait, _WAIT_UNIT_S)
+    leg_ptr = np.zeros(len(service) + 1, dtype=np.int64)
+    leg_ptr[1:] = np.cumsum([len(leg.edges) for leg in service])
+    leg_edges = (
+        np.concatenate([leg.edges for leg in service]).astype(np.int64) if service else np.zeros(0, np.int64)
+    )
+    crossings = max(int((ga.ec_ptr[leg.edges + 1] - ga.ec_ptr[leg.edges]).sum()) for leg in service)
+    n_match = min(len(taxis), len(riders))
+    k_sec = int(wait_q.max()) * n_match + 1
+    cap = EXACT_LIMIT // (4 * n_match * k_sec)
+    taxis_used = sorted(set(pair_taxi.tolist()))
+    table_of = {i: n for n, i in enumerate(taxis_used)}
+    pair_table = np.array([table_of[i] for i in pair_taxi.tolist()], dtype=np.int64)
     while True:
         table = gain_table(city, counts.counts, k0, n_slots, now)
         term_max = float(table.base.max(initial=0.0))
-        crossings = max(int((city.edge_cells.ptr[leg.edges + 1] - city.edge_cells.ptr[leg.edges]).sum()) for leg in service)
-        n_match = min(len(taxis), len(riders))
-        wait_q = {p: int(quantize(np.array([pickups[p].time_s]), _WAIT_UNIT_S)[0]) for p in pairs}
-        k_sec = max(wait_q.values()) * n_match + 1
-        cap = EXACT_LIMIT // (4 * n_match * k_sec)
         table.unit = max(term_max * max(crossings, 1) / max(cap, 1), 1e-300)
-        gains: dict[tuple[int, int], tuple[float, int]] = {}
-        max_slot = 0
-        per_taxi: dict[int, tuple[NDArray[np.float64], NDArray[np.int64]]] = {}
-        for i, j in pairs:
-            if i not in per_taxi:
-                per_taxi[i] = table.for_taxi(counts.visited.get(taxis[i].id))
-            g, gq, ms = _eval_leg(city, table, *per_taxi[i], service[j], now + pickups[(i, j)].time_s)
-            gains[(i, j)] = (g, gq)
-            max_slot = max(max_slot, ms)
+        per_taxi = [table.for_taxi(counts.visited.get(taxis[i].id)) for i in taxis_used]
+        gains = np.stack([g for g, _ in per_taxi])
+        gains_q = np.stack([q for _, q in per_taxi])
+        stamp, first = table.stamps(len(pairs))
+        g, gq, max_slot = kernels.eval_pairs(
+            pair_table,
+            pair_leg,
+            now + wait,
+            leg_ptr,
+            leg_edges,
+            ga.time_s,
+            ga.ec_ptr,
+            ga.ec_cell,
+            ga.ec_frac,
+            table.shift_s,
+            float(city.horizon.interval_s),
+            k0,
+            gains,
+            gains_q,
+            stamp,
+            first,
+        )
         if max_slot < n_slots:
             break
-        n_slots = max_slot + 1
+        n_slots = int(max_slot) + 1
     feasible = np.zeros((len(taxis), len(riders)), dtype=bool)
     prim = np.zeros(feasible.shape, dtype=np.int64)
     sec = np.zeros(feasible.shape, dtype=np.int64)
-    for (i, j), (_g, gq) in gains.items():
-        feasible[i, j] = True
-        prim[i, j] = gq
-        sec[i, j] = wait_q[(i, j)]
+    feasible[pair_taxi, pair_leg] = True
+    prim[pair_taxi, pair_leg] = gq
+    sec[pair_taxi, pair_leg] = wait_q
+    gain_of = {p: float(x) for p, x in zip(pairs, g, strict=True)}
     sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
-    out = [(int(i), int(j), gains[(int(i), int(j))][0]) for i, j in zip(sol.rows, sol.cols, strict=True)]
+    out = [(int(i), int(j), gain_of[(int(i), int(j))]) for i, j in zip(sol.rows, sol.cols, strict=True)]
     return out, n_slots, {"step1_candidates": len(pairs), "step1_gain_unit": table.unit}
 
 
-def _step2(
-    riders_left: Sequence[int], taxis: Sequence[int], pickups: dict[tuple[int, int], _Leg]
-) -> list[tuple[int, int]]:
+def _step2(riders_left: Sequence[int], taxis: Sequence[int], pickups: _Pickups) -> list[tuple[int, int]]:
     """Step 2 over global taxi/rider indices: maximize matches, then minimize total wait."""
     feasible = np.zeros((len(taxis), len(riders_left)), dtype=bool)
     sec = np.zeros(feasible.shape, dtype=np.int64)
-    for a, i in enumerate(taxis):
-        for b, j in enumerate(riders_left):
-            leg = pickups.get((i, j))
-            if leg is not None:
-                feasible[a, b] = True
-                sec[a, b] = int(quantize(np.array([leg.time_s]), _WAIT_UNIT_S)[0])
+    col = {j: b for b, j in enumerate(riders_left)}
+    row = {i: a for a, i in enumerate(taxis)}
+    for (i, j), (_length, wait) in pickups.pairs.items():
+        if i in row and j in col:
+            feasible[row[i], col[j]] = True
+            sec[row[i], col[j]] = int(quantize(np.array([wait]), _WAIT_UNIT_S)[0])
     prim = feasible.astype(np.int64)
     sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
     return [(taxis[int(a)], riders_left[int(b)]) for a, b in zip(sol.rows, sol.cols, strict=True)]
@@ -252,12 +324,22 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     busy_taxis: set[int] = set()
     taken: set[int] = set()
     for i, j, gain in s1:
-        leg, svc = pickups[(i, j)], service[j]
+        leg, svc = pickups.leg(city, i, j), service[j]
         edges = np.concatenate((leg.edges, svc.edges)).astype(np.int64)
         taxi, rider = taxis[i], riders[j]
         matches.append(
-            RiderMatch(1, taxi.id, rider.id, leg.length_m, leg.time_s, svc.length_m, svc.time_s, gain,
-                       path_nodes(city, taxi.node, edges), _g_route(city, edges))
+            RiderMatch(
+                1,
+                taxi.id,
+                rider.id,
+                leg.length_m,
+                leg.time_s,
+                svc.length_m,
+                svc.time_s,
+                gain,
+                path_nodes(city, taxi.node, edges),
+                _g_route(city, edges),
+            )
         )
         planned.append(PlannedPath(taxi.id, taxi.node, edges, now))
         visits.extend(_visits(city, counts, taxi, edges, now))
@@ -268,11 +350,21 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     left = [j for j in range(len(riders)) if j not in taken]
     ord_idx = list(range(len(instr), len(taxis)))
     for i, j in _step2(left, ord_idx, pickups):
-        leg, svc = pickups[(i, j)], service[j]
+        leg, svc = pickups.leg(city, i, j), service[j]
         edges = np.concatenate((leg.edges, svc.edges)).astype(np.int64)
         matches.append(
-            RiderMatch(2, taxis[i].id, riders[j].id, leg.length_m, leg.time_s, svc.length_m, svc.time_s, 0.0,
-                       path_nodes(city, taxis[i].node, edges), _g_route(city, edges))
+            RiderMatch(
+                2,
+                taxis[i].id,
+                riders[j].id,
+                leg.length_m,
+                leg.time_s,
+                svc.length_m,
+                svc.time_s,
+                0.0,
+                path_nodes(city, taxis[i].node, edges),
+                _g_route(city, edges),
+            )
         )
         taken.add(j)
     unmatched = tuple(riders[j].id for j in range(len(riders)) if j not in taken)
@@ -296,14 +388,26 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
         base = gain_table(city, counts.counts, k0, n_slots, now)
         for (i, _), route in zip(s3, routes, strict=True):
             taxi = free[i]
-            g, _gq, _ms = _eval_leg(city, base, *base.for_taxi(counts.visited.get(taxi.id)),
-                                    _Leg(route.edges, route.length_m, route.time_s), now)
+            g, _gq, _ms = _eval_leg(
+                city,
+                base,
+                *base.for_taxi(counts.visited.get(taxi.id)),
+                _Leg(route.edges, route.length_m, route.time_s),
+                now,
+            )
             task_id = by_node[route.target]
             assignments.append(
                 TaskAssignment(
-                    taxi.id, task_id, path_nodes(city, taxi.node, route.edges), _g_route(city, route.edges),
-                    route.length_m, route.time_s, g, g / route.time_s if route.time_s > 0 else 0.0,
-                    p.unit_cost_cny_per_km * route.length_m / 1000.0, route.kappa,
+                    taxi.id,
+                    task_id,
+                    path_nodes(city, taxi.node, route.edges),
+                    _g_route(city, route.edges),
+                    route.length_m,
+                    route.time_s,
+                    g,
+                    g / route.time_s if route.time_s > 0 else 0.0,
+                    p.unit_cost_cny_per_km * route.length_m / 1000.0,
+                    route.kappa,
                 )
             )
             planned.append(PlannedPath(taxi.id, taxi.node, route.edges, now, target_task=task_id))

@@ -11,7 +11,15 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["dijkstra", "walk_edges", "walk_succ", "eval_path", "eval_targets", "entered_utility"]
+__all__ = [
+    "dijkstra",
+    "walk_edges",
+    "walk_succ",
+    "eval_path",
+    "eval_pairs",
+    "eval_targets",
+    "entered_utility",
+]
 
 _NOPYTHON = {"cache": True, "nogil": True}
 
@@ -60,13 +68,15 @@ def dijkstra(
     source: int,
     limit: float,
     targets: NDArray[np.int64],
-) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    aux: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
     """Single-source shortest paths over CSR ``(indptr, head, cost)``.
 
     Stops when every node in ``targets`` is settled (all nodes when ``targets`` is empty) or when the
-    next distance exceeds ``limit``. Returns ``dist`` (inf when not settled) and ``pred_edge`` (the edge
-    entering each settled node on its shortest path, -1 at the source and elsewhere). Ties keep the
-    first edge found (deterministic for a given CSR order).
+    next distance exceeds ``limit``. Returns ``dist`` (inf when not settled), ``pred_edge`` (the edge
+    entering each settled node on its shortest path, -1 at the source and elsewhere) and the sum of the
+    per-edge ``aux`` weights along each settled node's tree path (e.g. its length). Ties keep the first
+    edge found (deterministic for a given CSR order).
     """
     n = indptr.shape[0] - 1
     dist = np.full(n, np.inf)
@@ -84,6 +94,8 @@ def dijkstra(
     size = _heap_push(keys, vals, 0, 0.0, source)
     tentative = np.full(n, np.inf)
     tentative[source] = 0.0
+    acc = np.full(n, np.nan)
+    acc_t = np.zeros(n)
     while size > 0:
         d = keys[0]
         u = vals[0]
@@ -94,6 +106,7 @@ def dijkstra(
             break
         done[u] = True
         dist[u] = d
+        acc[u] = acc_t[u]
         if is_target[u]:
             remaining -= 1
             if remaining == 0:
@@ -104,11 +117,12 @@ def dijkstra(
             if nd < tentative[v]:
                 tentative[v] = nd
                 pred[v] = e
+                acc_t[v] = acc_t[u] + aux[e]
                 size = _heap_push(keys, vals, size, nd, v)
     for v in range(n):
         if not done[v]:
             pred[v] = -1
-    return dist, pred
+    return dist, pred, acc
 
 
 @numba.njit(**_NOPYTHON)  # type: ignore[misc]
@@ -199,6 +213,57 @@ def eval_path(
 
 
 @numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def eval_pairs(
+    pair_table: NDArray[np.int64],
+    pair_leg: NDArray[np.int64],
+    pair_depart: NDArray[np.float64],
+    leg_ptr: NDArray[np.int64],
+    leg_edges: NDArray[np.int64],
+    edge_time: NDArray[np.float64],
+    ec_ptr: NDArray[np.int64],
+    ec_cell: NDArray[np.int32],
+    ec_frac: NDArray[np.float64],
+    interval_shift_s: float,
+    interval_s: float,
+    k0: int,
+    gains: NDArray[np.float64],
+    gains_q: NDArray[np.int64],
+    stamp: NDArray[np.int64],
+    stamp_base: int,
+) -> tuple[NDArray[np.float64], NDArray[np.int64], int]:
+    """``eval_path`` for many (gain table, leg, departure) triples: leg ``i`` is
+    ``leg_edges[leg_ptr[i]:leg_ptr[i+1]]``, table ``j`` is ``gains[j]``. Returns gains, integer gains and the
+    largest slot reached."""
+    k = pair_table.shape[0]
+    out_g = np.zeros(k)
+    out_q = np.zeros(k, dtype=np.int64)
+    max_slot = 0
+    for i in range(k):
+        leg = pair_leg[i]
+        tab = pair_table[i]
+        g, gq, _t, _terms, ms = eval_path(
+            leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]],
+            pair_depart[i],
+            edge_time,
+            ec_ptr,
+            ec_cell,
+            ec_frac,
+            interval_shift_s,
+            interval_s,
+            k0,
+            gains[tab],
+            gains_q[tab],
+            stamp,
+            stamp_base + i,
+        )
+        out_g[i] = g
+        out_q[i] = gq
+        if ms > max_slot:
+            max_slot = ms
+    return out_g, out_q, max_slot
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
 def eval_targets(
     pred_edge: NDArray[np.int64],
     tail: NDArray[np.int32],
@@ -231,8 +296,19 @@ def eval_targets(
         tgt = targets[i]
         edges = walk_edges(pred_edge, tail, tgt)
         g, gq, tt, _terms, ms = eval_path(
-            edges, depart_s, edge_time, ec_ptr, ec_cell, ec_frac, interval_shift_s, interval_s, k0,
-            gain, gain_q, stamp, stamp_base + i,
+            edges,
+            depart_s,
+            edge_time,
+            ec_ptr,
+            ec_cell,
+            ec_frac,
+            interval_shift_s,
+            interval_s,
+            k0,
+            gain,
+            gain_q,
+            stamp,
+            stamp_base + i,
         )
         length = 0.0
         for e in edges:

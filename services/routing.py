@@ -48,6 +48,7 @@ class GraphArrays:
     rev_head: NDArray[np.int32]  # reverse edge j goes head_j <- ... i.e. to the original tail
     rev_edge: NDArray[np.int64]  # original edge id of reverse edge j
     rev_time_s: NDArray[np.float64]
+    rev_length_m: NDArray[np.float64]
     ec_ptr: NDArray[np.int64]
     ec_cell: NDArray[np.int32]
     ec_frac: NDArray[np.float64]
@@ -73,6 +74,7 @@ def graph_arrays(city: City) -> GraphArrays:
         rev_head=net.edge_u[order].astype(np.int32),
         rev_edge=order.astype(np.int64),
         rev_time_s=net.edge_time_s[order].astype(np.float64),
+        rev_length_m=net.edge_length_m[order].astype(np.float64),
         ec_ptr=city.edge_cells.ptr.astype(np.int64),
         ec_cell=city.edge_cells.cell.astype(np.int32),
         ec_frac=city.edge_cells.frac.astype(np.float64),
@@ -213,11 +215,25 @@ def plan_routes(
     max_slot = 0
     interval_s = float(city.horizon.interval_s)
     for kappa, cost in _kappa_costs(ga, gain[0], city.params.kappas):
-        _dist, pred = kernels.dijkstra(ga.indptr, ga.head, cost, source, np.inf, targets)
+        _dist, pred, _ = kernels.dijkstra(ga.indptr, ga.head, cost, source, np.inf, targets, ga.time_s)
         stamp, first = table.stamps(len(targets))
         g, _gq, t, length, ms = kernels.eval_targets(
-            pred, ga.tail, targets, depart_s, ga.time_s, ga.length_m, ga.ec_ptr, ga.ec_cell, ga.ec_frac,
-            table.shift_s, interval_s, table.k0, gain, gain_q, stamp, first,
+            pred,
+            ga.tail,
+            targets,
+            depart_s,
+            ga.time_s,
+            ga.length_m,
+            ga.ec_ptr,
+            ga.ec_cell,
+            ga.ec_frac,
+            table.shift_s,
+            interval_s,
+            table.k0,
+            gain,
+            gain_q,
+            stamp,
+            first,
         )
         max_slot = max(max_slot, int(ms))
         for i, tgt in enumerate(targets):
@@ -227,7 +243,9 @@ def plan_routes(
             cur = best[i]
             if cur is None or cand_eff > cur.efficiency:
                 edges = kernels.walk_edges(pred, ga.tail, int(tgt))
-                best[i] = Route(taxi_id, source, int(tgt), kappa, edges, float(g[i]), float(t[i]), float(length[i]))
+                best[i] = Route(
+                    taxi_id, source, int(tgt), kappa, edges, float(g[i]), float(t[i]), float(length[i])
+                )
     missing = [int(targets[i]) for i, r in enumerate(best) if r is None]
     if missing:
         raise ValueError(f"targets unreachable from node {source}: {missing[:5]}")
@@ -248,7 +266,7 @@ def route_pairs(
 def joint_utility(
     city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], pair_sets: Sequence[set[tuple[int, int]]]
 ) -> float:
-    """Marginal Gamma of several taxis' routes together: sum mu s ((L + n)^rho - L^rho), n = taxis per pair."""
+    """Marginal Gamma of several routes together: sum mu s ((L + n)^rho - L^rho), n = taxis per pair."""
     n: Counter[tuple[int, int]] = Counter()
     for ps in pair_sets:
         n.update(ps)

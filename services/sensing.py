@@ -99,7 +99,9 @@ def gamma(city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], intervals
         arr = counts.get(IntervalKey(int(k)))
         if arr is None:
             continue
-        total += city.mu(int(k)) * float(np.dot(city.cell_weight, np.power(arr.astype(float), city.params.rho)))
+        total += city.mu(int(k)) * float(
+            np.dot(city.cell_weight, np.power(arr.astype(float), city.params.rho))
+        )
     return total
 
 

@@ -65,7 +65,11 @@ def reaches(city: City, paths: Iterable[PlannedPath], tasks: Sequence[Task]) -> 
                     continue
                 mode: CompletionMode = "active" if path.target_task == task.id else "passive"
                 cur = best.get(task.id)
-                if cur is None or at < cur.at_s or (at == cur.at_s and mode == "active" and cur.mode != "active"):
+                if (
+                    cur is None
+                    or at < cur.at_s
+                    or (at == cur.at_s and mode == "active" and cur.mode != "active")
+                ):
                     best[task.id] = Reach(task.id, path.taxi_id, at, mode)
     return best
 
@@ -78,7 +82,9 @@ def apply_reaches(tasks: Sequence[Task], found: dict[TaskId, Reach], now_s: floa
         if r is None:
             continue
         status = "completed" if r.at_s <= now_s else "assigned"
-        out.append(dataclasses.replace(task, status=status, completed_at_s=r.at_s, taxi_id=r.taxi_id, mode=r.mode))
+        out.append(
+            dataclasses.replace(task, status=status, completed_at_s=r.at_s, taxi_id=r.taxi_id, mode=r.mode)
+        )
     return out
 
 

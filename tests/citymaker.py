@@ -46,8 +46,16 @@ def make_city(
     indptr = np.zeros(len(ids) + 1, dtype=np.int64)
     np.add.at(indptr, eu.astype(np.int64) + 1, 1)
     net = Network(
-        node_ids=ids, lon=x / 1e5, lat=y / 1e5, x_m=x, y_m=y, crs="LOCAL",
-        edge_u=eu, edge_v=ev, edge_length_m=length_m, edge_time_s=length_m / (speed_kmh / 3.6),
+        node_ids=ids,
+        lon=x / 1e5,
+        lat=y / 1e5,
+        x_m=x,
+        y_m=y,
+        crs="LOCAL",
+        edge_u=eu,
+        edge_v=ev,
+        edge_length_m=length_m,
+        edge_time_s=length_m / (speed_kmh / 3.6),
         indptr=np.cumsum(indptr),
     )
     grid = build_grid(net, cell_m)
@@ -61,9 +69,14 @@ def make_city(
     weight /= weight.sum()
     hz = horizon or Horizon(timezone="UTC")
     return City(
-        name="test", network=net, grid=grid, edge_cells=ec, horizon=hz,
+        name="test",
+        network=net,
+        grid=grid,
+        edge_cells=ec,
+        horizon=hz,
         params=params or DispatchParams(speed_kmh=speed_kmh),
-        cell_weight=weight, interval_weight=np.full(hz.n_intervals, 1.0 / hz.n_intervals),
+        cell_weight=weight,
+        interval_weight=np.full(hz.n_intervals, 1.0 / hz.n_intervals),
     )
 
 

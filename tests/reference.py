@@ -45,8 +45,14 @@ def crossings(city: City, edges: Iterable[int], depart_s: float) -> list[tuple[i
     return out
 
 
-def gain(city: City, counts: CountsView, taxi: str | None, edges: Iterable[int], depart_s: float,
-         extra: dict[tuple[int, int], int] | None = None) -> float:
+def gain(
+    city: City,
+    counts: CountsView,
+    taxi: str | None,
+    edges: Iterable[int],
+    depart_s: float,
+    extra: dict[tuple[int, int], int] | None = None,
+) -> float:
     """Eq. (3) by the book: first entry per (interval, cell), skipping pairs the taxi is counted in."""
     seen: set[tuple[int, int]] = set()
     visited = counts.visited.get(taxi, frozenset()) if taxi else frozenset()
@@ -100,9 +106,10 @@ def lexi_best(pairs, primary, secondary, *, sense: str, tol: float = 1e-12):
         bp, bs = best
         if p > bp * (1 + tol) + 1e-15:
             best = (p, s)
-        elif abs(p - bp) <= tol * max(abs(bp), 1e-300) + 1e-15:
-            if (sense == "min" and s < bs) or (sense == "max" and s > bs):
-                best = (p, s)
+        elif abs(p - bp) <= tol * max(abs(bp), 1e-300) + 1e-15 and (
+            (sense == "min" and s < bs) or (sense == "max" and s > bs)
+        ):
+            best = (p, s)
     return best
 
 
@@ -110,4 +117,14 @@ def theta(x: float, rho: float) -> float:
     return x**rho if x > 0 else 0.0
 
 
-__all__ = ["nx_graph", "path_edges", "crossings", "gain", "fastest", "all_matchings", "lexi_best", "theta", "math"]
+__all__ = [
+    "nx_graph",
+    "path_edges",
+    "crossings",
+    "gain",
+    "fastest",
+    "all_matchings",
+    "lexi_best",
+    "theta",
+    "math",
+]

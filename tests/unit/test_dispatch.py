@@ -61,7 +61,9 @@ def test_step2_more_matches_before_less_wait_and_radius():
     city = line_city(params=DispatchParams(speed_kmh=36.0, radius_m=900.0))
     # o1 near both riders; o2 only reaches r1. Max matches: o2-r1, o1-r2.
     snap = Snapshot(
-        "e", T0 + 10, (rider("r1", 1, 0), rider("r2", 2, 3)),
+        "e",
+        T0 + 10,
+        (rider("r1", 1, 0), rider("r2", 2, 3)),
         (taxi("o1", 1, False), taxi("o2", 0, False), taxi("o3", 5, False)),
     )
     d = decide(city, CountsView({}), snap, [])
@@ -72,7 +74,9 @@ def test_step2_more_matches_before_less_wait_and_radius():
 def test_expired_riders_are_dropped_and_busy_taxis_ignored():
     city = line_city()
     snap = Snapshot(
-        "e", T0 + 1000, (rider("old", 1, 2, T0 + 1000 - 601), rider("ok", 1, 2, T0 + 1000 - 600)),
+        "e",
+        T0 + 1000,
+        (rider("old", 1, 2, T0 + 1000 - 601), rider("ok", 1, 2, T0 + 1000 - 600)),
         (taxi("busy", 1, vacant=False), taxi("o", 2, False)),
     )
     d = decide(city, CountsView({}), snap, [])
@@ -100,7 +104,9 @@ def test_passive_completion_excludes_task_from_step3():
 
 def test_assigned_task_completes_when_due_and_is_not_redispatched():
     city = line_city()
-    t = Task(TaskId("x"), 5, T0, status="assigned", completed_at_s=T0 + 50, taxi_id=TaxiId("a"), mode="active")
+    t = Task(
+        TaskId("x"), 5, T0, status="assigned", completed_at_s=T0 + 50, taxi_id=TaxiId("a"), mode="active"
+    )
     d = decide(city, CountsView({}), Snapshot("e", T0 + 60, (), (taxi("b", 0),)), [t])
     assert [x.id for x in d.tasks_completed] == ["x"] and d.task_assignments == ()
 
@@ -118,7 +124,8 @@ def jitter_city(seed: int, n: int = 5, spacing: float = 450.0, **kw):
     rng = np.random.default_rng(seed)
     nodes = {
         r * n + c: (c * spacing + rng.uniform(-90, 90) + 200, r * spacing + rng.uniform(-90, 90) + 200)
-        for r in range(n) for c in range(n)
+        for r in range(n)
+        for c in range(n)
     }
     edges = [(r * n + c, r * n + c + 1) for r in range(n) for c in range(n - 1)]
     edges += [(r * n + c, (r + 1) * n + c) for r in range(n - 1) for c in range(n)]
@@ -176,7 +183,10 @@ def test_steps_match_brute_force(seed: int):
     for t in snap.taxis:
         for r in snap.riders:
             nodes, tt = ref.fastest(g, t.node, r.origin)
-            if sum(city.network.edge_length_m[e] for e in ref.path_edges(g, nodes)) <= city.params.radius_m + 1e-6:
+            if (
+                sum(city.network.edge_length_m[e] for e in ref.path_edges(g, nodes))
+                <= city.params.radius_m + 1e-6
+            ):
                 wait[(t.id, r.id)] = tt
                 if t.instrumented:
                     svc, _ = ref.fastest(g, r.origin, r.destination)
@@ -211,7 +221,9 @@ def enhanced_phi(city, counts, t, target, now):
     lam = counts.counts.get(k0, np.zeros(city.grid.n_cells, dtype=np.int64))
     rho = city.params.rho
     cell_val = [
-        0.0 if (k0, c) in visited else city.mu(k0) * city.cell_weight[c] * ((lam[c] + 1) ** rho - lam[c] ** rho)
+        0.0
+        if (k0, c) in visited
+        else city.mu(k0) * city.cell_weight[c] * ((lam[c] + 1) ** rho - lam[c] ** rho)
         for c in range(city.grid.n_cells)
     ]
     u = np.zeros(net.n_edges)
@@ -290,8 +302,12 @@ def test_algorithm2_never_lowers_total_utility(seed: int):
         for a in d.task_assignments:
             seen = counts.visited.get(a.taxi_id, frozenset())
             edges = ref.path_edges(ref.nx_graph(city), a.path)
-            pairs.append({(k, c) for k, c, _ in ref.crossings(city, edges, snap.time_s) if (k, c) not in seen})
-        assert joint_utility(city, counts.counts, pairs) == pytest.approx(d.stats["alg2_utility_final"], rel=1e-12)
+            pairs.append(
+                {(k, c) for k, c, _ in ref.crossings(city, edges, snap.time_s) if (k, c) not in seen}
+            )
+        assert joint_utility(city, counts.counts, pairs) == pytest.approx(
+            d.stats["alg2_utility_final"], rel=1e-12
+        )
 
 
 def test_visits_are_the_distinct_new_crossings_of_instrumented_paths():

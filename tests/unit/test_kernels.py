@@ -21,7 +21,9 @@ def test_dijkstra_matches_scipy(seed: int) -> None:
     ga = graph_arrays(city)
     cost = ga.time_s * rng.uniform(0.2, 1.0, len(ga.time_s))
     src = int(rng.integers(city.network.n_nodes))
-    dist, pred = kernels.dijkstra(ga.indptr, ga.head, cost, src, np.inf, np.zeros(0, dtype=np.int64))
+    dist, pred, acc = kernels.dijkstra(
+        ga.indptr, ga.head, cost, src, np.inf, np.zeros(0, dtype=np.int64), ga.length_m
+    )
     expect = cg.dijkstra(city.network.csr(cost), indices=src)
     np.testing.assert_allclose(dist, expect, rtol=1e-12)
     # the tree is a shortest-path tree: every pred edge is tight
@@ -29,9 +31,10 @@ def test_dijkstra_matches_scipy(seed: int) -> None:
         if v != src:
             e = pred[v]
             assert dist[ga.tail[e]] + cost[e] == pytest.approx(dist[v], rel=1e-12)
+            assert acc[ga.tail[e]] + ga.length_m[e] == pytest.approx(acc[v], rel=1e-12)
     # limit and early stop keep correct distances for what they settle
     lim = float(np.median(expect))
-    dl, _ = kernels.dijkstra(ga.indptr, ga.head, cost, src, lim, np.zeros(0, dtype=np.int64))
+    dl, _, _ = kernels.dijkstra(ga.indptr, ga.head, cost, src, lim, np.zeros(0, dtype=np.int64), ga.length_m)
     ok = np.isfinite(dl)
     np.testing.assert_allclose(dl[ok], expect[ok])
     assert (expect[~ok] > lim).all()
@@ -57,12 +60,25 @@ def test_path_gain_kernel_equals_reference(seed: int) -> None:
     stamp, sid = table.stamps(1)
     ga = graph_arrays(city)
     got, _, t, _, _ = kernels.eval_path(
-        edges, now, ga.time_s, ga.ec_ptr, ga.ec_cell, ga.ec_frac, table.shift_s, 3600.0, k0,
-        gain, gain_q, stamp, sid,
+        edges,
+        now,
+        ga.time_s,
+        ga.ec_ptr,
+        ga.ec_cell,
+        ga.ec_frac,
+        table.shift_s,
+        3600.0,
+        k0,
+        gain,
+        gain_q,
+        stamp,
+        sid,
     )
     expect = ref.gain(city, counts, "a", edges, now)
     assert got == pytest.approx(expect, rel=1e-12)
-    assert path_gain(city, counts, TaxiId("a"), timed_cells(city, edges, now)) == pytest.approx(expect, rel=1e-12)
+    assert path_gain(city, counts, TaxiId("a"), timed_cells(city, edges, now)) == pytest.approx(
+        expect, rel=1e-12
+    )
     assert t == pytest.approx(sum(city.network.edge_time_s[e] for e in edges))
 
 
@@ -76,6 +92,8 @@ def test_marginal_gain_by_hand() -> None:
     edges = np.array([0], dtype=np.int64)  # 0 -> 1
     # mu = 1/4, s = 1/2: (1/8) * ((4^0.2 - 3^0.2) + (1 - 0))
     expect = (1 / 8) * ((4**0.2 - 3**0.2) + 1.0)
-    assert path_gain(city, counts, TaxiId("x"), timed_cells(city, edges, T0)) == pytest.approx(expect, rel=1e-14)
+    assert path_gain(city, counts, TaxiId("x"), timed_cells(city, edges, T0)) == pytest.approx(
+        expect, rel=1e-14
+    )
     # outside the horizon mu is 0
     assert path_gain(city, counts, TaxiId("x"), timed_cells(city, edges, T0 - 7200)) == 0.0

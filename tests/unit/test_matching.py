@@ -63,13 +63,17 @@ def test_count_then_wait_prefers_more_matches_over_less_wait() -> None:
     # taxi 0 can serve rider 0 (wait 1) or rider 1 (wait 100); taxi 1 only rider 0 (wait 50).
     feasible = np.array([[True, True], [True, False]])
     sec = np.array([[1, 100], [50, 0]])
-    sol = max_weight_matching(lexicographic_weights(feasible, feasible.astype(np.int64), sec, secondary_sense="min"))
+    sol = max_weight_matching(
+        lexicographic_weights(feasible, feasible.astype(np.int64), sec, secondary_sense="min")
+    )
     assert sorted(zip(sol.rows.tolist(), sol.cols.tolist(), strict=True)) == [(0, 1), (1, 0)]
 
 
 def test_zero_primary_pairs_are_left_out_when_minimizing() -> None:
     feasible = np.array([[True]])
-    sol = max_weight_matching(lexicographic_weights(feasible, np.array([[0]]), np.array([[5]]), secondary_sense="min"))
+    sol = max_weight_matching(
+        lexicographic_weights(feasible, np.array([[0]]), np.array([[5]]), secondary_sense="min")
+    )
     assert len(sol.rows) == 0
 
 
