@@ -52,7 +52,7 @@ class Horizon:
         return IntervalKey(int(np.floor((time_s + self.shift_s(time_s)) / self.interval_s)))
 
     def shift_s(self, time_s: float) -> float:
-        """UTC offset at ``time_s`` minus the horizon start offset: ``k = floor((t + shift) / interval_s)``."""
+        """UTC offset at ``time_s`` minus the horizon start: ``k = floor((t + shift) / interval_s)``."""
         utc = dt.datetime.fromtimestamp(float(time_s), tz=dt.UTC)
         offset = utc.astimezone(ZoneInfo(self.timezone)).utcoffset()
         return (offset.total_seconds() if offset else 0.0) - self._start_offset_s()

@@ -38,6 +38,7 @@ from services.model import (
 from services.routing import (
     GainTable,
     Route,
+    RouteSet,
     gain_table,
     graph_arrays,
     improve_routes,
@@ -259,25 +260,23 @@ def _step3(
         return [], n_slots
     while True:
         table = gain_table(city, counts.counts, k0, n_slots, now)
-        all_routes: list[list[Route]] = []
+        sets: list[RouteSet] = []
         max_slot = 0
         for taxi in taxis:
-            routes, ms = plan_routes(
-                city, table, taxi.id, taxi.node, counts.visited.get(taxi.id), targets, now
-            )
-            all_routes.append(routes)
+            rs, ms = plan_routes(city, table, taxi.id, taxi.node, counts.visited.get(taxi.id), targets, now)
+            sets.append(rs)
             max_slot = max(max_slot, ms)
         if max_slot < n_slots:
             break
         n_slots = max_slot + 1
-    phi = np.array([[r.efficiency for r in routes] for routes in all_routes])
+    phi = np.stack([rs.efficiency for rs in sets])
     phi_max = float(phi.max(initial=0.0))
     unit = phi_max / 2**24 if phi_max > 0 else 1.0
     feasible = np.ones(phi.shape, dtype=bool)
     sol = max_weight_matching(
         lexicographic_weights(feasible, feasible.astype(np.int64), quantize(phi, unit), secondary_sense="max")
     )
-    return [(int(i), all_routes[int(i)][int(j)]) for i, j in zip(sol.rows, sol.cols, strict=True)], n_slots
+    return [(int(i), sets[int(i)].route(int(j))) for i, j in zip(sol.rows, sol.cols, strict=True)], n_slots
 
 
 def _visits(city: City, counts: CountsView, taxi: Taxi, edges: NDArray[np.int64], now: float) -> list[Visit]:

@@ -34,7 +34,7 @@ TaxiId = NewType("TaxiId", str)
 RiderId = NewType("RiderId", str)
 TaskId = NewType("TaskId", str)
 IntervalKey = NewType("IntervalKey", int)
-"""Global sensing-interval number: floor((local time - horizon start) / interval length); see ``city.Horizon``."""
+"""Global sensing-interval number: floor((local time - horizon start) / interval length); ``city.Horizon``."""
 
 TaskStatus = Literal["pending", "assigned", "completed"]
 CompletionMode = Literal["passive", "active"]
@@ -150,6 +150,6 @@ class Decision:
     task_updates: tuple[Task, ...]  # every task whose stored record changes on commit
     unmatched_rider_ids: tuple[RiderId, ...]
     expired_rider_ids: tuple[RiderId, ...]  # waited longer than patience: dropped, not matched
-    visits: tuple[Visit, ...]  # distinct (taxi, interval, cell) crossings of instrumented taxis' planned paths
+    visits: tuple[Visit, ...]  # distinct (taxi, interval, cell) crossings of instrumented planned paths
     intervals_touched: tuple[IntervalKey, ...]
     stats: dict[str, float | int]

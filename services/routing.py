@@ -28,6 +28,7 @@ __all__ = [
     "GainTable",
     "gain_table",
     "Route",
+    "RouteSet",
     "plan_routes",
     "joint_utility",
     "improve_routes",
@@ -195,6 +196,42 @@ def _kappa_costs(
     return out
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class RouteSet:
+    """Algorithm 1 from one taxi to many targets: per target the best kappa's evaluation; the route's edges
+    are read off that kappa's tree only when asked for (most candidate routes are never used)."""
+
+    taxi_id: TaxiId
+    source: int
+    targets: NDArray[np.int64]
+    kappa: NDArray[np.float64]
+    gain: NDArray[np.float64]
+    time_s: NDArray[np.float64]
+    length_m: NDArray[np.float64]
+    tree: NDArray[np.int64]  # index into ``preds`` of the best kappa, per target
+    preds: tuple[NDArray[np.int64], ...]
+    tail: NDArray[np.int32]
+
+    @property
+    def efficiency(self) -> NDArray[np.float64]:
+        """phi per target (0 for a zero-length route)."""
+        t = self.time_s
+        return np.divide(self.gain, t, out=np.zeros_like(self.gain), where=t > 0)
+
+    def route(self, i: int) -> Route:
+        edges = kernels.walk_edges(self.preds[int(self.tree[i])], self.tail, int(self.targets[i]))
+        return Route(
+            self.taxi_id,
+            self.source,
+            int(self.targets[i]),
+            float(self.kappa[i]),
+            edges,
+            float(self.gain[i]),
+            float(self.time_s[i]),
+            float(self.length_m[i]),
+        )
+
+
 def plan_routes(
     city: City,
     table: GainTable,
@@ -203,20 +240,24 @@ def plan_routes(
     visited: frozenset[tuple[IntervalKey, int]] | None,
     targets: NDArray[np.int64],
     depart_s: float,
-) -> tuple[list[Route], int]:
+) -> tuple[RouteSet, int]:
     """Algorithm 1 from one taxi to every target: the best-phi route over the kappa family.
 
-    Returns one ``Route`` per target (same order) and the largest interval slot any route reached.
+    Returns the routes (one per target, same order) and the largest interval slot any route reached.
     Ties in phi keep the smaller kappa, so kappa = 0 (the fastest path) wins unless beaten.
     """
     ga = graph_arrays(city)
     gain, gain_q = table.for_taxi(visited)
-    best: list[Route | None] = [None] * len(targets)
+    k = len(targets)
+    best_phi = np.full(k, -np.inf)
+    out_g, out_t, out_l = np.zeros(k), np.full(k, np.nan), np.zeros(k)
+    out_kappa, out_tree = np.zeros(k), np.zeros(k, dtype=np.int64)
+    preds: list[NDArray[np.int64]] = []
     max_slot = 0
     interval_s = float(city.horizon.interval_s)
     for kappa, cost in _kappa_costs(ga, gain[0], city.params.kappas):
         _dist, pred, _ = kernels.dijkstra(ga.indptr, ga.head, cost, source, np.inf, targets, ga.time_s)
-        stamp, first = table.stamps(len(targets))
+        stamp, first = table.stamps(k)
         g, _gq, t, length, ms = kernels.eval_targets(
             pred,
             ga.tail,
@@ -236,20 +277,19 @@ def plan_routes(
             first,
         )
         max_slot = max(max_slot, int(ms))
-        for i, tgt in enumerate(targets):
-            if np.isnan(t[i]):
-                continue
-            cand_eff = g[i] / t[i] if t[i] > 0 else 0.0
-            cur = best[i]
-            if cur is None or cand_eff > cur.efficiency:
-                edges = kernels.walk_edges(pred, ga.tail, int(tgt))
-                best[i] = Route(
-                    taxi_id, source, int(tgt), kappa, edges, float(g[i]), float(t[i]), float(length[i])
-                )
-    missing = [int(targets[i]) for i, r in enumerate(best) if r is None]
-    if missing:
-        raise ValueError(f"targets unreachable from node {source}: {missing[:5]}")
-    return [r for r in best if r is not None], max_slot
+        reached = ~np.isnan(t) & ((pred[targets] >= 0) | (targets == source))
+        phi = np.divide(g, t, out=np.zeros_like(g), where=reached & (t > 0))
+        better = reached & (phi > best_phi)
+        best_phi[better] = phi[better]
+        out_g[better], out_t[better], out_l[better] = g[better], t[better], length[better]
+        out_kappa[better] = kappa
+        out_tree[better] = len(preds)
+        preds.append(pred)
+    missing = targets[np.isinf(best_phi)]
+    if len(missing):
+        raise ValueError(f"targets unreachable from node {source}: {missing[:5].tolist()}")
+    rs = RouteSet(taxi_id, source, targets, out_kappa, out_g, out_t, out_l, out_tree, tuple(preds), ga.tail)
+    return rs, max_slot
 
 
 def route_pairs(
@@ -306,9 +346,10 @@ def improve_routes(
                 if j != i:
                     others.update(ps)
             table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra=others)
-            (cand,), _ = plan_routes(
+            rs, _ = plan_routes(
                 city, table, r.taxi_id, r.source, visited[i], np.array([r.target], dtype=np.int64), depart_s
             )
+            cand = rs.route(0)
             if np.array_equal(cand.edges, r.edges):
                 continue
             cand_pairs = route_pairs(city, cand, visited[i], depart_s)

@@ -1,0 +1,259 @@
+"""Epoch latency: the dispatch core in-process, the service over HTTP, and the floor beside them.
+
+Scenarios are data (``SCENARIOS``); every run is seeded. The floor is the unavoidable work of an epoch,
+measured on the same inputs in the same run: one full shortest-path tree per vacant taxi (scipy, all
+sources in one call) plus one assignment over taxis x riders.
+
+    python -m bench.bench_epoch                 # both scales, in-process and HTTP, writes docs/PERFORMANCE.md
+    python -m bench.bench_epoch --epochs 20 --no-http --no-write   # a quick look
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from zoneinfo import ZoneInfo
+
+import numpy as np
+import scipy
+import scipy.sparse.csgraph as cg
+from scipy.optimize import linear_sum_assignment
+
+from services.city import City
+from services.citydata import load_city
+from services.dispatch import decide
+from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
+
+ROOT = Path(__file__).resolve().parents[1]
+BUNDLES = ROOT / "app" / "data" / "cities"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    city: str
+    n_instrumented: int
+    n_ordinary: int
+    riders_mean: float
+    max_open_tasks: int
+    epochs: int
+    seed: int = 20261122
+
+
+SCENARIOS = {
+    "paper": Scenario("paper", "chengdu", 60, 60, 10.0, 85, 200),
+    "city": Scenario("city", "manhattan", 600, 1400, 400.0, 300, 200),
+}
+
+
+def epochs(city: City, sc: Scenario, n: int) -> Iterator[tuple[Snapshot, list[Task]]]:
+    """Seeded epochs 200 s apart from 08:00 local: taxis at random nodes, Poisson riders, a random number
+    (0..max) of open tasks at random nodes."""
+    rng = np.random.default_rng(sc.seed)
+    tz = ZoneInfo(city.horizon.timezone)
+    t0 = dt.datetime(2026, 11, 23, 8, 0, tzinfo=tz).timestamp()
+    nn = city.network.n_nodes
+    for e in range(n):
+        now = t0 + e * city.horizon.epoch_s
+        nr = int(rng.poisson(sc.riders_mean))
+        riders = tuple(
+            Rider(RiderId(f"r{e}-{i}"), int(rng.integers(nn)), int(rng.integers(nn)), now - float(rng.uniform(0, 300)))
+            for i in range(nr)
+        )
+        taxis = tuple(
+            Taxi(TaxiId(f"i{i}"), int(rng.integers(nn)), True, True) for i in range(sc.n_instrumented)
+        ) + tuple(Taxi(TaxiId(f"o{i}"), int(rng.integers(nn)), False, True) for i in range(sc.n_ordinary))
+        nt = int(rng.integers(0, sc.max_open_tasks + 1))
+        tasks = [Task(TaskId(f"k{e}-{i}"), int(rng.integers(nn)), now - 60.0) for i in range(nt)]
+        yield Snapshot(f"e{e}", now, riders, taxis), tasks
+
+
+def floor_once(city: City, snap: Snapshot) -> float:
+    """One full tree per vacant taxi plus one assignment (taxis x riders), timed."""
+    graph = city.network.csr(city.network.edge_time_s)
+    sources = np.array([t.node for t in snap.taxis if t.vacant])
+    t = time.perf_counter()
+    dist = cg.dijkstra(graph, indices=sources)
+    cols = np.array([r.origin for r in snap.riders], dtype=np.int64)
+    if len(cols):
+        linear_sum_assignment(dist[:, cols])
+    return time.perf_counter() - t
+
+
+def run_inprocess(sc: Scenario, n: int) -> dict[str, list[float]]:
+    city = load_city(BUNDLES / sc.city)
+    counts: dict[IntervalKey, np.ndarray] = {}
+    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
+    lat, flo = [], []
+    warm = next(epochs(city, sc, 1))
+    decide(city, CountsView({}), *warm)  # compile and cache outside the timing
+    for snap, tasks in epochs(city, sc, n):
+        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})
+        t = time.perf_counter()
+        d = decide(city, view, snap, tasks)
+        lat.append(time.perf_counter() - t)
+        for v in d.visits:  # commit, so counts evolve as they would in service
+            if (v.interval, v.cell) not in visited.setdefault(v.taxi_id, set()):
+                visited[v.taxi_id].add((v.interval, v.cell))
+                counts.setdefault(v.interval, np.zeros(city.grid.n_cells, dtype=np.int64))[v.cell] += 1
+        flo.append(floor_once(city, snap))
+    return {"latency": lat, "floor": flo}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def run_http(sc: Scenario, n: int) -> dict[str, list[float]]:
+    """Start the real service (uvicorn, in-memory store) and post the same epochs over HTTP."""
+    import httpx
+
+    city = load_city(BUNDLES / sc.city)
+    port = _free_port()
+    token = "bench-token"
+    env = {**os.environ, "SD_PORT": str(port), "SD_TOKENS": json.dumps({token: ["read", "dispatch"]})}
+    proc = subprocess.Popen([sys.executable, "-m", "app", "run"], env=env, cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ids = city.network.node_ids
+    lat: list[float] = []
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60.0,
+                          headers={"Authorization": f"Bearer {token}"}) as client:
+            for _ in range(300):
+                try:
+                    if client.get("/readyz").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                time.sleep(0.1)
+            else:
+                raise RuntimeError("the service did not become ready")
+            for e, (snap, tasks) in enumerate(epochs(city, sc, n + 1)):
+                if tasks:
+                    client.post(f"/v1/cities/{sc.city}/tasks", json=[
+                        {"id": t.id, "location": {"node": int(ids[t.node])},
+                         "scheduled_at": _iso(city, t.scheduled_at_s)} for t in tasks
+                    ]).raise_for_status()
+                body = {
+                    "epoch_id": snap.epoch_id,
+                    "time": _iso(city, snap.time_s),
+                    "riders": [{"id": r.id, "origin": {"node": int(ids[r.origin])},
+                                "destination": {"node": int(ids[r.destination])},
+                                "requested_at": _iso(city, r.requested_at_s)} for r in snap.riders],
+                    "taxis": [{"id": t.id, "location": {"node": int(ids[t.node])},
+                               "instrumented": t.instrumented, "status": "vacant"} for t in snap.taxis],
+                }
+                t = time.perf_counter()
+                r = client.post(f"/v1/cities/{sc.city}/epochs", json=body)
+                dt_s = time.perf_counter() - t
+                r.raise_for_status()
+                if e > 0:  # the first epoch compiles the kernels in the server process
+                    lat.append(dt_s)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    return {"latency": lat}
+
+
+def _iso(city: City, t: float) -> str:
+    return dt.datetime.fromtimestamp(t, tz=ZoneInfo(city.horizon.timezone)).isoformat()
+
+
+def summary(xs: list[float]) -> dict[str, float]:
+    a = np.array(xs) * 1000.0
+    return {"n": len(a), "p50_ms": float(np.median(a)), "p99_ms": float(np.percentile(a, 99)),
+            "min_ms": float(a.min()), "max_ms": float(a.max()), "iqr_ms": float(np.subtract(*np.percentile(a, [75, 25])))}
+
+
+def machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import numba
+
+    return (f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}; Python "
+            f"{platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, numba {numba.__version__}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenario", choices=sorted(SCENARIOS), action="append")
+    ap.add_argument("--epochs", type=int, default=None, help="override the scenario's epoch count")
+    ap.add_argument("--no-http", action="store_true")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args(argv)
+    results = {}
+    for name in args.scenario or ["paper", "city"]:
+        sc = SCENARIOS[name]
+        n = args.epochs or sc.epochs
+        print(f"[{name}] in-process, {n} epochs ...", flush=True)
+        r = run_inprocess(sc, n)
+        res = {"scenario": sc.__dict__, "inprocess": summary(r["latency"]), "floor": summary(r["floor"])}
+        if not args.no_http:
+            print(f"[{name}] over HTTP, {n} epochs ...", flush=True)
+            res["http"] = summary(run_http(sc, n)["latency"])
+        results[name] = res
+        print(json.dumps(res, indent=1), flush=True)
+    if not args.no_write:
+        write_report(results)
+    return 0
+
+
+def write_report(results: dict[str, dict]) -> None:
+    path = ROOT / "docs" / "PERFORMANCE.md"
+    lines = [
+        "# Performance",
+        "",
+        f"Measured {dt.date.today().isoformat()} with `make bench` (`python -m bench.bench_epoch`).",
+        f"Machine: {machine()}.",
+        "",
+        "## Epoch latency",
+        "",
+        "Inputs (seeded, `bench/bench_epoch.py` `SCENARIOS`): taxis at random nodes, Poisson riders requested",
+        "0-300 s earlier, a uniformly random number of open tasks (0..max) at random nodes, epochs 200 s apart from",
+        "08:00 local; counts evolve as the decisions are committed. In-process = `services.dispatch.decide` alone;",
+        "HTTP = a real `python -m app run` (uvicorn, in-memory store) with the client's round trip; floor = one",
+        "full shortest-path tree per vacant taxi (scipy, one call) plus one assignment, on the same epochs.",
+        "",
+        "| scale | city | taxis (instr.) | riders/epoch | open tasks | epochs | path | p50 ms | p99 ms | min-max ms | IQR ms |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        sc = r["scenario"]
+        for path in ("inprocess", "http", "floor"):
+            if path not in r:
+                continue
+            s = r[path]
+            lines.append(
+                f"| {name} | {sc['city']} | {sc['n_instrumented'] + sc['n_ordinary']} ({sc['n_instrumented']}) | "
+                f"~{sc['riders_mean']:.0f} | 0..{sc['max_open_tasks']} | {s['n']} | {path} | {s['p50_ms']:.1f} | "
+                f"{s['p99_ms']:.1f} | {s['min_ms']:.1f}-{s['max_ms']:.1f} | {s['iqr_ms']:.1f} |"
+            )
+    lines += ["", "Targets (issue 2): paper scale p99 <= 3x the floor and <= 100 ms in-process; city scale p99 <= 1 s.", ""]
+    for name, r in results.items():
+        ratio = r["inprocess"]["p99_ms"] / r["floor"]["p99_ms"]
+        lines.append(f"- {name}: in-process p99 / floor p99 = {ratio:.2f}")
+    path.write_text("\n".join(lines) + "\n")
+    (ROOT / "docs" / "perf_epoch.json").write_text(json.dumps(results, indent=1) + "\n")
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
