@@ -1,4 +1,4 @@
-"""Composition root: ``create_app(settings, registry=None, store=None)`` wires settings, cities, store and API."""
+"""Composition root: ``create_app(settings, registry=None, store=None)`` wires cities, store and API."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
+from fastapi.routing import APIRoute
 from starlette.types import ASGIApp
 
 from app.api import cities, dispatch, ops
@@ -96,6 +97,7 @@ def create_app(
         version=API_VERSION,
         description=_DESCRIPTION,
         lifespan=lifespan,
+        generate_unique_id_function=_operation_id,
     )
     app.state.settings = settings
     app.state.service = service
@@ -110,6 +112,11 @@ def create_app(
     app.include_router(cities.router)
     app.include_router(dispatch.router)
     return app
+
+
+def _operation_id(route: APIRoute) -> str:
+    """Operation ids are the endpoint function names (``post_epoch``), stable for client generators."""
+    return route.name
 
 
 def _warm(registry: CityCatalog) -> None:

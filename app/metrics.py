@@ -27,7 +27,9 @@ class Metrics:
             registry=self.registry,
         )
         self.matches = Counter(
-            "sd_rider_matches", "Riders matched, by step of the priority matching.", ["step"],
+            "sd_rider_matches",
+            "Riders matched, by step of the priority matching.",
+            ["step"],
             registry=self.registry,
         )
         self.task_assignments = Counter(

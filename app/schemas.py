@@ -79,7 +79,9 @@ class _Out(BaseModel):
 def _check_rfc3339(value: Any) -> Any:
     """Accept only RFC 3339 text with seconds and an explicit offset (no numbers, no naive times)."""
     if not isinstance(value, str):
-        raise ValueError("must be an RFC 3339 date-time string with an offset, e.g. 2024-05-06T08:00:00+08:00")
+        raise ValueError(
+            "must be an RFC 3339 date-time string with an offset, e.g. 2024-05-06T08:00:00+08:00"
+        )
     if len(value) > 40 or not _RFC3339.match(value):
         raise ValueError(
             "must be an RFC 3339 date-time with seconds and an offset, e.g. 2024-05-06T08:00:00+08:00"
@@ -123,8 +125,8 @@ class LocationIn(_In):
     )
 
     node: NodeId | None = None
-    lon: Lon | None = Field(None, description="WGS84 longitude, degrees.")
-    lat: Lat | None = Field(None, description="WGS84 latitude, degrees.")
+    lon: Lon | None = Field(default=None, description="WGS84 longitude, degrees.")
+    lat: Lat | None = Field(default=None, description="WGS84 latitude, degrees.")
 
     @model_validator(mode="after")
     def _one_form(self) -> LocationIn:

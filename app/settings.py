@@ -19,25 +19,31 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="SD_", env_file=None, extra="forbid", frozen=True)
 
-    store: Literal["memory", "redis"] = Field("memory", description="State backend.")
-    redis_url: str = Field("redis://localhost:6379/0", description="Redis URL when store=redis.")
-    host: str = Field("127.0.0.1", description="Bind address of `python -m app run`.")
-    port: int = Field(8000, ge=0, le=65535, description="Port of `python -m app run`.")
+    store: Literal["memory", "redis"] = Field(default="memory", description="State backend.")
+    redis_url: str = Field(default="redis://localhost:6379/0", description="Redis URL when store=redis.")
+    host: str = Field(default="127.0.0.1", description="Bind address of `python -m app run`.")
+    port: int = Field(default=8000, ge=0, le=65535, description="Port of `python -m app run`.")
     tokens: dict[str, list[Scope]] = Field(
         default_factory=dict,
         description='Bearer tokens and their scopes, JSON: {"tok1": ["read", "dispatch"]}.',
     )
-    cities_dir: Path = Field(Path("var/cities"), description="Directory of user-imported cities.")
+    cities_dir: Path = Field(default=Path("var/cities"), description="Directory of user-imported cities.")
     bundled_cities_dir: Path | None = Field(
-        None, description="Directory of bundled cities (default: the package's app/data/cities)."
+        default=None, description="Directory of bundled cities (default: the package's app/data/cities)."
     )
-    max_body_bytes: int = Field(1 << 20, ge=1024, description="Largest accepted request body (413 above).")
-    max_riders: int = Field(2000, ge=1, description="Most riders in one epoch.")
-    max_taxis: int = Field(5000, ge=1, description="Most taxis in one epoch.")
-    max_tasks: int = Field(1000, ge=1, description="Most tasks in one POST.")
-    commit_attempts: int = Field(8, ge=1, le=100, description="Solve/commit tries on version conflicts.")
-    retention_s: int = Field(8 * 86400, ge=3600, description="How long counts and epoch records are kept.")
-    log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Log level.")
+    max_body_bytes: int = Field(
+        default=1 << 20, ge=1024, description="Largest accepted request body (413 above)."
+    )
+    max_riders: int = Field(default=2000, ge=1, description="Most riders in one epoch.")
+    max_taxis: int = Field(default=5000, ge=1, description="Most taxis in one epoch.")
+    max_tasks: int = Field(default=1000, ge=1, description="Most tasks in one POST.")
+    commit_attempts: int = Field(
+        default=8, ge=1, le=100, description="Solve/commit tries on version conflicts."
+    )
+    retention_s: int = Field(
+        default=8 * 86400, ge=3600, description="How long counts and epoch records are kept."
+    )
+    log_level: Literal["debug", "info", "warning", "error"] = Field(default="info", description="Log level.")
 
     @field_validator("tokens")
     @classmethod

@@ -26,7 +26,7 @@ from app.errors import (
     StaleEpoch,
     TaskConflict,
 )
-from app.ports import CityState, EpochCommit, StoredEpoch, Store
+from app.ports import CityState, EpochCommit, Store, StoredEpoch
 from app.schemas import (
     CellCountOut,
     CoverageOut,
@@ -126,6 +126,18 @@ def _counts_view(city: City, state: CityState, intervals: Sequence[IntervalKey])
         counts={k: _dense(city, state.counts.get(k, {})) for k in intervals},
         visited={taxi: frozenset(pairs) for taxi, pairs in state.visited.items()},
     )
+
+
+def _gamma_before_after(
+    city: City, counts: CountsView, decision: Decision, day: Sequence[IntervalKey]
+) -> tuple[float, float]:
+    """Gamma over the day's horizon intervals at the epoch's start and once its visits are counted."""
+    after = {k: arr.copy() for k, arr in counts.counts.items()}
+    for visit in decision.visits:  # each visit is a new (taxi, interval, cell): Lambda + 1
+        arr = after.get(visit.interval)
+        if arr is not None:
+            arr[visit.cell] += 1
+    return gamma(city, counts.counts, day), gamma(city, after, day)
 
 
 class DispatchService:
@@ -269,16 +281,25 @@ class DispatchService:
         core: list[Task] = []
         for i, t in enumerate(tasks):
             node = self._resolve(city, t.location, f"[{i}].location")
-            where = None if t.location.lon is None or t.location.lat is None else (t.location.lon, t.location.lat)
-            core.append(Task(id=TaskId(t.id), node=node, scheduled_at_s=t.scheduled_at.timestamp(), location=where))
+            where = (
+                None if t.location.lon is None or t.location.lat is None else (t.location.lon, t.location.lat)
+            )
+            core.append(
+                Task(id=TaskId(t.id), node=node, scheduled_at_s=t.scheduled_at.timestamp(), location=where)
+            )
         result = self.store.put_tasks(name, core)
         if result.conflicts:
             index = {t.id: i for i, t in enumerate(tasks)}
             raise TaskConflict(
                 "tasks exist with different content: " + ", ".join(map(str, result.conflicts)),
-                [FieldIssue(f"[{index[c]}].id", f"task {c!r} exists with different content") for c in result.conflicts],
+                [
+                    FieldIssue(f"[{index[c]}].id", f"task {c!r} exists with different content")
+                    for c in result.conflicts
+                ],
             )
-        return TasksPutOut(created=[str(t) for t in result.created], unchanged=[str(t) for t in result.unchanged])
+        return TasksPutOut(
+            created=[str(t) for t in result.created], unchanged=[str(t) for t in result.unchanged]
+        )
 
     def list_tasks(self, name: str) -> list[TaskOut]:
         """All tasks of a city, in scheduled order."""
@@ -317,20 +338,24 @@ class DispatchService:
             return self._replay(stored, digest)
 
         k0 = city.horizon.interval_of(snapshot.time_s)
-        intervals = {IntervalKey(k0 + i) for i in range(LOOKAHEAD_INTERVALS + 1)}
+        day = city.horizon.day_intervals(k0)
+        # the epoch's interval and the next two (paths run on), plus the day's horizon for Gamma
+        intervals = {IntervalKey(k0 + i) for i in range(LOOKAHEAD_INTERVALS + 1)} | set(day)
         instrumented = [t.id for t in snapshot.taxis if t.instrumented]
         for attempt in range(1, self.commit_attempts + 1):
             state = self._load(name, intervals, instrumented, snapshot.time_s)
             started = time.perf_counter()
             while True:
-                decision = self.decide(city, _counts_view(city, state, sorted(intervals)), snapshot, state.tasks)
+                counts = _counts_view(city, state, sorted(intervals))
+                decision = self.decide(city, counts, snapshot, state.tasks)
                 missing = set(decision.intervals_touched) - intervals
                 if not missing:
                     break
                 intervals |= missing  # the solve reached intervals it read as zero: load them, solve again
                 state = self._load(name, intervals, instrumented, snapshot.time_s)
             solve_ms = (time.perf_counter() - started) * 1000.0
-            response = self._render(city, body, decision, k0, solve_ms, attempt)
+            gammas = _gamma_before_after(city, counts, decision, day)
+            response = self._render(city, body, decision, k0, solve_ms, attempt, gammas)
             result = self.store.commit_epoch(
                 name,
                 EpochCommit(
@@ -359,12 +384,22 @@ class DispatchService:
                     "epoch time is older than the last committed epoch",
                     [FieldIssue("time", "older than the last committed epoch")],
                 )
-            log.info("epoch %s of %s: version mismatch on attempt %d, solving again", body.epoch_id, name, attempt)
-        raise Busy(f"city {name!r} is busy: {self.commit_attempts} commit attempts lost to concurrent epochs; retry")
+            log.info(
+                "epoch %s of %s: version mismatch on attempt %d, solving again", body.epoch_id, name, attempt
+            )
+        raise Busy(
+            f"city {name!r} is busy: {self.commit_attempts} commit attempts lost to concurrent epochs; retry"
+        )
 
     @staticmethod
     def _render(
-        city: City, body: EpochIn, decision: Decision, k0: IntervalKey, solve_ms: float, attempt: int
+        city: City,
+        body: EpochIn,
+        decision: Decision,
+        k0: IntervalKey,
+        solve_ms: float,
+        attempt: int,
+        gammas: tuple[float, float],
     ) -> str:
         """The response document of a decided epoch (stored verbatim for replays)."""
         stats: dict[str, float | int | str] = {}
@@ -387,6 +422,8 @@ class DispatchService:
                 "solve_ms": round(solve_ms, 3),
                 "attempts": attempt,
                 "visits": len(decision.visits),
+                "gamma": gammas[1],
+                "gamma_gain": gammas[1] - gammas[0],
             }
         )
         out = EpochOut(

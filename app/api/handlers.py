@@ -52,7 +52,8 @@ def from_validation_errors(errors: Any) -> ServiceError:
         if error.get("type") == "json_invalid":
             ctx = error.get("ctx") or {}
             return BadRequest(
-                f"the body is not valid JSON: {ctx.get('error', 'parse error')}", [FieldIssue("body", _msg(error))]
+                f"the body is not valid JSON: {ctx.get('error', 'parse error')}",
+                [FieldIssue("body", _msg(error))],
             )
         if loc == ["body"] and isinstance(error.get("input"), bytes | bytearray):
             # FastAPI hands over raw bytes when the Content-Type is not JSON
@@ -98,7 +99,9 @@ def install_error_handlers(app: FastAPI, metrics: Metrics) -> None:
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
-        return error_response(InternalError(f"internal error ({type(exc).__name__}); it has been logged"), metrics)
+        return error_response(
+            InternalError(f"internal error ({type(exc).__name__}); it has been logged"), metrics
+        )
 
     app.add_exception_handler(ServiceError, service_error)
     app.add_exception_handler(RequestValidationError, validation_error)

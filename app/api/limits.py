@@ -14,9 +14,7 @@ __all__ = ["BodyLimit"]
 class BodyLimit:
     """Buffer a request body up to ``max_bytes``; answer 413 above, without calling the app."""
 
-    def __init__(
-        self, app: ASGIApp, max_bytes: int, render: Callable[[ServiceError], ASGIApp]
-    ) -> None:
+    def __init__(self, app: ASGIApp, max_bytes: int, render: Callable[[ServiceError], ASGIApp]) -> None:
         self.app = app
         self.max_bytes = max_bytes
         self.render = render

@@ -21,7 +21,9 @@ def healthz() -> HealthOut:
     return HealthOut(status="ok")
 
 
-@router.get("/readyz", response_model=ReadyOut, summary="Store reachable and cities loaded", responses=errors(503))
+@router.get(
+    "/readyz", response_model=ReadyOut, summary="Store reachable and cities loaded", responses=errors(503)
+)
 def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
     """Readiness: the store answers a ping and every city loads (503 otherwise)."""
     service.store.ping()

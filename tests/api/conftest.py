@@ -43,7 +43,7 @@ def registry(cities_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Cit
 
 def settings(**overrides: Any) -> Settings:
     """Test settings: the tokens above and the given overrides."""
-    return Settings(tokens=TOKENS, **overrides)  # type: ignore[arg-type]
+    return Settings(**({"tokens": TOKENS} | overrides))
 
 
 MakeClient = Callable[..., TestClient]
@@ -54,10 +54,18 @@ def make_client(registry: CityRegistry) -> Iterator[MakeClient]:
     """Factory of TestClients over ``create_app``; keyword overrides go to Settings."""
     clients: list[TestClient] = []
 
-    def make(store: Store | None = None, decide: DecideFn | None = None, raise_errors: bool = True,
-             **overrides: Any) -> TestClient:
-        app = create_app(settings(**overrides), registry=registry, store=store or MemoryStore(),
-                         decide=decide or FakeDecide())
+    def make(
+        store: Store | None = None,
+        decide: DecideFn | None = None,
+        raise_errors: bool = True,
+        **overrides: Any,
+    ) -> TestClient:
+        app = create_app(
+            settings(**overrides),
+            registry=registry,
+            store=store or MemoryStore(),
+            decide=decide or FakeDecide(),
+        )
         client = TestClient(app, raise_server_exceptions=raise_errors)
         clients.append(client)
         return client

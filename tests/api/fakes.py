@@ -122,22 +122,38 @@ class FakeDecide:
                     if task.is_open(snapshot.time_s) and task.node in path:
                         updates.append(
                             replace(
-                                task, status="completed", completed_at_s=snapshot.time_s,
-                                taxi_id=taxi.id, mode="passive",
+                                task,
+                                status="completed",
+                                completed_at_s=snapshot.time_s,
+                                taxi_id=taxi.id,
+                                mode="passive",
                             )
                         )
             matches.append(
                 RiderMatch(
-                    step=1 if taxi.instrumented else 2, taxi_id=taxi.id, rider_id=rider.id,
-                    pickup_m=100.0, wait_s=10.0, trip_m=800.0, trip_time_s=82.0,
-                    sensing_gain=0.5 if taxi.instrumented else 0.0, path=path,
+                    step=1 if taxi.instrumented else 2,
+                    taxi_id=taxi.id,
+                    rider_id=rider.id,
+                    pickup_m=100.0,
+                    wait_s=10.0,
+                    trip_m=800.0,
+                    trip_time_s=82.0,
+                    sensing_gain=0.5 if taxi.instrumented else 0.0,
+                    path=path,
                     cells=tuple(city.grid.col_row(c) for c in cells),
                 )
             )
         touched = sorted({IntervalKey(k)} | {IntervalKey(k + d) for d in self.extra_intervals})
         return Decision(
-            epoch_id=snapshot.epoch_id, time_s=snapshot.time_s, rider_matches=tuple(matches),
-            task_assignments=(), tasks_completed=tuple(updates), task_updates=tuple(updates),
-            unmatched_rider_ids=tuple(unmatched), expired_rider_ids=tuple(expired), visits=tuple(visits),
-            intervals_touched=tuple(touched), stats={"gamma": 0.25, "n_candidates": len(matches)},
+            epoch_id=snapshot.epoch_id,
+            time_s=snapshot.time_s,
+            rider_matches=tuple(matches),
+            task_assignments=(),
+            tasks_completed=tuple(updates),
+            task_updates=tuple(updates),
+            unmatched_rider_ids=tuple(unmatched),
+            expired_rider_ids=tuple(expired),
+            visits=tuple(visits),
+            intervals_touched=tuple(touched),
+            stats={"gamma": 0.25, "n_candidates": len(matches)},
         )

@@ -13,17 +13,30 @@ def at(minutes: float) -> dt.datetime:
     return T0 + dt.timedelta(minutes=minutes)
 
 
-def epoch(epoch_id: str = "e1", minutes: float = 0.0, *, riders: list[dict[str, Any]] | None = None,
-          taxis: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+def epoch(
+    epoch_id: str = "e1",
+    minutes: float = 0.0,
+    *,
+    riders: list[dict[str, Any]] | None = None,
+    taxis: list[dict[str, Any]] | None = None,
+) -> dict[str, Any]:
     """An epoch at T0 + minutes: by default two riders and three taxis (t0 instrumented)."""
     when = at(minutes)
     if riders is None:
         lon, lat = lonlat(3, 3)
         riders = [
-            {"id": "r1", "origin": {"node": node_id(0, 0)}, "destination": {"node": node_id(4, 4)},
-             "requested_at": rfc(when - dt.timedelta(seconds=30))},
-            {"id": "r2", "origin": {"lon": lon, "lat": lat}, "destination": {"node": node_id(1, 0)},
-             "requested_at": rfc(when)},
+            {
+                "id": "r1",
+                "origin": {"node": node_id(0, 0)},
+                "destination": {"node": node_id(4, 4)},
+                "requested_at": rfc(when - dt.timedelta(seconds=30)),
+            },
+            {
+                "id": "r2",
+                "origin": {"lon": lon, "lat": lat},
+                "destination": {"node": node_id(1, 0)},
+                "requested_at": rfc(when),
+            },
         ]
     if taxis is None:
         taxis = [

@@ -25,8 +25,16 @@ def test_full_epoch_commits_counts_and_tasks(make_client: MakeClient, any_store:
     assert r.status_code == 200, r.text
     assert "Idempotent-Replayed" not in r.headers
     body = r.json()
-    assert set(body) == {"epoch_id", "time", "rider_matches", "task_assignments", "tasks_completed",
-                         "unmatched_rider_ids", "expired_rider_ids", "stats"}
+    assert set(body) == {
+        "epoch_id",
+        "time",
+        "rider_matches",
+        "task_assignments",
+        "tasks_completed",
+        "unmatched_rider_ids",
+        "expired_rider_ids",
+        "stats",
+    }
     assert body["epoch_id"] == "e1"
     m1, m2 = body["rider_matches"]
     assert (m1["step"], m1["taxi_id"], m1["rider_id"]) == (1, "t0", "r1")
@@ -37,7 +45,7 @@ def test_full_epoch_commits_counts_and_tasks(make_client: MakeClient, any_store:
     assert body["tasks_completed"][0]["mode"] == "passive"
     stats = body["stats"]
     assert stats["step1_matches"] == 1 and stats["step2_matches"] == 1
-    assert stats["interval"] == "2026-11-23T08:00" and stats["gamma"] == 0.25
+    assert stats["interval"] == "2026-11-23T08:00" and stats["n_candidates"] == 2
     assert "solve_ms" in stats
 
     state = any_store.load_state(CITY, any_store.list_intervals(CITY), [TaxiId("t0")])
@@ -48,7 +56,9 @@ def test_full_epoch_commits_counts_and_tasks(make_client: MakeClient, any_store:
     assert tasks["poi-b"]["status"] == "pending"
 
 
-def test_replay_returns_stored_response_and_changes_nothing(make_client: MakeClient, any_store: Store) -> None:
+def test_replay_returns_stored_response_and_changes_nothing(
+    make_client: MakeClient, any_store: Store
+) -> None:
     decide = FakeDecide()
     client = make_client(store=any_store, decide=decide)
     first = client.post(URL, json=payloads.epoch(), headers=auth())
@@ -94,12 +104,25 @@ def test_visits_counted_once_per_taxi_and_interval(make_client: MakeClient, any_
     assert sorted(counts.values()) == [1, 1]
 
 
-def test_loads_epoch_interval_and_next_two(make_client: MakeClient) -> None:
+def test_loads_epoch_interval_next_two_and_the_days_horizon(make_client: MakeClient) -> None:
     decide = FakeDecide()
     client = make_client(decide=decide)
-    r = client.post(URL, json=payloads.epoch(), headers=auth())
+    r = client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
+    k = r.json()["stats"]["interval_key"]  # 08:00, the first of four
+    assert decide.calls[0]["intervals"] == [k, k + 1, k + 2, k + 3]
+    r = client.post(URL, json=payloads.epoch("e2", 190), headers=auth())  # 11:10, the last of four
     k = r.json()["stats"]["interval_key"]
-    assert decide.calls[0]["intervals"] == [k, k + 1, k + 2]
+    assert decide.calls[1]["intervals"] == [k - 3, k - 2, k - 1, k, k + 1, k + 2]
+
+
+def test_gamma_in_stats(make_client: MakeClient) -> None:
+    client = make_client()
+    stats = client.post(URL, json=payloads.epoch("e1", 0), headers=auth()).json()["stats"]
+    cov = client.get(f"/v1/cities/{CITY}/coverage", headers=auth()).json()
+    assert stats["gamma"] == pytest.approx(cov["gamma_so_far"]) and stats["gamma"] > 0
+    assert stats["gamma_gain"] == pytest.approx(stats["gamma"])  # from zero
+    stats = client.post(URL, json=payloads.epoch("e2", 5), headers=auth()).json()["stats"]
+    assert stats["gamma_gain"] == 0.0  # same taxi, same cells, same interval
 
 
 def test_reloads_and_solves_again_when_decision_reaches_further(make_client: MakeClient) -> None:
@@ -109,7 +132,10 @@ def test_reloads_and_solves_again_when_decision_reaches_further(make_client: Mak
     r = client.post(URL, json=payloads.epoch(), headers=auth())
     assert r.status_code == 200
     k = r.json()["stats"]["interval_key"]
-    assert [c["intervals"] for c in decide.calls] == [[k, k + 1, k + 2], [k, k + 1, k + 2, k + 5]]
+    assert [c["intervals"] for c in decide.calls] == [
+        [k, k + 1, k + 2, k + 3],
+        [k, k + 1, k + 2, k + 3, k + 5],
+    ]
     assert fingerprint(store)[0] == 1
 
 
@@ -125,7 +151,9 @@ class RacingStore:
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
 
-    def load_state(self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]) -> CityState:
+    def load_state(
+        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+    ) -> CityState:
         state = self.inner.load_state(city, intervals, taxi_ids)
         if self.races is None or self.races > 0:
             if self.races is not None:
@@ -192,7 +220,8 @@ def test_demand_recorded_for_the_worker(make_client: MakeClient) -> None:
     (doc,) = [json.loads(d) for d in store.recorded_demand(CITY, "20261123")]
     assert doc["epoch_id"] == "e1"
     assert [(r["id"], r["origin"], r["destination"]) for r in doc["riders"]] == [
-        ("r1", node_id(0, 0), node_id(4, 4)), ("r2", node_id(3, 3), node_id(1, 0))
+        ("r1", node_id(0, 0), node_id(4, 4)),
+        ("r2", node_id(3, 3), node_id(1, 0)),
     ]
 
 

@@ -1,0 +1,77 @@
+"""`python -m app`: token, openapi, dev settings, demo, import-city and worker delegation."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pytest
+
+from app import cli
+from app.settings import Settings
+
+
+def test_token(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["token"]) == 0
+    a = capsys.readouterr().out.strip()
+    cli.main(["token"])
+    b = capsys.readouterr().out.strip()
+    assert len(a) >= 40 and a != b
+
+
+def test_openapi_writes_the_document(tmp_path: Path) -> None:
+    out = tmp_path / "o.json"
+    assert cli.main(["openapi", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["info"]["title"] == "sensedispatch"
+
+
+def test_dev_settings_make_a_token_and_bind_loopback() -> None:
+    s, token = cli.dev_settings(Settings(tokens={}, host="0.0.0.0"))
+    assert token is not None and s.tokens == {token: ["read", "dispatch"]} and s.host == "127.0.0.1"
+    configured = Settings(tokens={"abcdefgh123": ["read"]}, host="0.0.0.0")
+    assert cli.dev_settings(configured) == (configured, None)
+
+
+def test_settings_from_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SD_TOKENS", '{"tok1-abcdefgh": ["read", "dispatch"]}')
+    monkeypatch.setenv("SD_STORE", "redis")
+    monkeypatch.setenv("SD_MAX_BODY_BYTES", "2048")
+    s = Settings()
+    assert (
+        s.tokens == {"tok1-abcdefgh": ["read", "dispatch"]}
+        and s.store == "redis"
+        and s.max_body_bytes == 2048
+    )
+    monkeypatch.setenv("SD_TOKENS", '{"tok1-abcdefgh": ["admin"]}')
+    with pytest.raises(ValueError):
+        Settings()
+
+
+def test_import_city_is_delegated(tmp_path: Path) -> None:
+    nodes = tmp_path / "nodes.csv"
+    edges = tmp_path / "edges.csv"
+    nodes.write_text("id,lon,lat\n1,104.06,30.66\n2,104.07,30.66\n")
+    edges.write_text("u,v,length_m\n1,2,960\n2,1,960\n")
+    rc = cli.main(
+        ["import-city", "mini", "--nodes", str(nodes), "--edges", str(edges), "--out", str(tmp_path / "c")]
+    )
+    assert rc == 0 and (tmp_path / "c" / "mini" / "city.json").is_file()
+
+
+def test_worker_absent_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        import app.worker  # noqa: F401
+    except ModuleNotFoundError:
+        assert cli.main(["worker"]) == 2
+        assert "not part of this build" in capsys.readouterr().err
+    else:
+        assert callable(app.worker.main)  # type: ignore[attr-defined]
+
+
+def test_demo_in_process() -> None:
+    out = io.StringIO()
+    rc = cli.run_demo(cli.DemoConfig(epochs=2, riders=6, taxis=10, tasks=2, seed=3), out=out)
+    text = out.getvalue()
+    assert rc == 0, text
+    assert "epoch 2/2" in text and "step 1" in text and "coverage of interval" in text

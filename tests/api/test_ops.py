@@ -1,0 +1,86 @@
+"""Health, readiness, metrics, and a store that cannot be reached (503, never 500)."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from app.adapters import RedisStore
+from app.cities import CityRegistry
+from app.main import create_app
+from tests.api import payloads
+from tests.api.conftest import CITY, MakeClient, auth, settings
+from tests.api.fakes import FakeDecide
+
+
+def test_healthz_and_readyz(make_client: MakeClient) -> None:
+    client = make_client()
+    assert client.get("/healthz").json() == {"status": "ok"}
+    assert client.get("/readyz").json() == {"status": "ready", "store": "memory", "cities": [CITY]}
+
+
+def test_readyz_without_cities_is_503(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    empty = CityRegistry(bundled_dir=tmp_path / "a", user_dir=tmp_path / "b")
+    r = TestClient(create_app(settings(), registry=empty, decide=FakeDecide())).get("/readyz")
+    assert r.status_code == 503 and r.json()["error"] == "unavailable"
+
+
+@pytest.fixture
+def closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])  # closed again on return: nothing listens there
+
+
+def test_unreachable_store_is_503(make_client: MakeClient, closed_port: int) -> None:
+    store = RedisStore(f"redis://127.0.0.1:{closed_port}/0", socket_timeout_s=0.5)
+    client = make_client(store=store)
+    for r in (
+        client.get("/readyz"),
+        client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch(), headers=auth()),
+        client.post(f"/v1/cities/{CITY}/tasks", json=payloads.tasks(), headers=auth()),
+        client.get(f"/v1/cities/{CITY}/tasks", headers=auth()),
+        client.get(f"/v1/cities/{CITY}/coverage", headers=auth()),
+    ):
+        assert r.status_code == 503, r.text
+        assert r.json()["error"] == "store_unavailable"
+    # what needs no store still works
+    assert client.get("/healthz").status_code == 200
+    assert client.get(f"/v1/cities/{CITY}", headers=auth()).status_code == 200
+    text = client.get("/metrics").text
+    assert 'sd_errors_total{kind="store_unavailable"} 5.0' in text
+    assert 'sd_epochs_total{outcome="store_unavailable"} 1.0' in text
+    store.close()
+
+
+def test_metrics(make_client: MakeClient) -> None:
+    client = make_client()
+    client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch(), headers=auth())
+    client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch(), headers=auth())
+    client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch("e0", -5), headers=auth())
+    client.post(f"/v1/cities/{CITY}/epochs", json={"bad": 1}, headers=auth())
+    r = client.get("/metrics")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
+    text = r.text
+    for line in (
+        'sd_epochs_total{outcome="committed"} 1.0',
+        'sd_epochs_total{outcome="replayed"} 1.0',
+        'sd_epochs_total{outcome="stale_epoch"} 1.0',
+        'sd_rider_matches_total{step="1"} 1.0',
+        'sd_rider_matches_total{step="2"} 1.0',
+        "sd_task_assignments_total 0.0",
+        'sd_errors_total{kind="stale_epoch"} 1.0',
+        'sd_errors_total{kind="validation_error"} 1.0',
+        "sd_epoch_latency_seconds_count 3.0",
+    ):
+        assert line in text, line
+
+
+def test_metrics_are_per_app(make_client: MakeClient) -> None:
+    a, b = make_client(), make_client()
+    a.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch(), headers=auth())
+    assert 'sd_epochs_total{outcome="committed"} 0.0' in b.get("/metrics").text
