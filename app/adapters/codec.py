@@ -1,0 +1,110 @@
+"""Serialization shared by the store adapters: tasks as JSON, registration comparison, demand days."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from app.ports import PutTasksResult
+from services.model import Task, TaskId, TaxiId
+
+__all__ = [
+    "task_to_json",
+    "task_from_json",
+    "same_registration",
+    "classify_tasks",
+    "TaskClassification",
+    "lookup_in",
+    "utc_day",
+    "format_time",
+]
+
+
+def format_time(time_s: float) -> str:
+    """Exact text form of a POSIX time (``repr`` round-trips a float)."""
+    return repr(float(time_s))
+
+
+def task_to_json(task: Task) -> str:
+    """Compact, key-sorted JSON of a task."""
+    doc: dict[str, Any] = {
+        "id": str(task.id),
+        "node": int(task.node),
+        "scheduled_at_s": float(task.scheduled_at_s),
+        "status": task.status,
+        "completed_at_s": None if task.completed_at_s is None else float(task.completed_at_s),
+        "taxi_id": None if task.taxi_id is None else str(task.taxi_id),
+        "mode": task.mode,
+        "location": None if task.location is None else [float(task.location[0]), float(task.location[1])],
+    }
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def task_from_json(text: str) -> Task:
+    """Inverse of ``task_to_json``."""
+    doc = json.loads(text)
+    location = doc.get("location")
+    completed = doc.get("completed_at_s")
+    taxi = doc.get("taxi_id")
+    return Task(
+        id=TaskId(doc["id"]),
+        node=int(doc["node"]),
+        scheduled_at_s=float(doc["scheduled_at_s"]),
+        status=doc.get("status", "pending"),
+        completed_at_s=None if completed is None else float(completed),
+        taxi_id=None if taxi is None else TaxiId(taxi),
+        mode=doc.get("mode"),
+        location=None if location is None else (float(location[0]), float(location[1])),
+    )
+
+
+def same_registration(a: Task, b: Task) -> bool:
+    """Whether two tasks were registered alike (id, node, scheduled time, location); lifecycle is ignored."""
+    return (
+        a.id == b.id
+        and a.node == b.node
+        and float(a.scheduled_at_s) == float(b.scheduled_at_s)
+        and a.location == b.location
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class TaskClassification:
+    """Outcome of comparing posted tasks with stored ones: the result, and what to write if no conflict."""
+
+    result: PutTasksResult
+    to_write: dict[TaskId, Task] = field(default_factory=dict)
+
+
+def classify_tasks(lookup: Callable[[TaskId], Task | None], tasks: Sequence[Task]) -> TaskClassification:
+    """Sort posted tasks into created / unchanged / conflicts; a repeated id is compared with its first."""
+    created: list[TaskId] = []
+    unchanged: list[TaskId] = []
+    conflicts: list[TaskId] = []
+    pending: dict[TaskId, Task] = {}
+    for task in tasks:
+        existing = pending.get(task.id) or lookup(task.id)
+        if existing is None:
+            pending[task.id] = task
+            created.append(task.id)
+        elif same_registration(existing, task):
+            if task.id not in pending and task.id not in unchanged:
+                unchanged.append(task.id)
+        elif task.id not in conflicts:
+            conflicts.append(task.id)
+    if conflicts:
+        return TaskClassification(PutTasksResult(conflicts=conflicts))
+    return TaskClassification(PutTasksResult(created=created, unchanged=unchanged), pending)
+
+
+def lookup_in(mapping: Mapping[TaskId, Task]) -> Callable[[TaskId], Task | None]:
+    """A ``classify_tasks`` lookup over a mapping."""
+    return mapping.get
+
+
+def utc_day(time_s: float) -> str:
+    """The UTC calendar day of a POSIX time as ``YYYYMMDD`` (the demand list key suffix)."""
+    return dt.datetime.fromtimestamp(time_s, tz=dt.UTC).strftime("%Y%m%d")

@@ -1,0 +1,191 @@
+"""In-process ``Store``: one lock, the embedded default; mirrors the Redis key layout and expiry."""
+
+from __future__ import annotations
+
+import heapq
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+from app.adapters.codec import classify_tasks, lookup_in, utc_day
+from app.ports import (
+    CityState,
+    CommitResult,
+    EpochCommit,
+    PutTasksResult,
+    StoredEpoch,
+)
+from services.model import IntervalKey, Task, TaskId, TaxiId
+
+__all__ = ["MemoryStore"]
+
+_Kind = Literal["count", "visit", "epoch", "demand"]
+_ExpiryKey = tuple[str, _Kind, str]  # (city, kind, key within the city)
+
+
+@dataclass(slots=True)
+class _City:
+    version: int = 0
+    last_epoch_id: str | None = None
+    last_time_s: float | None = None
+    epochs: dict[str, StoredEpoch] = field(default_factory=dict)
+    counts: dict[IntervalKey, dict[int, int]] = field(default_factory=dict)
+    visits: dict[tuple[IntervalKey, TaxiId], set[int]] = field(default_factory=dict)
+    tasks: dict[TaskId, Task] = field(default_factory=dict)
+    demand: dict[str, list[str]] = field(default_factory=dict)
+
+
+def _visit_key(interval: IntervalKey, taxi: TaxiId) -> str:
+    return f"{int(interval)}:{taxi}"
+
+
+class MemoryStore:
+    """Thread-safe in-memory store; counts, visits, epoch records and demand expire after ``retention_s``."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        """Create an empty store; ``clock`` (seconds) drives expiry."""
+        self._lock = threading.Lock()
+        self._clock = clock
+        self._cities: dict[str, _City] = {}
+        self._expires_at: dict[_ExpiryKey, float] = {}
+        self._heap: list[tuple[float, _ExpiryKey]] = []
+
+    # -- expiry (lazy, like Redis: expired entries are invisible and dropped on the next access) --------
+
+    def _touch(self, key: _ExpiryKey, ttl_s: int) -> None:
+        at = self._clock() + ttl_s
+        self._expires_at[key] = at
+        heapq.heappush(self._heap, (at, key))
+
+    def _purge(self) -> None:
+        now = self._clock()
+        while self._heap and self._heap[0][0] <= now:
+            at, key = heapq.heappop(self._heap)
+            if self._expires_at.get(key) != at:
+                continue  # refreshed since this entry was pushed
+            del self._expires_at[key]
+            self._drop(key)
+
+    def _drop(self, key: _ExpiryKey) -> None:
+        city_name, kind, name = key
+        city = self._cities.get(city_name)
+        if city is None:
+            return
+        if kind == "count":
+            city.counts.pop(IntervalKey(int(name)), None)
+        elif kind == "visit":
+            k, taxi = name.split(":", 1)
+            city.visits.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
+        elif kind == "epoch":
+            city.epochs.pop(name, None)
+        else:
+            city.demand.pop(name, None)
+
+    def _city(self, city: str) -> _City:
+        self._purge()
+        state = self._cities.get(city)
+        if state is None:
+            state = self._cities[city] = _City()
+        return state
+
+    # -- the port ------------------------------------------------------------------------------------
+
+    def ping(self) -> None:
+        """Always reachable."""
+
+    def get_epoch(self, city: str, epoch_id: str) -> StoredEpoch | None:
+        """The stored record of an epoch, if any."""
+        with self._lock:
+            return self._city(city).epochs.get(epoch_id)
+
+    def load_state(
+        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+    ) -> CityState:
+        """A copy of the city's state for the given intervals and taxis."""
+        with self._lock:
+            c = self._city(city)
+            ks = list(dict.fromkeys(intervals))
+            visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
+            for taxi in dict.fromkeys(taxi_ids):
+                pairs: set[tuple[IntervalKey, int]] = set()
+                for k in ks:
+                    pairs.update((k, cell) for cell in c.visits.get((k, taxi), ()))
+                visited[taxi] = pairs
+            return CityState(
+                version=c.version,
+                last_epoch_id=c.last_epoch_id,
+                last_epoch_time_s=c.last_time_s,
+                counts={k: dict(c.counts.get(k, {})) for k in ks},
+                visited=visited,
+                tasks=[c.tasks[t] for t in sorted(c.tasks)],
+            )
+
+    def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
+        """Check and apply one epoch under the lock (see ``app.ports.Store.commit_epoch``)."""
+        with self._lock:
+            c = self._city(city)
+            stored = c.epochs.get(commit.epoch_id)
+            if stored is not None:
+                return CommitResult("duplicate", stored=stored)
+            if commit.expected_version != c.version:
+                return CommitResult("version_mismatch")
+            if c.last_time_s is not None and commit.time_s < c.last_time_s:
+                return CommitResult("stale")
+            ttl = int(commit.retention_s)
+            for visit in commit.visits:
+                k, taxi, cell = IntervalKey(int(visit.interval)), visit.taxi_id, int(visit.cell)
+                cells = c.visits.setdefault((k, taxi), set())
+                if cell not in cells:
+                    cells.add(cell)
+                    counts = c.counts.setdefault(k, {})
+                    counts[cell] = counts.get(cell, 0) + 1
+                self._touch((city, "count", str(int(k))), ttl)
+                self._touch((city, "visit", _visit_key(k, taxi)), ttl)
+            for task in commit.task_updates:
+                c.tasks[task.id] = task
+            c.epochs[commit.epoch_id] = StoredEpoch(
+                commit.epoch_id, commit.body_hash, float(commit.time_s), commit.response_json
+            )
+            self._touch((city, "epoch", commit.epoch_id), ttl)
+            if commit.demand_json is not None:
+                day = utc_day(commit.time_s)
+                c.demand.setdefault(day, []).append(commit.demand_json)
+                self._touch((city, "demand", day), ttl)
+            c.version += 1
+            c.last_epoch_id = commit.epoch_id
+            c.last_time_s = float(commit.time_s)
+            return CommitResult("committed", new_version=c.version)
+
+    def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
+        """Register tasks, idempotent per id; on any conflict nothing is written."""
+        with self._lock:
+            c = self._city(city)
+            outcome = classify_tasks(lookup_in(c.tasks), tasks)
+            c.tasks.update(outcome.to_write)
+            return outcome.result
+
+    def list_tasks(self, city: str) -> list[Task]:
+        """All tasks of the city, by id."""
+        with self._lock:
+            c = self._city(city)
+            return [c.tasks[t] for t in sorted(c.tasks)]
+
+    def interval_counts(self, city: str, interval: IntervalKey) -> dict[int, int]:
+        """Lambda by cell for one interval (cells with zero count absent)."""
+        with self._lock:
+            return dict(self._city(city).counts.get(interval, {}))
+
+    def list_intervals(self, city: str) -> list[IntervalKey]:
+        """Intervals with at least one count, ascending."""
+        with self._lock:
+            return sorted(k for k, counts in self._city(city).counts.items() if counts)
+
+    def recorded_demand(self, city: str, day: str) -> list[str]:
+        """Demand recorded on one UTC day (``YYYYMMDD``), in commit order."""
+        with self._lock:
+            return list(self._city(city).demand.get(day, []))
+
+    def close(self) -> None:
+        """Nothing to release."""

@@ -1,0 +1,296 @@
+"""Redis ``Store``: one Lua script commits an epoch; reads are MULTI/EXEC snapshots (keys: docs/DESIGN.md)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any, cast
+
+import redis
+from redis.backoff import ExponentialBackoff
+from redis.exceptions import ConnectionError as RedisConnectionError
+from redis.exceptions import TimeoutError as RedisTimeoutError
+from redis.exceptions import WatchError
+from redis.retry import Retry
+
+from app.adapters.codec import classify_tasks, format_time, task_from_json, task_to_json, utc_day
+from app.ports import (
+    CityState,
+    CommitResult,
+    EpochCommit,
+    PutTasksResult,
+    StoredEpoch,
+    StoreUnavailable,
+)
+from services.model import IntervalKey, Task, TaskId, TaxiId
+
+__all__ = ["RedisStore", "COMMIT_EPOCH_LUA"]
+
+COMMIT_EPOCH_LUA = """
+-- Commit one dispatch epoch atomically (docs/DESIGN.md, "Exactly-once epochs").
+-- KEYS[1] meta hash, KEYS[2] epoch record hash, KEYS[3] intervals zset, KEYS[4] tasks hash,
+-- KEYS[5] demand list of the epoch's UTC day, KEYS[6..] count and visit keys named by index in visits.
+-- ARGV[1] JSON {epoch_id, hash, time, expected_version, ttl, response,
+--               visits: [[count_key_index, visit_key_index, cell, interval], ...],
+--               tasks: [[task_id, task_json], ...], demand (absent when nothing is recorded)}.
+-- Cells, intervals, times and the TTL arrive as strings: no number round-trips through a Lua double.
+-- Returns {'duplicate', hash, time, response} | {'version_mismatch'} | {'stale'} | {'committed', version}.
+local meta, epoch, intervals, tasks, demand = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
+local c = cjson.decode(ARGV[1])
+
+local stored = redis.call('HMGET', epoch, 'hash', 'time', 'response')
+if stored[1] then
+  return {'duplicate', stored[1], stored[2], stored[3]}
+end
+local m = redis.call('HMGET', meta, 'version', 'last_time')
+if tonumber(m[1] or '0') ~= tonumber(c.expected_version) then
+  return {'version_mismatch'}
+end
+if m[2] and tonumber(c.time) < tonumber(m[2]) then
+  return {'stale'}
+end
+
+local touched = {}
+for _, v in ipairs(c.visits) do
+  local count_key, visit_key, cell = KEYS[v[1]], KEYS[v[2]], v[3]
+  -- a (taxi, interval, cell) is counted at most once ever: Lambda grows only for a new set member
+  if redis.call('SADD', visit_key, cell) == 1 then
+    redis.call('HINCRBY', count_key, cell, 1)
+  end
+  redis.call('ZADD', intervals, v[4], v[4])
+  touched[count_key] = true
+  touched[visit_key] = true
+end
+for key, _ in pairs(touched) do
+  redis.call('EXPIRE', key, c.ttl)
+end
+for _, t in ipairs(c.tasks) do
+  redis.call('HSET', tasks, t[1], t[2])
+end
+redis.call('HSET', epoch, 'hash', c.hash, 'time', c.time, 'response', c.response)
+redis.call('EXPIRE', epoch, c.ttl)
+if c.demand ~= nil and c.demand ~= cjson.null then
+  redis.call('RPUSH', demand, c.demand)
+  redis.call('EXPIRE', demand, c.ttl)
+end
+local version = redis.call('HINCRBY', meta, 'version', 1)
+redis.call('HSET', meta, 'last_time', c.time, 'last_epoch', c.epoch_id)
+return {'committed', version}
+"""
+
+
+class RedisStore:
+    """``Store`` on a Redis server; every connection failure surfaces as ``StoreUnavailable``."""
+
+    def __init__(self, url: str, prefix: str = "sd", *, socket_timeout_s: float = 2.0) -> None:
+        """Connect lazily to ``url``; keys are ``<prefix>:{<city>}:...``."""
+        if not prefix or "{" in prefix or "}" in prefix:
+            raise ValueError(f"invalid key prefix {prefix!r}")
+        self._prefix = prefix
+        # One quick retry covers a pooled connection the server dropped; no long backoff on a dead server.
+        self._client: redis.Redis = redis.Redis.from_url(
+            url,
+            decode_responses=True,
+            socket_timeout=socket_timeout_s,
+            socket_connect_timeout=socket_timeout_s,
+            retry=Retry(ExponentialBackoff(cap=0.05, base=0.01), 1),
+            health_check_interval=30,
+        )
+        kwargs = self._client.connection_pool.connection_kwargs
+        where = kwargs.get("path") or f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}"
+        self._where = f"redis://{where}/{kwargs.get('db', 0)}"  # no password in messages
+        self._commit_script = self._client.register_script(COMMIT_EPOCH_LUA)
+
+    # -- keys -----------------------------------------------------------------------------------------
+
+    @property
+    def prefix(self) -> str:
+        """The key prefix (``sd`` by default)."""
+        return self._prefix
+
+    def _key(self, city: str, *parts: str) -> str:
+        if not city or "{" in city or "}" in city:
+            raise ValueError(f"invalid city name {city!r}")
+        return ":".join((self._prefix, "{" + city + "}", *parts))
+
+    def _count_key(self, city: str, interval: IntervalKey) -> str:
+        return self._key(city, "count", str(int(interval)))
+
+    def _visit_key(self, city: str, interval: IntervalKey, taxi: TaxiId) -> str:
+        return self._key(city, "visit", str(int(interval)), str(taxi))
+
+    @contextmanager
+    def _guard(self, doing: str) -> Iterator[None]:
+        try:
+            yield
+        except (RedisConnectionError, RedisTimeoutError) as exc:
+            raise StoreUnavailable(f"Redis at {self._where} is unreachable while {doing}: {exc}") from exc
+
+    # -- the port -------------------------------------------------------------------------------------
+
+    def ping(self) -> None:
+        """Raise ``StoreUnavailable`` unless the server answers PING."""
+        with self._guard("pinging"):
+            self._client.ping()
+
+    def get_epoch(self, city: str, epoch_id: str) -> StoredEpoch | None:
+        """The stored record of an epoch, if any."""
+        key = self._key(city, "epoch", epoch_id)
+        with self._guard("reading an epoch record"):
+            reply = cast(list[Any], self._client.hmget(key, ["hash", "time", "response"]))
+        body_hash, time_s, response = reply
+        if body_hash is None:
+            return None
+        return StoredEpoch(epoch_id, body_hash, float(time_s), response)
+
+    def load_state(
+        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+    ) -> CityState:
+        """Version, last epoch, counts, visits and tasks read in one MULTI/EXEC (a consistent snapshot)."""
+        ks = list(dict.fromkeys(intervals))
+        taxis = list(dict.fromkeys(taxi_ids))
+        with self._guard("loading city state"):
+            pipe = self._client.pipeline(transaction=True)
+            pipe.hmget(self._key(city, "meta"), ["version", "last_time", "last_epoch"])
+            for k in ks:
+                pipe.hgetall(self._count_key(city, k))
+            for taxi in taxis:
+                for k in ks:
+                    pipe.smembers(self._visit_key(city, k, taxi))
+            pipe.hgetall(self._key(city, "tasks"))
+            replies = pipe.execute()
+        version, last_time, last_epoch = replies[0]
+        counts = {k: _int_fields(replies[1 + i]) for i, k in enumerate(ks)}
+        visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
+        at = 1 + len(ks)
+        for taxi in taxis:
+            pairs: set[tuple[IntervalKey, int]] = set()
+            for k in ks:
+                pairs.update((k, int(cell)) for cell in replies[at])
+                at += 1
+            visited[taxi] = pairs
+        return CityState(
+            version=int(version or 0),
+            last_epoch_id=last_epoch,
+            last_epoch_time_s=None if last_time is None else float(last_time),
+            counts=counts,
+            visited=visited,
+            tasks=_decode_tasks(replies[at]),
+        )
+
+    def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
+        """Run the commit script (see ``app.ports.Store.commit_epoch``)."""
+        keys = [
+            self._key(city, "meta"),
+            self._key(city, "epoch", commit.epoch_id),
+            self._key(city, "intervals"),
+            self._key(city, "tasks"),
+            self._key(city, "demand", utc_day(commit.time_s)),
+        ]
+        index: dict[str, int] = {}
+
+        def key_index(key: str) -> int:
+            if key not in index:
+                keys.append(key)
+                index[key] = len(keys)  # Lua arrays are 1-based
+            return index[key]
+
+        visits = [
+            [
+                key_index(self._count_key(city, v.interval)),
+                key_index(self._visit_key(city, v.interval, v.taxi_id)),
+                str(int(v.cell)),
+                str(int(v.interval)),
+            ]
+            for v in commit.visits
+        ]
+        doc: dict[str, Any] = {
+            "epoch_id": commit.epoch_id,
+            "hash": commit.body_hash,
+            "time": format_time(commit.time_s),
+            "expected_version": str(int(commit.expected_version)),
+            "ttl": str(int(commit.retention_s)),
+            "response": commit.response_json,
+            "visits": visits,
+            "tasks": [[str(t.id), task_to_json(t)] for t in commit.task_updates],
+        }
+        if commit.demand_json is not None:
+            doc["demand"] = commit.demand_json
+        with self._guard("committing an epoch"):
+            arg = json.dumps(doc, ensure_ascii=False)
+            reply = cast(list[Any], self._commit_script(keys=keys, args=[arg]))
+        status = reply[0]
+        if status == "committed":
+            return CommitResult("committed", new_version=int(reply[1]))
+        if status == "duplicate":
+            stored = StoredEpoch(commit.epoch_id, reply[1], float(reply[2]), reply[3])
+            return CommitResult("duplicate", stored=stored)
+        if status in ("version_mismatch", "stale"):
+            return CommitResult(status)
+        raise RuntimeError(f"unexpected reply from the commit script: {reply!r}")
+
+    def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
+        """Register tasks, idempotent per id; on any conflict nothing is written (WATCH/MULTI, retried)."""
+        key = self._key(city, "tasks")
+        ids = list(dict.fromkeys(str(t.id) for t in tasks))
+        if not ids:
+            return PutTasksResult()
+        with self._guard("registering tasks"), self._client.pipeline(transaction=True) as pipe:
+            while True:
+                try:
+                    pipe.watch(key)  # type: ignore[no-untyped-call]
+                    raw = cast(list[str | None], pipe.hmget(key, ids))
+                    existing = {TaskId(i): task_from_json(r) for i, r in zip(ids, raw, strict=True) if r}
+                    outcome = classify_tasks(existing.get, tasks)
+                    if not outcome.to_write:
+                        pipe.unwatch()
+                        return outcome.result
+                    pipe.multi()
+                    pipe.hset(key, mapping={str(i): task_to_json(t) for i, t in outcome.to_write.items()})
+                    pipe.execute()
+                    return outcome.result
+                except WatchError:
+                    continue  # a commit or another registration changed the tasks: compare again
+
+    def list_tasks(self, city: str) -> list[Task]:
+        """All tasks of the city, by id."""
+        with self._guard("listing tasks"):
+            raw = cast(dict[str, str], self._client.hgetall(self._key(city, "tasks")))
+        return _decode_tasks(raw)
+
+    def interval_counts(self, city: str, interval: IntervalKey) -> dict[int, int]:
+        """Lambda by cell for one interval (cells with zero count absent)."""
+        with self._guard("reading counts"):
+            raw = cast(dict[str, str], self._client.hgetall(self._count_key(city, interval)))
+        return _int_fields(raw)
+
+    def list_intervals(self, city: str) -> list[IntervalKey]:
+        """Intervals with at least one count, ascending (intervals whose counts expired are left out)."""
+        with self._guard("listing intervals"):
+            members = cast(list[str], self._client.zrange(self._key(city, "intervals"), 0, -1))
+            ks = [IntervalKey(int(m)) for m in members]
+            if not ks:
+                return []
+            pipe = self._client.pipeline(transaction=False)
+            for k in ks:
+                pipe.exists(self._count_key(city, k))
+            alive = pipe.execute()
+        return [k for k, n in zip(ks, alive, strict=True) if n]
+
+    def recorded_demand(self, city: str, day: str) -> list[str]:
+        """Demand recorded on one UTC day (``YYYYMMDD``), in commit order."""
+        with self._guard("reading recorded demand"):
+            return cast(list[str], self._client.lrange(self._key(city, "demand", day), 0, -1))
+
+    def close(self) -> None:
+        """Release the connection pool."""
+        self._client.close()
+
+
+def _int_fields(raw: dict[str, str]) -> dict[int, int]:
+    return {int(cell): int(n) for cell, n in raw.items() if int(n) != 0}
+
+
+def _decode_tasks(raw: dict[str, str]) -> list[Task]:
+    return [task_from_json(raw[i]) for i in sorted(raw)]
