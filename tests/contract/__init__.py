@@ -1,0 +1,1 @@
+"""Contract tests: one suite run against every ``app.ports.Store`` implementation."""
