@@ -404,10 +404,14 @@ class DispatchService:
         """The response document of a decided epoch (stored verbatim for replays)."""
         stats: dict[str, float | int | str] = {}
         for key, value in decision.stats.items():
-            v = float(value) if isinstance(value, float | np.floating) else int(value)
-            if isinstance(v, float) and not math.isfinite(v):
-                continue
-            stats[key] = v
+            v: Any = value
+            if isinstance(v, bool | np.bool_ | int | np.integer):
+                stats[key] = int(v)
+            elif isinstance(v, float | np.floating):
+                if math.isfinite(v):  # JSON has no NaN or infinity
+                    stats[key] = float(v)
+            elif isinstance(v, str):
+                stats[key] = v
         stats.update(
             {
                 "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),

@@ -265,3 +265,51 @@ def test_commit_carries_retention(make_client: MakeClient) -> None:
     client.post(URL, json=payloads.epoch(), headers=auth())
     assert seen[0].retention_s == 7200
     assert dataclasses.asdict(seen[0])["expected_version"] == 0
+
+
+def test_real_decide_end_to_end(make_client: MakeClient, any_store: Store) -> None:
+    """The composition with ``services.dispatch.decide`` on the tiny lattice, on both stores."""
+    from services.dispatch import decide
+
+    client = make_client(store=any_store, decide=decide)
+    assert client.post(f"/v1/cities/{CITY}/tasks", json=payloads.tasks(), headers=auth()).status_code == 200
+    r = client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
+    assert r.status_code == 200, r.text
+    body = r.json()
+    by_rider = {m["rider_id"]: m for m in body["rider_matches"]}
+    assert (
+        by_rider["r1"]["taxi_id"] == "t0" and by_rider["r1"]["step"] == 1
+    )  # the only instrumented vacant taxi
+    assert by_rider["r2"]["taxi_id"] == "t1" and by_rider["r2"]["step"] == 2
+    assert by_rider["r1"]["path"][0] == node_id(0, 1) and by_rider["r1"]["path"][-1] == node_id(4, 4)
+    # Lambda in the store is exactly the G-route of t0's trip, in the epoch's interval
+    cov = client.get(f"/v1/cities/{CITY}/coverage", headers=auth()).json()
+    assert sorted(tuple(c["cell"]) for c in cov["cells"]) == sorted(map(tuple, by_rider["r1"]["cells"]))
+    assert body["stats"]["gamma"] == pytest.approx(cov["gamma_so_far"])
+    again = client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
+    assert again.headers["Idempotent-Replayed"] == "true" and again.content == r.content
+
+
+def test_two_apps_on_one_redis_serialize(make_client: MakeClient, redis_url: str, redis_prefix: str) -> None:
+    """Two API processes (two apps, two connections) posting different epochs at once: both commit."""
+    import threading
+
+    from app.adapters import RedisStore
+
+    stores = [RedisStore(redis_url, prefix=redis_prefix) for _ in range(2)]
+    clients = [make_client(store=s) for s in stores]
+    results: dict[int, int] = {}
+
+    def post(i: int) -> None:
+        results[i] = clients[i].post(URL, json=payloads.epoch(f"e{i}", 5), headers=auth()).status_code
+
+    threads = [threading.Thread(target=post, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert results == {0: 200, 1: 200}
+    st = stores[0].load_state(CITY, [], [])
+    assert st.version == 2
+    for s in stores:
+        s.close()
