@@ -31,5 +31,5 @@ openapi: $(STAMP)
 	$(PY) -m app openapi
 
 lint: $(STAMP)
-	$(PY) -m ruff check services app tests
+	$(PY) -m ruff check .
 	$(PY) -m mypy services app

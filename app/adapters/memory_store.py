@@ -83,11 +83,13 @@ class MemoryStore:
         else:
             city.demand.pop(name, None)
 
-    def _city(self, city: str) -> _City:
+    def _city(self, city: str, *, create: bool = False) -> _City:
         self._purge()
         state = self._cities.get(city)
         if state is None:
-            state = self._cities[city] = _City()
+            state = _City()
+            if create:  # reads of an unknown city do not leave an entry behind
+                self._cities[city] = state
         return state
 
     # -- the port ------------------------------------------------------------------------------------
@@ -125,7 +127,7 @@ class MemoryStore:
     def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
         """Check and apply one epoch under the lock (see ``app.ports.Store.commit_epoch``)."""
         with self._lock:
-            c = self._city(city)
+            c = self._city(city, create=True)
             stored = c.epochs.get(commit.epoch_id)
             if stored is not None:
                 return CommitResult("duplicate", stored=stored)
@@ -161,7 +163,7 @@ class MemoryStore:
     def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
         """Register tasks, idempotent per id; on any conflict nothing is written."""
         with self._lock:
-            c = self._city(city)
+            c = self._city(city, create=True)
             outcome = classify_tasks(lookup_in(c.tasks), tasks)
             c.tasks.update(outcome.to_write)
             return outcome.result

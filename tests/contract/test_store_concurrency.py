@@ -146,3 +146,37 @@ def test_two_processes_in_index_order_match_a_sequential_run(redis_url: str, red
         assert (ours.version, ours.counts, ours.visited) == (theirs.version, theirs.counts, theirs.visited)
     finally:
         store.close()
+
+
+def test_threads_on_one_memory_store_serialize() -> None:
+    """The embedded store under the API's threadpool: same serialization guarantee, one lock."""
+    import threading
+
+    specs = _specs(60, seed=11)
+    store = MemoryStore()
+    lock, cursor = threading.Lock(), iter(range(len(specs)))
+    committed: list[tuple[int, int]] = []
+
+    def loop(seed: int) -> None:
+        rng = random.Random(seed)
+        while True:
+            with lock:
+                i = next(cursor, None)
+            if i is None:
+                return
+            version, _ = w.solve_and_commit(store, specs[i], pause=lambda: rng.uniform(0, 0.001))
+            with lock:
+                committed.append((version, i))
+
+    threads = [threading.Thread(target=loop, args=(seed,)) for seed in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    committed.sort()
+    assert [v for v, _ in committed] == list(range(1, len(specs) + 1))
+    sequential = MemoryStore()
+    for _, i in committed:
+        w.solve_and_commit(sequential, specs[i])
+    ks, taxis = [IntervalKey(k) for k in range(3)], [TaxiId(f"taxi-{t}") for t in range(5)]
+    assert store.load_state(w.CITY, ks, taxis) == sequential.load_state(w.CITY, ks, taxis)
