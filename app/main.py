@@ -41,7 +41,7 @@ def make_store(settings: Settings) -> Store:
     if settings.store == "redis":
         from app.adapters.redis_store import RedisStore
 
-        return RedisStore(settings.redis_url)
+        return RedisStore(settings.redis_url, prefix=settings.redis_prefix)
     from app.adapters.memory_store import MemoryStore
 
     return MemoryStore()
