@@ -22,7 +22,7 @@ class Settings(BaseSettings):
     store: Literal["memory", "redis"] = Field(default="memory", description="State backend.")
     redis_url: str = Field(default="redis://localhost:6379/0", description="Redis URL when store=redis.")
     redis_prefix: str = Field(
-        default="sd", pattern=r"^[A-Za-z0-9_.-]{1,40}$", description="Key prefix in Redis (one per deployment)."
+        default="sd", pattern=r"^[A-Za-z0-9_.-]{1,40}$", description="Redis key prefix (one per deployment)."
     )
     host: str = Field(default="127.0.0.1", description="Bind address of `python -m app run`.")
     port: int = Field(default=8000, ge=0, le=65535, description="Port of `python -m app run`.")
