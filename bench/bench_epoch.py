@@ -67,7 +67,12 @@ def epochs(city: City, sc: Scenario, n: int) -> Iterator[tuple[Snapshot, list[Ta
         now = t0 + e * city.horizon.epoch_s
         nr = int(rng.poisson(sc.riders_mean))
         riders = tuple(
-            Rider(RiderId(f"r{e}-{i}"), int(rng.integers(nn)), int(rng.integers(nn)), now - float(rng.uniform(0, 300)))
+            Rider(
+                RiderId(f"r{e}-{i}"),
+                int(rng.integers(nn)),
+                int(rng.integers(nn)),
+                now - float(rng.uniform(0, 300)),
+            )
             for i in range(nr)
         )
         taxis = tuple(
@@ -124,13 +129,19 @@ def run_http(sc: Scenario, n: int) -> dict[str, list[float]]:
     port = _free_port()
     token = "bench-token"
     env = {**os.environ, "SD_PORT": str(port), "SD_TOKENS": json.dumps({token: ["read", "dispatch"]})}
-    proc = subprocess.Popen([sys.executable, "-m", "app", "run"], env=env, cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app", "run"],
+        env=env,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     ids = city.network.node_ids
     lat: list[float] = []
     try:
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60.0,
-                          headers={"Authorization": f"Bearer {token}"}) as client:
+        with httpx.Client(
+            base_url=f"http://127.0.0.1:{port}", timeout=60.0, headers={"Authorization": f"Bearer {token}"}
+        ) as client:
             for _ in range(300):
                 try:
                     if client.get("/readyz").status_code == 200:
@@ -142,18 +153,38 @@ def run_http(sc: Scenario, n: int) -> dict[str, list[float]]:
                 raise RuntimeError("the service did not become ready")
             for e, (snap, tasks) in enumerate(epochs(city, sc, n + 1)):
                 if tasks:
-                    client.post(f"/v1/cities/{sc.city}/tasks", json=[
-                        {"id": t.id, "location": {"node": int(ids[t.node])},
-                         "scheduled_at": _iso(city, t.scheduled_at_s)} for t in tasks
-                    ]).raise_for_status()
+                    client.post(
+                        f"/v1/cities/{sc.city}/tasks",
+                        json=[
+                            {
+                                "id": t.id,
+                                "location": {"node": int(ids[t.node])},
+                                "scheduled_at": _iso(city, t.scheduled_at_s),
+                            }
+                            for t in tasks
+                        ],
+                    ).raise_for_status()
                 body = {
                     "epoch_id": snap.epoch_id,
                     "time": _iso(city, snap.time_s),
-                    "riders": [{"id": r.id, "origin": {"node": int(ids[r.origin])},
-                                "destination": {"node": int(ids[r.destination])},
-                                "requested_at": _iso(city, r.requested_at_s)} for r in snap.riders],
-                    "taxis": [{"id": t.id, "location": {"node": int(ids[t.node])},
-                               "instrumented": t.instrumented, "status": "vacant"} for t in snap.taxis],
+                    "riders": [
+                        {
+                            "id": r.id,
+                            "origin": {"node": int(ids[r.origin])},
+                            "destination": {"node": int(ids[r.destination])},
+                            "requested_at": _iso(city, r.requested_at_s),
+                        }
+                        for r in snap.riders
+                    ],
+                    "taxis": [
+                        {
+                            "id": t.id,
+                            "location": {"node": int(ids[t.node])},
+                            "instrumented": t.instrumented,
+                            "status": "vacant",
+                        }
+                        for t in snap.taxis
+                    ],
                 }
                 t = time.perf_counter()
                 r = client.post(f"/v1/cities/{sc.city}/epochs", json=body)
@@ -173,8 +204,14 @@ def _iso(city: City, t: float) -> str:
 
 def summary(xs: list[float]) -> dict[str, float]:
     a = np.array(xs) * 1000.0
-    return {"n": len(a), "p50_ms": float(np.median(a)), "p99_ms": float(np.percentile(a, 99)),
-            "min_ms": float(a.min()), "max_ms": float(a.max()), "iqr_ms": float(np.subtract(*np.percentile(a, [75, 25])))}
+    return {
+        "n": len(a),
+        "p50_ms": float(np.median(a)),
+        "p99_ms": float(np.percentile(a, 99)),
+        "min_ms": float(a.min()),
+        "max_ms": float(a.max()),
+        "iqr_ms": float(np.subtract(*np.percentile(a, [75, 25]))),
+    }
 
 
 def machine() -> str:
@@ -188,8 +225,10 @@ def machine() -> str:
         pass
     import numba
 
-    return (f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}; Python "
-            f"{platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, numba {numba.__version__}")
+    return (
+        f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}; Python "
+        f"{platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, numba {numba.__version__}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -246,7 +285,11 @@ def write_report(results: dict[str, dict]) -> None:
                 f"~{sc['riders_mean']:.0f} | 0..{sc['max_open_tasks']} | {s['n']} | {path} | {s['p50_ms']:.1f} | "
                 f"{s['p99_ms']:.1f} | {s['min_ms']:.1f}-{s['max_ms']:.1f} | {s['iqr_ms']:.1f} |"
             )
-    lines += ["", "Targets (issue 2): paper scale p99 <= 3x the floor and <= 100 ms in-process; city scale p99 <= 1 s.", ""]
+    lines += [
+        "",
+        "Targets (issue 2): paper scale p99 <= 3x the floor and <= 100 ms in-process; city scale p99 <= 1 s.",
+        "",
+    ]
     for name, r in results.items():
         ratio = r["inprocess"]["p99_ms"] / r["floor"]["p99_ms"]
         lines.append(f"- {name}: in-process p99 / floor p99 = {ratio:.2f}")
