@@ -104,9 +104,7 @@ def lexi_best(pairs, primary, secondary, *, sense: str, tol: float = 1e-12):
             best = (p, s)
             continue
         bp, bs = best
-        if p > bp * (1 + tol) + 1e-15:
-            best = (p, s)
-        elif abs(p - bp) <= tol * max(abs(bp), 1e-300) + 1e-15 and (
+        if p > bp * (1 + tol) + 1e-15 or abs(p - bp) <= tol * max(abs(bp), 1e-300) + 1e-15 and (
             (sense == "min" and s < bs) or (sense == "max" and s > bs)
         ):
             best = (p, s)
