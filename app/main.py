@@ -121,8 +121,14 @@ def _operation_id(route: APIRoute) -> str:
 
 def _warm(registry: CityCatalog) -> None:
     """Load every city once (errors surface later, per request and in /readyz)."""
+    from services.dispatch import warm_up
+
+    warmed = False
     for name in registry.names():
         try:
-            registry.get(name)
+            city = registry.get(name)
+            if not warmed:  # compile (or load from cache) the kernels before the first epoch arrives
+                warm_up(city)
+                warmed = True
         except Exception:
             log.exception("city %s failed to load", name)

@@ -48,7 +48,7 @@ from services.routing import (
 from services.sensing import timed_cells
 from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
 
-__all__ = ["decide", "INITIAL_SLOTS"]
+__all__ = ["decide", "warm_up", "INITIAL_SLOTS"]
 
 INITIAL_SLOTS = 3
 """Intervals (from the epoch's own) whose gains are tabulated first; more are added if a path needs them."""
@@ -450,3 +450,19 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
         intervals_touched=tuple(touched),
         stats=stats,
     )
+
+
+def warm_up(city: City) -> None:
+    """Solve a tiny epoch on ``city`` so the compiled kernels are loaded before the first real request."""
+    from services.model import TaskId, TaxiId
+
+    n = city.network.n_nodes
+    a, b = 0, n - 1
+    t = 86400.0 * 20000 + 12 * 3600.0
+    snap = Snapshot(
+        "warm-up",
+        t,
+        (Rider(RiderId("r"), a, b, t),),
+        (Taxi(TaxiId("i"), a, True, True), Taxi(TaxiId("j"), b, True, True), Taxi(TaxiId("o"), a, False, True)),
+    )
+    decide(city, CountsView({}), snap, [Task(TaskId("k"), b, t)])
