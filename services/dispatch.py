@@ -463,6 +463,10 @@ def warm_up(city: City) -> None:
         "warm-up",
         t,
         (Rider(RiderId("r"), a, b, t),),
-        (Taxi(TaxiId("i"), a, True, True), Taxi(TaxiId("j"), b, True, True), Taxi(TaxiId("o"), a, False, True)),
+        (
+            Taxi(TaxiId("i"), a, True, True),
+            Taxi(TaxiId("j"), b, True, True),
+            Taxi(TaxiId("o"), a, False, True),
+        ),
     )
     decide(city, CountsView({}), snap, [Task(TaskId("k"), b, t)])

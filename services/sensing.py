@@ -29,13 +29,14 @@ __all__ = [
 
 def theta(count: NDArray[np.int64] | int, rho: float) -> NDArray[np.float64] | float:
     """Theta(Lambda) = Lambda**rho (Eq. 2); Theta(0) = 0."""
-    return np.power(count, rho)
+    out: NDArray[np.float64] | float = np.power(count, rho)
+    return out
 
 
 def marginal_term(city: City, interval: IntervalKey, cell: int, count: int) -> float:
     """mu_t s_g ((Lambda + 1)^rho - Lambda^rho): the summand of Eq. (3) for one (cell, interval)."""
     rho = city.params.rho
-    return city.mu(interval) * float(city.cell_weight[cell]) * ((count + 1) ** rho - count**rho)
+    return city.mu(interval) * float(city.cell_weight[cell]) * (float(count + 1) ** rho - float(count) ** rho)
 
 
 @dataclass(frozen=True, slots=True)

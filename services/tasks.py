@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.city import City
-from services.model import CompletionMode, Task, TaskId, TaxiId
+from services.model import CompletionMode, Task, TaskId, TaskStatus, TaxiId
 
 __all__ = ["PlannedPath", "Reach", "node_arrivals", "reaches", "apply_reaches", "due_completions"]
 
@@ -81,7 +81,7 @@ def apply_reaches(tasks: Sequence[Task], found: dict[TaskId, Reach], now_s: floa
         r = found.get(task.id)
         if r is None:
             continue
-        status = "completed" if r.at_s <= now_s else "assigned"
+        status: TaskStatus = "completed" if r.at_s <= now_s else "assigned"
         out.append(
             dataclasses.replace(task, status=status, completed_at_s=r.at_s, taxi_id=r.taxi_id, mode=r.mode)
         )
