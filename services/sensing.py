@@ -36,7 +36,8 @@ def theta(count: NDArray[np.int64] | int, rho: float) -> NDArray[np.float64] | f
 def marginal_term(city: City, interval: IntervalKey, cell: int, count: int) -> float:
     """mu_t s_g ((Lambda + 1)^rho - Lambda^rho): the summand of Eq. (3) for one (cell, interval)."""
     rho = city.params.rho
-    return city.mu(interval) * float(city.cell_weight[cell]) * (float(count + 1) ** rho - float(count) ** rho)
+    delta = float(np.power(count + 1.0, rho) - np.power(float(count), rho))
+    return city.mu(interval) * float(city.cell_weight[cell]) * delta
 
 
 @dataclass(frozen=True, slots=True)
