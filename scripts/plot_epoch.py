@@ -78,11 +78,13 @@ def main() -> int:
 
     fig, ax = plt.subplots(figsize=(9, 8.5), dpi=110)
     x0, y0 = grid.origin_x_m, grid.origin_y_m
-    img = np.ma.masked_where(city.cell_weight.reshape(grid.n_rows, grid.n_cols) == 0,
-                             lam.reshape(grid.n_rows, grid.n_cols))
-    mesh = ax.imshow(img, origin="lower", cmap="Greens", alpha=0.55,
-                     extent=(0, grid.n_cols, 0, grid.n_rows), vmin=0)
-    fig.colorbar(mesh, ax=ax, fraction=0.035, pad=0.02, label=f"Λ in {city.horizon.label(k0)} (distinct sensing taxis)")
+    img = np.ma.masked_where(
+        city.cell_weight.reshape(grid.n_rows, grid.n_cols) == 0, lam.reshape(grid.n_rows, grid.n_cols)
+    )
+    mesh = ax.imshow(
+        img, origin="lower", cmap="Greens", alpha=0.55, extent=(0, grid.n_cols, 0, grid.n_rows), vmin=0
+    )
+    fig.colorbar(mesh, ax=ax, fraction=0.035, pad=0.02, label=f"Λ in {city.horizon.label(k0)}")
     xs, ys = (net.x_m - x0) / grid.cell_m, (net.y_m - y0) / grid.cell_m
     segs = np.stack([np.c_[xs[net.edge_u], ys[net.edge_u]], np.c_[xs[net.edge_v], ys[net.edge_v]]], axis=1)
     ax.add_collection(LineCollection(segs, colors="#bbbbbb", linewidths=0.4, zorder=1))
@@ -92,14 +94,26 @@ def main() -> int:
         ax.plot(xs[p], ys[p], **kw)  # type: ignore[arg-type]
 
     for m in decision.rider_matches:
-        draw(m.path, color="#1f77b4" if m.step == 1 else "#7f7f7f", lw=1.4 if m.step == 1 else 0.9,
-             ls="-" if m.step == 1 else "--", zorder=3)
+        draw(
+            m.path,
+            color="#1f77b4" if m.step == 1 else "#7f7f7f",
+            lw=1.4 if m.step == 1 else 0.9,
+            ls="-" if m.step == 1 else "--",
+            zorder=3,
+        )
     from services import kernels
 
     ga = graph_arrays(city)
     for a in decision.task_assignments:
-        _d, pred, _ = kernels.dijkstra(ga.indptr, ga.head, ga.time_s, a.path[0], np.inf,
-                                       np.array([a.path[-1]], dtype=np.int64), ga.length_m)
+        _d, pred, _ = kernels.dijkstra(
+            ga.indptr,
+            ga.head,
+            ga.time_s,
+            a.path[0],
+            np.inf,
+            np.array([a.path[-1]], dtype=np.int64),
+            ga.length_m,
+        )
         fast = kernels.walk_edges(pred, ga.tail, a.path[-1])
         fast_nodes = (a.path[0], *net.edge_v[fast].tolist())
         draw(fast_nodes, color="#d62728", lw=1.0, ls=":", zorder=4)
@@ -115,10 +129,11 @@ def main() -> int:
     ax.set_xlabel(f"grid column (1 km cells, {grid.crs}, origin {x0:.0f} E {y0:.0f} N)")
     ax.set_ylabel("grid row")
     s = decision.stats
+    clock = dt.datetime.fromtimestamp(snap.time_s, ZoneInfo(city.horizon.timezone))
     ax.set_title(
-        f"Chengdu, epoch at {dt.datetime.fromtimestamp(snap.time_s, ZoneInfo(city.horizon.timezone)):%H:%M}: "
+        f"Chengdu, epoch at {clock:%H:%M}: "
         f"{s['step1_matches']} Step 1 (blue), {s['step2_matches']} Step 2 (grey dashed),\n"
-        f"{s['step3_assignments']} Step 3 sensing routes (red; dotted = fastest path to the same POI), POIs ★",
+        f"{s['step3_assignments']} Step 3 sensing routes (red; dotted: fastest path to the same POI), POIs ★",
         fontsize=10,
     )
     args.out.parent.mkdir(parents=True, exist_ok=True)
