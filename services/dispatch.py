@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from services import kernels
+from services import contraction, kernels
 from services.city import City
 from services.matching import EXACT_LIMIT, lexicographic_weights, max_weight_matching, quantize
 from services.model import (
@@ -99,8 +99,15 @@ def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> 
     pairs: dict[tuple[int, int], tuple[float, float]] = {}
     succ: list[NDArray[np.int64]] = []
     for j, rider in enumerate(riders):
-        dist, pred_rev, length = kernels.dijkstra(
-            ga.rev_indptr, ga.rev_head, ga.rev_time_s, rider.origin, limit_s, none, ga.rev_length_m
+        dist, pred_rev, length = contraction.dijkstra(
+            ga,
+            ga.rev_time_s,
+            rider.origin,
+            limit_s,
+            none,
+            ga.rev_length_m,
+            reverse_graph=True,
+            queries=taxi_nodes,
         )
         succ.append(np.where(pred_rev >= 0, ga.rev_edge[np.maximum(pred_rev, 0)], -1))
         if len(taxi_nodes) == 0:
@@ -115,14 +122,8 @@ def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> 
 
 def _service_leg(city: City, rider: Rider) -> _Leg:
     ga = graph_arrays(city)
-    _dist, pred, _ = kernels.dijkstra(
-        ga.indptr,
-        ga.head,
-        ga.time_s,
-        rider.origin,
-        np.inf,
-        np.array([rider.destination], dtype=np.int64),
-        ga.length_m,
+    _dist, pred, _ = contraction.dijkstra(
+        ga, ga.time_s, rider.origin, np.inf, np.array([rider.destination], dtype=np.int64), ga.length_m
     )
     if rider.destination != rider.origin and pred[rider.destination] < 0:
         raise ValueError(f"rider {rider.id}: destination unreachable from origin")

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "dijkstra",
+    "dijkstra_contracted",
     "walk_edges",
     "walk_succ",
     "eval_path",
@@ -122,6 +123,336 @@ def dijkstra(
     for v in range(n):
         if not done[v]:
             pred[v] = -1
+    return dist, pred, acc
+
+
+@numba.njit(inline="always", **_NOPYTHON)  # type: ignore[misc]
+def _heap4_push(keys: NDArray[np.float64], vals: NDArray[np.int64], size: int, key: float, val: int) -> int:
+    """Push onto a 4-ary min-heap (hole sifting); returns the new size."""
+    i = size
+    while i > 0:
+        parent = (i - 1) >> 2
+        pk = keys[parent]
+        if pk <= key:
+            break
+        keys[i] = pk
+        vals[i] = vals[parent]
+        i = parent
+    keys[i] = key
+    vals[i] = val
+    return size + 1
+
+
+@numba.njit(inline="always", **_NOPYTHON)  # type: ignore[misc]
+def _heap4_pop(keys: NDArray[np.float64], vals: NDArray[np.int64], size: int) -> int:
+    """Remove the root of a 4-ary min-heap; returns the new size."""
+    size -= 1
+    if size == 0:
+        return 0
+    key = keys[size]
+    val = vals[size]
+    i = 0
+    while True:
+        first = 4 * i + 1
+        if first >= size:
+            break
+        child = first
+        ck = keys[first]
+        for c in range(first + 1, min(first + 4, size)):
+            if keys[c] < ck:
+                ck = keys[c]
+                child = c
+        if key <= ck:
+            break
+        keys[i] = ck
+        vals[i] = vals[child]
+        i = child
+    keys[i] = key
+    vals[i] = val
+    return size
+
+
+@numba.njit(inline="always", **_NOPYTHON)  # type: ignore[misc]
+def _source_offset(pos_se: NDArray[np.int64], pos_off: NDArray[np.int64], source: int, se: int) -> int:
+    """Offset of an interior ``source`` on super-edge ``se`` (-1 when the source does not lie on it)."""
+    for j in range(2):
+        if pos_se[source, j] == se:
+            return int(pos_off[source, j])
+    return -1
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def _unfold_chain(
+    k: int,
+    se_tail: NDArray[np.int64],
+    se_ptr: NDArray[np.int64],
+    se_edges: NDArray[np.int64],
+    se_node: NDArray[np.int64],
+    tent: NDArray[np.float64],
+    acc_t: NDArray[np.float64],
+    pse: NDArray[np.int64],
+    pstart: NDArray[np.int64],
+    unfolded: NDArray[np.bool_],
+    cost: NDArray[np.float64],
+    aux: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    pred: NDArray[np.int64],
+    acc: NDArray[np.float64],
+) -> None:
+    """Write dist/pred/acc of the interior nodes on the tree path to settled kept node ``k``."""
+    while not unfolded[k]:
+        unfolded[k] = True
+        s = pse[k]
+        if s < 0:
+            return
+        start = pstart[k]
+        t = se_tail[s]
+        x = tent[t] if start == 0 else 0.0
+        a = acc_t[t] if start == 0 else 0.0
+        for p in range(se_ptr[s] + start, se_ptr[s + 1] - 1):
+            e = se_edges[p]
+            x += cost[e]
+            a += aux[e]
+            v = se_node[p]
+            dist[v] = x
+            pred[v] = e
+            acc[v] = a
+        if start != 0:
+            return
+        k = t
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def dijkstra_contracted(
+    k_indptr: NDArray[np.int64],
+    se_head: NDArray[np.int64],
+    se_tail: NDArray[np.int64],
+    se_rev: NDArray[np.int64],
+    se_ptr: NDArray[np.int64],
+    se_edges: NDArray[np.int64],
+    se_node: NDArray[np.int64],
+    kept: NDArray[np.int64],
+    kept_of: NDArray[np.int64],
+    pos_se: NDArray[np.int64],
+    pos_off: NDArray[np.int64],
+    cost: NDArray[np.float64],
+    aux: NDArray[np.float64],
+    source: int,
+    limit: float,
+    targets: NDArray[np.int64],
+    queries: NDArray[np.int64],
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
+    """``dijkstra`` on a graph whose chains of degree-2 nodes are contracted (``services.contraction``).
+
+    Kept node ``k`` (original node ``kept[k]``) leaves along super-edges ``k_indptr[k]:k_indptr[k+1]``;
+    super-edge ``s`` runs ``se_tail[s] -> se_head[s]`` (kept indices) over the original edges
+    ``se_edges[se_ptr[s]:se_ptr[s+1]]``, the node after each being ``se_node``; ``se_rev[s]`` is the
+    super-edge over the same interior nodes the other way (-1 if none). An interior node lies on
+    ``pos_se[v, j]`` (j = 0, 1; -1 unused, ascending) with ``pos_off[v, j]`` original edges before it.
+    ``cost`` and ``aux`` are per original edge; a super-edge's cost is folded edge by edge from the tail's
+    distance, so distances are bit-identical to ``dijkstra``'s.
+
+    Same arguments and results as ``dijkstra``, except that ``dist``, ``pred_edge`` and the ``aux`` sums are
+    written only for the source, the settled kept nodes, the nodes of ``queries`` and the nodes on their
+    tree paths (``walk_edges`` works from each of these); other nodes read as not settled. ``targets``
+    stops the search as in ``dijkstra`` (an interior target waits for both ends of its chain); after such a
+    stop, a query that is not a target may read as not settled where ``dijkstra`` would have settled it,
+    but is never given a wrong value.
+    """
+    n = kept_of.shape[0]
+    nk = kept.shape[0]
+    ns = se_head.shape[0]
+    tent = np.full(nk, np.inf)
+    acc_t = np.zeros(nk)
+    pse = np.full(nk, -1, dtype=np.int64)
+    pstart = np.zeros(nk, dtype=np.int64)
+    done = np.zeros(nk, dtype=np.bool_)
+    need = np.zeros(nk, dtype=np.bool_)
+    sk = kept_of[source]
+    stop_early = targets.shape[0] > 0
+    remaining = 0
+    for t in targets:
+        if t == source:
+            continue
+        k = kept_of[t]
+        if k >= 0:
+            if not need[k]:
+                need[k] = True
+                remaining += 1
+            continue
+        for j in range(2):
+            s = pos_se[t, j]
+            if s < 0:
+                continue
+            if sk < 0:
+                os = _source_offset(pos_se, pos_off, source, s)
+                if os >= 0 and os < pos_off[t, j]:
+                    continue  # reached directly from the source along this super-edge
+            k = se_tail[s]
+            if not need[k]:
+                need[k] = True
+                remaining += 1
+    keys = np.empty(ns + 3)
+    vals = np.empty(ns + 3, dtype=np.int64)
+    size = 0
+    complete = not (stop_early and remaining == 0)  # False: unsettled kept nodes may still be near
+    if complete:
+        if sk >= 0:
+            tent[sk] = 0.0
+            size = _heap4_push(keys, vals, size, 0.0, sk)
+        else:
+            for j in range(2):
+                s = pos_se[source, j]
+                if s < 0:
+                    continue
+                os = pos_off[source, j]
+                h = se_head[s]
+                nd = 0.0
+                a = 0.0
+                for p in range(se_ptr[s] + os, se_ptr[s + 1]):
+                    nd += cost[se_edges[p]]
+                    a += aux[se_edges[p]]
+                if nd < tent[h] and nd <= limit:
+                    tent[h] = nd
+                    acc_t[h] = a
+                    pse[h] = s
+                    pstart[h] = os
+                    size = _heap4_push(keys, vals, size, nd, h)
+    while size > 0:
+        d = keys[0]
+        k = vals[0]
+        size = _heap4_pop(keys, vals, size)
+        if done[k]:
+            continue
+        if d > limit:
+            break
+        done[k] = True
+        if need[k]:
+            remaining -= 1
+            if remaining == 0:
+                complete = False
+                break
+        for s in range(k_indptr[k], k_indptr[k + 1]):
+            h = se_head[s]
+            if done[h]:
+                continue
+            th = tent[h]
+            nd = d
+            ok = True
+            for p in range(se_ptr[s], se_ptr[s + 1]):
+                nd += cost[se_edges[p]]
+                if nd >= th or nd > limit:  # partial sums never decrease: no improvement
+                    ok = False
+                    break
+            if ok:
+                a = acc_t[k]
+                for p in range(se_ptr[s], se_ptr[s + 1]):
+                    a += aux[se_edges[p]]
+                tent[h] = nd
+                acc_t[h] = a
+                pse[h] = s
+                pstart[h] = 0
+                size = _heap4_push(keys, vals, size, nd, h)
+    dist = np.full(n, np.inf)
+    pred = np.full(n, -1, dtype=np.int64)
+    acc = np.full(n, np.nan)
+    for k in range(nk):
+        if done[k]:
+            v = kept[k]
+            dist[v] = tent[k]
+            acc[v] = acc_t[k]
+            if pse[k] >= 0:
+                pred[v] = se_edges[se_ptr[pse[k] + 1] - 1]
+    if limit >= 0.0:
+        dist[source] = 0.0
+        acc[source] = 0.0
+        pred[source] = -1
+    unfolded = np.zeros(nk, dtype=np.bool_)
+    for q in queries:
+        if q == source:
+            continue
+        k = kept_of[q]
+        if k >= 0:
+            if done[k]:
+                _unfold_chain(
+                    k,
+                    se_tail,
+                    se_ptr,
+                    se_edges,
+                    se_node,
+                    tent,
+                    acc_t,
+                    pse,
+                    pstart,
+                    unfolded,
+                    cost,
+                    aux,
+                    dist,
+                    pred,
+                    acc,
+                )
+            continue
+        # interior node: the best of reaching it along each super-edge it lies on (ties: lower super-edge)
+        best = np.inf
+        bj = -1
+        bstart = 0
+        unknown = False
+        for j in range(2):
+            s = pos_se[q, j]
+            if s < 0:
+                continue
+            off = pos_off[q, j]
+            os = _source_offset(pos_se, pos_off, source, s) if sk < 0 else -1
+            if os >= 0 and os < off:
+                start = os
+                x = 0.0
+            else:
+                t = se_tail[s]
+                if not done[t]:
+                    unknown = unknown or not complete
+                    continue
+                if se_rev[s] >= 0 and pse[t] == se_rev[s]:
+                    continue  # the tail is reached through this very chain
+                start = 0
+                x = tent[t]
+            for p in range(se_ptr[s] + start, se_ptr[s] + off):
+                x += cost[se_edges[p]]
+            if x < best:
+                best = x
+                bj = j
+                bstart = start
+        if bj < 0 or best > limit or unknown:
+            continue
+        s = pos_se[q, bj]
+        t = se_tail[s]
+        x = tent[t] if bstart == 0 else 0.0
+        a = acc_t[t] if bstart == 0 else 0.0
+        for p in range(se_ptr[s] + bstart, se_ptr[s] + pos_off[q, bj]):
+            e = se_edges[p]
+            x += cost[e]
+            a += aux[e]
+            v = se_node[p]
+            dist[v] = x
+            pred[v] = e
+            acc[v] = a
+        if bstart == 0:
+            _unfold_chain(
+                t,
+                se_tail,
+                se_ptr,
+                se_edges,
+                se_node,
+                tent,
+                acc_t,
+                pse,
+                pstart,
+                unfolded,
+                cost,
+                aux,
+                dist,
+                pred,
+                acc,
+            )
     return dist, pred, acc
 
 

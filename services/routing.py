@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from services import kernels
+from services import contraction, kernels
 from services.city import City
 from services.model import CountsView, IntervalKey, TaxiId
 
@@ -256,7 +256,7 @@ def plan_routes(
     max_slot = 0
     interval_s = float(city.horizon.interval_s)
     for kappa, cost in _kappa_costs(ga, gain[0], city.params.kappas):
-        _dist, pred, _ = kernels.dijkstra(ga.indptr, ga.head, cost, source, np.inf, targets, ga.time_s)
+        _dist, pred, _ = contraction.dijkstra(ga, cost, source, np.inf, targets, ga.time_s)
         stamp, first = table.stamps(k)
         g, _gq, t, length, ms = kernels.eval_targets(
             pred,
