@@ -48,6 +48,9 @@ class Contraction:
         Original node of each kept node.
     kept_of : (n,)
         Kept index of each original node, -1 for chain interiors.
+    dead_end : (K,) bool
+        Kept nodes with a single neighbour (one edge in from it, one out to it): no shortest path passes
+        through them, so the search settles them when reached instead of queueing them.
     indptr : (K+1,)
         Super-edges leaving kept node ``k``: ``indptr[k]:indptr[k+1]`` (ordered by their first edge).
     se_tail, se_head : (S,)
@@ -68,6 +71,7 @@ class Contraction:
     n_nodes: int
     kept: NDArray[np.int64]
     kept_of: NDArray[np.int64]
+    dead_end: NDArray[np.bool_]
     indptr: NDArray[np.int64]
     se_tail: NDArray[np.int64]
     se_head: NDArray[np.int64]
@@ -91,8 +95,9 @@ class Contraction:
 
 def _interiors(
     indptr: NDArray[np.int64], head: NDArray[np.int64], tail: NDArray[np.int64]
-) -> NDArray[np.bool_]:
-    """Which nodes are chain interiors (one-way or two-way), before breaking pure chain cycles."""
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Which nodes are chain interiors (one-way or two-way, before breaking pure chain cycles), and which
+    are dead ends (a single neighbour, joined both ways)."""
     n = indptr.shape[0] - 1
     outdeg = np.diff(indptr)
     indeg = np.bincount(head, minlength=n)
@@ -100,13 +105,15 @@ def _interiors(
     in_ptr = np.zeros(n + 1, dtype=np.int64)
     in_ptr[1:] = np.cumsum(indeg)
     interior = np.zeros(n, dtype=bool)
+    dead_end = np.zeros(n, dtype=bool)
     for v in np.flatnonzero((indeg == outdeg) & ((indeg == 1) | (indeg == 2))).tolist():
         outs = set(head[indptr[v] : indptr[v + 1]].tolist())
         ins = set(tail[in_order[in_ptr[v] : in_ptr[v + 1]]].tolist())
         if len(outs) != outdeg[v] or v in outs:  # parallel edges or self-loops: keep the node
             continue
         interior[v] = (outs != ins) if indeg[v] == 1 else (outs == ins)
-    return interior
+        dead_end[v] = indeg[v] == 1 and outs == ins
+    return interior, dead_end
 
 
 def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contraction:
@@ -129,7 +136,7 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
     n = int(indptr.shape[0] - 1)
     m = int(head64.shape[0])
     tail = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
-    interior = _interiors(indptr, head64, tail)
+    interior, dead_end = _interiors(indptr, head64, tail)
     ip = indptr.tolist()
     hd = head64.tolist()
     edge_se = [-1] * m
@@ -199,6 +206,7 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
         n_nodes=n,
         kept=kept,
         kept_of=kept_of,
+        dead_end=dead_end[kept],
         indptr=k_indptr,
         se_tail=se_tail.astype(np.int64),
         se_head=se_head.astype(np.int64),
@@ -266,6 +274,7 @@ def search(
         c.se_node,
         c.kept,
         c.kept_of,
+        c.dead_end,
         c.pos_se,
         c.pos_off,
         cost,

@@ -233,6 +233,7 @@ def dijkstra_contracted(
     se_node: NDArray[np.int64],
     kept: NDArray[np.int64],
     kept_of: NDArray[np.int64],
+    dead_end: NDArray[np.bool_],
     pos_se: NDArray[np.int64],
     pos_off: NDArray[np.int64],
     cost: NDArray[np.float64],
@@ -249,6 +250,7 @@ def dijkstra_contracted(
     ``se_edges[se_ptr[s]:se_ptr[s+1]]``, the node after each being ``se_node``; ``se_rev[s]`` is the
     super-edge over the same interior nodes the other way (-1 if none). An interior node lies on
     ``pos_se[v, j]`` (j = 0, 1; -1 unused, ascending) with ``pos_off[v, j]`` original edges before it.
+    A kept node with ``dead_end`` set has one neighbour only: it is settled when reached and never queued.
     ``cost`` and ``aux`` are per original edge; a super-edge's cost is folded edge by edge from the tail's
     distance, so distances are bit-identical to ``dijkstra``'s.
 
@@ -352,7 +354,16 @@ def dijkstra_contracted(
                 acc_t[h] = a
                 pse[h] = s
                 pstart[h] = 0
-                size = _heap4_push(keys, vals, size, nd, h)
+                if not dead_end[h]:
+                    size = _heap4_push(keys, vals, size, nd, h)
+                    continue
+                done[h] = True  # a dead end has no other way in: settled now, and nothing to relax
+                if need[h]:
+                    remaining -= 1
+                    if remaining == 0:
+                        complete = False
+                        size = 0
+                        break
     dist = np.full(n, np.inf)
     pred = np.full(n, -1, dtype=np.int64)
     acc = np.full(n, np.nan)

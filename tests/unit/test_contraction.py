@@ -179,6 +179,8 @@ def test_contraction_structure(seed: int) -> None:
     assert not (interior & ~chain).any()
     assert (chain & ~interior).sum() == 2  # one kept node on each of the two cycles of shape nodes
     assert np.array_equal(c.kept, np.flatnonzero(~interior))
+    dead_end = np.array([len(in_n[v]) == len(out_n[v]) == 1 and in_n[v] == out_n[v] for v in range(n)])
+    assert np.array_equal(c.dead_end, dead_end[c.kept]) and c.dead_end.sum() >= 2  # the spurs' leaves
     for v in np.flatnonzero(interior):
         ses = [int(s) for s in c.pos_se[v] if s >= 0]
         assert len(ses) == (2 if len(in_n[v]) == 2 else 1) and ses == sorted(ses)
