@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from services import contraction, kernels
 from services.city import City
 from services.model import CountsView, IntervalKey, TaxiId
+from services.sensing import timed_cells
 
 __all__ = [
     "GraphArrays",
@@ -296,8 +297,6 @@ def route_pairs(
     city: City, route: Route, visited: frozenset[tuple[IntervalKey, int]] | None, depart_s: float
 ) -> set[tuple[int, int]]:
     """The (interval, cell) pairs a route would add to Lambda (first visits not already counted)."""
-    from services.sensing import timed_cells
-
     tc = timed_cells(city, route.edges, depart_s)
     seen = visited or frozenset()
     return {p for p in tc.pairs() if p not in seen}
