@@ -309,12 +309,22 @@ def joint_utility(
     n: Counter[tuple[int, int]] = Counter()
     for ps in pair_sets:
         n.update(ps)
+    return _joint_from_counts(city, counts, n)
+
+
+def _joint_from_counts(
+    city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], n: Mapping[tuple[int, int], int]
+) -> float:
     rho = city.params.rho
     total = 0.0
     for (k, c), cnt in n.items():
+        if cnt <= 0:
+            continue
         lam_arr = counts.get(IntervalKey(k))
         lam = float(lam_arr[c]) if lam_arr is not None else 0.0
-        total += city.mu(k) * float(city.cell_weight[c]) * ((lam + cnt) ** rho - lam**rho)
+        total += (
+            city.mu(k) * float(city.cell_weight[c]) * float(np.power(lam + cnt, rho) - np.power(lam, rho))
+        )
     return total
 
 
@@ -334,17 +344,18 @@ def improve_routes(
     k0 = int(city.horizon.intervals_of(np.array([depart_s]))[0])
     visited = [counts.visited.get(r.taxi_id, frozenset()) for r in routes]
     pairs = [route_pairs(city, r, v, depart_s) for r, v in zip(routes, visited, strict=True)]
-    history = [joint_utility(city, counts.counts, pairs)]
+    total: Counter[tuple[int, int]] = Counter()
+    for ps in pairs:
+        total.update(ps)
+    history = [_joint_from_counts(city, counts.counts, total)]
     passes = 0
     for _ in range(city.params.max_iter):
         passes += 1
         changed = False
         for i, r in enumerate(routes):
-            others: Counter[tuple[int, int]] = Counter()
-            for j, ps in enumerate(pairs):
-                if j != i:
-                    others.update(ps)
-            table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra=others)
+            others = total.copy()
+            others.subtract(pairs[i])
+            table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra=+others)
             rs, _ = plan_routes(
                 city, table, r.taxi_id, r.source, visited[i], np.array([r.target], dtype=np.int64), depart_s
             )
@@ -352,11 +363,13 @@ def improve_routes(
             if np.array_equal(cand.edges, r.edges):
                 continue
             cand_pairs = route_pairs(city, cand, visited[i], depart_s)
-            trial = [*pairs[:i], cand_pairs, *pairs[i + 1 :]]
-            u_new = joint_utility(city, counts.counts, trial)
+            trial = others.copy()
+            trial.update(cand_pairs)
+            u_new = _joint_from_counts(city, counts.counts, trial)
             if u_new > history[-1] * (1 + 1e-12) + 1e-300:
                 routes[i] = cand
                 pairs[i] = cand_pairs
+                total = trial
                 history.append(u_new)
                 changed = True
         if not changed:
