@@ -349,10 +349,15 @@ def improve_routes(
         total.update(ps)
     history = [_joint_from_counts(city, counts.counts, total)]
     passes = 0
+    accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
+    planned_at = [-1] * len(routes)
     for _ in range(city.params.max_iter):
         passes += 1
         changed = False
         for i, r in enumerate(routes):
+            if planned_at[i] == accepted:
+                continue
+            planned_at[i] = accepted
             others = total.copy()
             others.subtract(pairs[i])
             table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra=+others)
@@ -371,6 +376,8 @@ def improve_routes(
                 pairs[i] = cand_pairs
                 total = trial
                 history.append(u_new)
+                accepted += 1
+                planned_at[i] = accepted
                 changed = True
         if not changed:
             break
