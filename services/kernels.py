@@ -677,3 +677,128 @@ def entered_utility(
             s += cell_value[ec_cell[j]]
         out[e] = s
     return out
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def plan_kappas(
+    c_indptr: NDArray[np.int64],
+    c_se_head: NDArray[np.int64],
+    c_se_tail: NDArray[np.int64],
+    c_se_rev: NDArray[np.int64],
+    c_se_ptr: NDArray[np.int64],
+    c_se_edges: NDArray[np.int64],
+    c_se_node: NDArray[np.int64],
+    c_kept: NDArray[np.int64],
+    c_kept_of: NDArray[np.int64],
+    c_dead_end: NDArray[np.bool_],
+    c_pos_se: NDArray[np.int64],
+    c_pos_off: NDArray[np.int64],
+    tail: NDArray[np.int32],
+    edge_time: NDArray[np.float64],
+    edge_len: NDArray[np.float64],
+    ec_ptr: NDArray[np.int64],
+    ec_cell: NDArray[np.int32],
+    ec_frac: NDArray[np.float64],
+    kappas: NDArray[np.float64],
+    source: int,
+    targets: NDArray[np.int64],
+    depart_s: float,
+    interval_shift_s: float,
+    interval_s: float,
+    k0: int,
+    gain: NDArray[np.float64],
+    gain_q: NDArray[np.int64],
+    stamp: NDArray[np.int64],
+    stamp_base: int,
+) -> tuple[
+    NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], int
+]:
+    """Algorithm 1 for one taxi and every target in one call, on the contracted graph.
+
+    Exactly what ``routing.plan_routes`` does step by step: edge costs ``t_e (1 - kappa u_e / max u)`` per
+    kappa (kappas > 0 skipped when no edge enters a cell of positive gain), one contracted search each,
+    every target's tree path evaluated, and per target the kappa with the largest phi kept (ties: the
+    earlier kappa). Returns the chosen kappa index per target (-1 unreachable), gain, time and length of
+    the chosen routes, the predecessor-edge arrays (one row per kappa; rows of skipped kappas are -1) and
+    the largest interval slot reached. ``stamp_base`` must leave ``len(kappas) * len(targets)`` fresh ids.
+    """
+    m = edge_time.shape[0]
+    n = c_kept_of.shape[0]
+    k = targets.shape[0]
+    u = entered_utility(ec_ptr, ec_cell, gain[0])
+    umax = 0.0
+    for e in range(m):
+        if u[e] > umax:
+            umax = u[e]
+    best_phi = np.full(k, -np.inf)
+    out_i = np.full(k, -1, dtype=np.int64)
+    out_g = np.zeros(k)
+    out_t = np.full(k, np.nan)
+    out_l = np.zeros(k)
+    preds = np.full((kappas.shape[0], n), -1, dtype=np.int64)
+    cost = np.empty(m)
+    max_slot = 0
+    for ki in range(kappas.shape[0]):
+        kappa = kappas[ki]
+        if kappa == 0.0:
+            for e in range(m):
+                cost[e] = edge_time[e]
+        elif umax > 0.0:
+            for e in range(m):
+                cost[e] = edge_time[e] * (1.0 - kappa * (u[e] / umax))
+        else:
+            continue
+        _dist, pred, _acc = dijkstra_contracted(
+            c_indptr,
+            c_se_head,
+            c_se_tail,
+            c_se_rev,
+            c_se_ptr,
+            c_se_edges,
+            c_se_node,
+            c_kept,
+            c_kept_of,
+            c_dead_end,
+            c_pos_se,
+            c_pos_off,
+            cost,
+            edge_time,
+            source,
+            np.inf,
+            targets,
+            targets,
+        )
+        g, _gq, t, length, ms = eval_targets(
+            pred,
+            tail,
+            targets,
+            depart_s,
+            edge_time,
+            edge_len,
+            ec_ptr,
+            ec_cell,
+            ec_frac,
+            interval_shift_s,
+            interval_s,
+            k0,
+            gain,
+            gain_q,
+            stamp,
+            stamp_base + ki * k,
+        )
+        if ms > max_slot:
+            max_slot = ms
+        for i in range(k):
+            tgt = targets[i]
+            if np.isnan(t[i]) or not (pred[tgt] >= 0 or tgt == source):
+                continue
+            phi = g[i] / t[i] if t[i] > 0 else 0.0
+            if phi > best_phi[i]:
+                best_phi[i] = phi
+                out_i[i] = ki
+                out_g[i] = g[i]
+                out_t[i] = t[i]
+                out_l[i] = length[i]
+        for v in range(n):
+            preds[ki, v] = pred[v]
+    return out_i, out_g, out_t, out_l, preds, max_slot

@@ -250,6 +250,8 @@ def plan_routes(
     ga = graph_arrays(city)
     gain, gain_q = table.for_taxi(visited)
     k = len(targets)
+    if contraction.ENABLED:
+        return _plan_routes_fused(city, ga, table, gain, gain_q, taxi_id, source, targets, depart_s)
     best_phi = np.full(k, -np.inf)
     out_g, out_t, out_l = np.zeros(k), np.full(k, np.nan), np.zeros(k)
     out_kappa, out_tree = np.zeros(k), np.zeros(k, dtype=np.int64)
@@ -291,6 +293,59 @@ def plan_routes(
         raise ValueError(f"targets unreachable from node {source}: {missing[:5].tolist()}")
     rs = RouteSet(taxi_id, source, targets, out_kappa, out_g, out_t, out_l, out_tree, tuple(preds), ga.tail)
     return rs, max_slot
+
+
+def _plan_routes_fused(
+    city: City,
+    ga: GraphArrays,
+    table: GainTable,
+    gain: NDArray[np.float64],
+    gain_q: NDArray[np.int64],
+    taxi_id: TaxiId,
+    source: int,
+    targets: NDArray[np.int64],
+    depart_s: float,
+) -> tuple[RouteSet, int]:
+    """``plan_routes`` in one compiled call (``kernels.plan_kappas``) on the contracted graph."""
+    c = contraction.forward(ga)
+    kappas = np.asarray(city.params.kappas, dtype=np.float64)
+    stamp, first = table.stamps(len(kappas) * len(targets))
+    idx, g, t, length, preds, max_slot = kernels.plan_kappas(
+        c.indptr,
+        c.se_head,
+        c.se_tail,
+        c.se_rev,
+        c.se_ptr,
+        c.se_edges,
+        c.se_node,
+        c.kept,
+        c.kept_of,
+        c.dead_end,
+        c.pos_se,
+        c.pos_off,
+        ga.tail,
+        ga.time_s,
+        ga.length_m,
+        ga.ec_ptr,
+        ga.ec_cell,
+        ga.ec_frac,
+        kappas,
+        int(source),
+        targets,
+        float(depart_s),
+        table.shift_s,
+        float(city.horizon.interval_s),
+        table.k0,
+        gain,
+        gain_q,
+        stamp,
+        first,
+    )
+    missing = targets[idx < 0]
+    if len(missing):
+        raise ValueError(f"targets unreachable from node {source}: {missing[:5].tolist()}")
+    rs = RouteSet(taxi_id, source, targets, kappas[idx], g, t, length, idx, tuple(preds), ga.tail)
+    return rs, int(max_slot)
 
 
 def route_pairs(
