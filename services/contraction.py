@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -91,6 +91,24 @@ class Contraction:
     def n_super_edges(self) -> int:
         """Edges of the contracted graph."""
         return int(self.se_tail.shape[0])
+
+    @property
+    def arrays(self) -> tuple[NDArray[Any], ...]:
+        """The graph's arrays in the order ``kernels.dijkstra_contracted`` and ``plan_kappas`` take them."""
+        return (
+            self.indptr,
+            self.se_head,
+            self.se_tail,
+            self.se_rev,
+            self.se_ptr,
+            self.se_edges,
+            self.se_node,
+            self.kept,
+            self.kept_of,
+            self.dead_end,
+            self.pos_se,
+            self.pos_off,
+        )
 
 
 def _interiors(
@@ -265,18 +283,7 @@ def search(
     """
     q = targets if queries is None else np.asarray(queries, dtype=np.int64)
     result: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]] = kernels.dijkstra_contracted(
-        c.indptr,
-        c.se_head,
-        c.se_tail,
-        c.se_rev,
-        c.se_ptr,
-        c.se_edges,
-        c.se_node,
-        c.kept,
-        c.kept_of,
-        c.dead_end,
-        c.pos_se,
-        c.pos_off,
+        *c.arrays,
         cost,
         aux,
         int(source),

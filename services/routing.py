@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from services import contraction, kernels
 from services.city import City
 from services.model import CountsView, IntervalKey, TaxiId
-from services.sensing import timed_cells
+from services.sensing import theta_gain, timed_cells
 
 __all__ = [
     "GraphArrays",
@@ -55,6 +55,11 @@ class GraphArrays:
     ec_cell: NDArray[np.int32]
     ec_frac: NDArray[np.float64]
     min_speed_mps: float
+
+    @property
+    def cells(self) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.float64]]:
+        """``(ec_ptr, ec_cell, ec_frac)``: the cells each edge crosses, as the kernels take them."""
+        return self.ec_ptr, self.ec_cell, self.ec_frac
 
 
 @functools.lru_cache(maxsize=16)
@@ -108,13 +113,14 @@ class GainTable:
     _next_stamp: int = 1
 
     @property
-    def n_slots(self) -> int:
-        return int(self.base.shape[0])
-
-    @property
     def shift_s(self) -> float:
         """``interval_shift_s`` for the kernels: slot = floor((t + shift) / interval) - k0."""
         return float(self._shift)
+
+    @property
+    def clock(self) -> tuple[float, float, int]:
+        """``(interval_shift_s, interval_s, k0)``: how the kernels turn a time into a row of the table."""
+        return float(self._shift), float(self.city.horizon.interval_s), self.k0
 
     def for_taxi(
         self, visited: frozenset[tuple[IntervalKey, int]] | None
@@ -159,7 +165,7 @@ def gain_table(
             for (kk, c), n in extra.items():
                 if kk == k:
                     lam_f[c] += n
-        base[s] = city.mu(k) * city.cell_weight * (np.power(lam_f + 1.0, rho) - np.power(lam_f, rho))
+        base[s] = city.mu(k) * city.cell_weight * theta_gain(lam_f, 1.0, rho)
     return GainTable(city=city, k0=k0, base=base, _shift=city.horizon.shift_s(depart_s))
 
 
@@ -257,7 +263,6 @@ def plan_routes(
     out_kappa, out_tree = np.zeros(k), np.zeros(k, dtype=np.int64)
     preds: list[NDArray[np.int64]] = []
     max_slot = 0
-    interval_s = float(city.horizon.interval_s)
     for kappa, cost in _kappa_costs(ga, gain[0], city.params.kappas):
         _dist, pred, _ = contraction.dijkstra(ga, cost, source, np.inf, targets, ga.time_s)
         stamp, first = table.stamps(k)
@@ -268,12 +273,8 @@ def plan_routes(
             depart_s,
             ga.time_s,
             ga.length_m,
-            ga.ec_ptr,
-            ga.ec_cell,
-            ga.ec_frac,
-            table.shift_s,
-            interval_s,
-            table.k0,
+            *ga.cells,
+            *table.clock,
             gain,
             gain_q,
             stamp,
@@ -311,31 +312,16 @@ def _plan_routes_fused(
     kappas = np.asarray(city.params.kappas, dtype=np.float64)
     stamp, first = table.stamps(len(kappas) * len(targets))
     idx, g, t, length, preds, max_slot = kernels.plan_kappas(
-        c.indptr,
-        c.se_head,
-        c.se_tail,
-        c.se_rev,
-        c.se_ptr,
-        c.se_edges,
-        c.se_node,
-        c.kept,
-        c.kept_of,
-        c.dead_end,
-        c.pos_se,
-        c.pos_off,
+        *c.arrays,
         ga.tail,
         ga.time_s,
         ga.length_m,
-        ga.ec_ptr,
-        ga.ec_cell,
-        ga.ec_frac,
+        *ga.cells,
         kappas,
         int(source),
         targets,
         float(depart_s),
-        table.shift_s,
-        float(city.horizon.interval_s),
-        table.k0,
+        *table.clock,
         gain,
         gain_q,
         stamp,
@@ -377,9 +363,7 @@ def _joint_from_counts(
             continue
         lam_arr = counts.get(IntervalKey(k))
         lam = float(lam_arr[c]) if lam_arr is not None else 0.0
-        total += (
-            city.mu(k) * float(city.cell_weight[c]) * float(np.power(lam + cnt, rho) - np.power(lam, rho))
-        )
+        total += city.mu(k) * float(city.cell_weight[c]) * float(theta_gain(lam, cnt, rho))
     return total
 
 

@@ -14,14 +14,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.city import City
-from services.model import CountsView, IntervalKey, TaxiId
+from services.model import IntervalKey
 
 __all__ = [
     "theta",
-    "marginal_term",
+    "theta_gain",
     "TimedCells",
     "timed_cells",
-    "path_gain",
     "gamma",
     "coverage_rate",
 ]
@@ -33,11 +32,17 @@ def theta(count: NDArray[np.int64] | int, rho: float) -> NDArray[np.float64] | f
     return out
 
 
-def marginal_term(city: City, interval: IntervalKey, cell: int, count: int) -> float:
-    """mu_t s_g ((Lambda + 1)^rho - Lambda^rho): the summand of Eq. (3) for one (cell, interval)."""
-    rho = city.params.rho
-    delta = float(np.power(count + 1.0, rho) - np.power(float(count), rho))
-    return city.mu(interval) * float(city.cell_weight[cell]) * delta
+def theta_gain(
+    count: NDArray[np.float64] | float, added: NDArray[np.float64] | float, rho: float
+) -> NDArray[np.float64]:
+    """Theta(Lambda + n) - Theta(Lambda): what ``n`` more distinct vehicles add to a (cell, interval).
+
+    With ``n = 1`` and the weights mu_t s_g this is the summand of Eq. (3); every gain in the core is
+    computed from it (the compiled kernels read it from ``routing.GainTable``).
+    """
+    lam = np.asarray(count, dtype=np.float64)
+    out: NDArray[np.float64] = np.power(lam + added, rho) - np.power(lam, rho)
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,21 +84,6 @@ def timed_cells(city: City, edge_ids: NDArray[np.int64], depart_s: float) -> Tim
     return TimedCells(cells[first], intervals[first], entry[first])
 
 
-def path_gain(city: City, counts: CountsView, taxi_id: TaxiId | None, route: TimedCells) -> float:
-    """Marginal sensing gain (Eq. 3) of ``route`` for ``taxi_id`` against the epoch-start counts.
-
-    ``taxi_id=None`` treats the taxi as counted nowhere yet.
-    """
-    visited = counts.visited.get(taxi_id, frozenset()) if taxi_id is not None else frozenset()
-    total = 0.0
-    for k, c in route.pairs():
-        if (k, c) in visited:
-            continue
-        arr = counts.counts.get(k)
-        total += marginal_term(city, k, c, int(arr[c]) if arr is not None else 0)
-    return total
-
-
 def gamma(city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], intervals: Iterable[int]) -> float:
     """Gamma = sum_t mu_t sum_g s_g Lambda_{g,t}^rho (Eq. 1) over ``intervals``."""
     total = 0.0
@@ -102,7 +92,7 @@ def gamma(city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], intervals
         if arr is None:
             continue
         total += city.mu(int(k)) * float(
-            np.dot(city.cell_weight, np.power(arr.astype(float), city.params.rho))
+            np.dot(city.cell_weight, theta(arr.astype(np.float64), city.params.rho))
         )
     return total
 
