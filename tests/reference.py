@@ -5,7 +5,6 @@ grid's segment rule (``segment_cells``, itself tested against dense sampling).""
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Iterable, Sequence
 
 import networkx as nx
@@ -104,15 +103,13 @@ def lexi_best(pairs, primary, secondary, *, sense: str, tol: float = 1e-12):
             best = (p, s)
             continue
         bp, bs = best
-        if p > bp * (1 + tol) + 1e-15 or abs(p - bp) <= tol * max(abs(bp), 1e-300) + 1e-15 and (
-            (sense == "min" and s < bs) or (sense == "max" and s > bs)
+        if (
+            p > bp * (1 + tol) + 1e-15
+            or abs(p - bp) <= tol * max(abs(bp), 1e-300) + 1e-15
+            and ((sense == "min" and s < bs) or (sense == "max" and s > bs))
         ):
             best = (p, s)
     return best
-
-
-def theta(x: float, rho: float) -> float:
-    return x**rho if x > 0 else 0.0
 
 
 __all__ = [
@@ -123,6 +120,4 @@ __all__ = [
     "fastest",
     "all_matchings",
     "lexi_best",
-    "theta",
-    "math",
 ]

@@ -9,7 +9,7 @@ import scipy.sparse.csgraph as cg
 from services import kernels
 from services.model import CountsView, IntervalKey, TaxiId
 from services.routing import gain_table, graph_arrays
-from services.sensing import path_gain, timed_cells
+from services.sensing import timed_cells
 from tests import reference as ref
 from tests.citymaker import T0, grid_city
 
@@ -40,6 +40,19 @@ def test_dijkstra_matches_scipy(seed: int) -> None:
     assert (expect[~ok] > lim).all()
 
 
+def kernel_gain(city, counts: CountsView, taxi: str, edges: np.ndarray, now: float) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """Gain and travel time of a path as the dispatch computes them: the gain table and ``eval_path``."""
+    k0 = city.horizon.interval_of(now)
+    table = gain_table(city, counts.counts, k0, 3, now)
+    gain, gain_q = table.for_taxi(counts.visited.get(TaxiId(taxi)))
+    stamp, sid = table.stamps(1)
+    ga = graph_arrays(city)
+    got, _, t, _, _ = kernels.eval_path(
+        edges, now, ga.time_s, *ga.cells, *table.clock, gain, gain_q, stamp, sid
+    )
+    return float(got), float(t)
+
+
 @pytest.mark.parametrize("seed", range(10))
 def test_path_gain_kernel_equals_reference(seed: int) -> None:
     rng = np.random.default_rng(seed)
@@ -55,31 +68,12 @@ def test_path_gain_kernel_equals_reference(seed: int) -> None:
     a, b = rng.choice(city.network.n_nodes, 2, replace=False)
     nodes, _ = ref.fastest(g, int(a), int(b))
     edges = np.array(ref.path_edges(g, nodes), dtype=np.int64)
-    table = gain_table(city, counts.counts, k0, 3, now)
-    gain, gain_q = table.for_taxi(counts.visited[TaxiId("a")])
-    stamp, sid = table.stamps(1)
-    ga = graph_arrays(city)
-    got, _, t, _, _ = kernels.eval_path(
-        edges,
-        now,
-        ga.time_s,
-        ga.ec_ptr,
-        ga.ec_cell,
-        ga.ec_frac,
-        table.shift_s,
-        3600.0,
-        k0,
-        gain,
-        gain_q,
-        stamp,
-        sid,
-    )
-    expect = ref.gain(city, counts, "a", edges, now)
-    assert got == pytest.approx(expect, rel=1e-12)
-    assert path_gain(city, counts, TaxiId("a"), timed_cells(city, edges, now)) == pytest.approx(
-        expect, rel=1e-12
-    )
+    got, t = kernel_gain(city, counts, "a", edges, now)
+    assert got == pytest.approx(ref.gain(city, counts, "a", edges, now), rel=1e-12)
     assert t == pytest.approx(sum(city.network.edge_time_s[e] for e in edges))
+    # the timed G-route lists each (interval, cell) once, in the order the reference meets them
+    expect_pairs = list(dict.fromkeys((k, c) for k, c, _ in ref.crossings(city, edges, now)))
+    assert timed_cells(city, edges, now).pairs() == expect_pairs
 
 
 def test_marginal_gain_by_hand() -> None:
@@ -92,8 +86,6 @@ def test_marginal_gain_by_hand() -> None:
     edges = np.array([0], dtype=np.int64)  # 0 -> 1
     # mu = 1/4, s = 1/2: (1/8) * ((4^0.2 - 3^0.2) + (1 - 0))
     expect = (1 / 8) * ((4**0.2 - 3**0.2) + 1.0)
-    assert path_gain(city, counts, TaxiId("x"), timed_cells(city, edges, T0)) == pytest.approx(
-        expect, rel=1e-14
-    )
+    assert kernel_gain(city, counts, "x", edges, T0)[0] == pytest.approx(expect, rel=1e-14)
     # outside the horizon mu is 0
-    assert path_gain(city, counts, TaxiId("x"), timed_cells(city, edges, T0 - 7200)) == 0.0
+    assert kernel_gain(city, counts, "x", edges, T0 - 7200)[0] == 0.0
