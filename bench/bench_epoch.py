@@ -14,7 +14,6 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import socket
 import subprocess
 import sys
@@ -25,10 +24,10 @@ from pathlib import Path
 from zoneinfo import ZoneInfo
 
 import numpy as np
-import scipy
 import scipy.sparse.csgraph as cg
 from scipy.optimize import linear_sum_assignment
 
+from bench.report import stamp, write_section
 from services.city import City
 from services.citydata import load_city
 from services.dispatch import decide
@@ -214,23 +213,6 @@ def summary(xs: list[float]) -> dict[str, float]:
     }
 
 
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import numba
-
-    return (
-        f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}; Python "
-        f"{platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, numba {numba.__version__}"
-    )
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", choices=sorted(SCENARIOS), action="append")
@@ -262,14 +244,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def write_report(results: dict[str, dict]) -> None:
-    path = ROOT / "docs" / "PERFORMANCE.md"
     lines = [
-        "# Performance",
-        "",
-        f"Measured {dt.date.today().isoformat()} with `make bench` (`python -m bench.bench_epoch`).",
-        f"Machine: {machine()}.",
-        "",
         "## Epoch latency",
+        "",
+        stamp("python -m bench.bench_epoch"),
         "",
         "Inputs (seeded, `bench/bench_epoch.py` `SCENARIOS`): taxis at random nodes, Poisson riders requested",
         "0-300 s earlier, a uniformly random number of open tasks (0..max) at random nodes, epochs 200 s apart from",
@@ -315,7 +293,7 @@ def write_report(results: dict[str, dict]) -> None:
         "Searches run on the network with degree-2 chains contracted (`services/contraction.py`; Chengdu 6,536 ->",
         "2,236 nodes, Manhattan barely contracts). The raw numbers of the last run are in `docs/perf_epoch.json`.",
     ]
-    path.write_text("\n".join(lines) + "\n")
+    path = write_section("epoch", "\n".join(lines))
     (ROOT / "docs" / "perf_epoch.json").write_text(json.dumps(results, indent=1) + "\n")
     print(f"wrote {path}")
 
