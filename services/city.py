@@ -81,6 +81,16 @@ class Horizon:
         """Human label of interval ``k``: its local start, ``YYYY-MM-DDTHH:MM``."""
         return self.local_start(k).strftime("%Y-%m-%dT%H:%M")
 
+    def start_s(self, date: str | dt.date) -> float:
+        """POSIX time of the horizon's start on local calendar day ``date`` (``YYYY-MM-DD``)."""
+        day = dt.date.fromisoformat(date) if isinstance(date, str) else date
+        return dt.datetime.combine(day, self.start, tzinfo=ZoneInfo(self.timezone)).timestamp()
+
+    @property
+    def length_s(self) -> int:
+        """Length of the operating horizon (``n_intervals * interval_s``)."""
+        return self.n_intervals * self.interval_s
+
     def day_intervals(self, k: int) -> list[IntervalKey]:
         """The horizon intervals of the day that interval ``k`` belongs to."""
         first = k - (k % self.per_day)
