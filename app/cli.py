@@ -9,10 +9,7 @@ import json
 import logging
 import secrets
 import sys
-import threading
-import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -21,6 +18,7 @@ from zoneinfo import ZoneInfo
 import httpx
 import numpy as np
 
+from app.serve import serve_in_thread
 from app.settings import Settings
 
 __all__ = [
@@ -84,40 +82,13 @@ class DemoConfig:
     date: str = "2026-11-23"
 
 
-@contextmanager
-def _inprocess_service() -> Iterator[tuple[str, str]]:
-    """Start the service on a free loopback port in a background thread; yield (url, token)."""
-    import uvicorn
-
-    from app.adapters.memory_store import MemoryStore
-    from app.main import create_app
-
-    token = new_token()
-    settings = Settings(store="memory", tokens={token: ["read", "dispatch"]}, host="127.0.0.1", port=0)
-    app = create_app(settings, store=MemoryStore())
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
-    thread = threading.Thread(target=server.run, name="demo-service", daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not server.started:
-        if not thread.is_alive() or time.monotonic() > deadline:
-            raise RuntimeError("the in-process service did not start")
-        time.sleep(0.05)
-    port = server.servers[0].sockets[0].getsockname()[1]
-    try:
-        yield f"http://127.0.0.1:{port}", token
-    finally:
-        server.should_exit = True
-        thread.join(timeout=15)
-
-
 def run_demo(
     config: DemoConfig, url: str | None = None, token: str | None = None, out: TextIO | None = None
 ) -> int:
     """Register a few tasks and post ``config.epochs`` random epochs; print what was decided."""
     stream = out or sys.stdout
     if url is None:
-        with _inprocess_service() as (local_url, local_token):
+        with serve_in_thread() as (local_url, local_token):
             print(f"started the service in-process at {local_url} (memory store)", file=stream)
             return _drive(config, local_url, local_token, stream)
     if not token:

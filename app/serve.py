@@ -1,0 +1,46 @@
+"""Run the service inside this process on a free loopback port (demo, replay, end-to-end tests)."""
+
+from __future__ import annotations
+
+import secrets
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from app.ports import Store
+
+__all__ = ["serve_in_thread"]
+
+
+@contextmanager
+def serve_in_thread(store: Store | None = None, timeout_s: float = 60.0) -> Iterator[tuple[str, str]]:
+    """Start uvicorn on 127.0.0.1 (free port) in a background thread; yield ``(url, token)``.
+
+    ``store`` defaults to a fresh in-memory store; the token has scopes ``read`` and ``dispatch``.
+    """
+    import uvicorn
+
+    from app.adapters.memory_store import MemoryStore
+    from app.main import create_app
+    from app.settings import Settings
+
+    token = "sd_" + secrets.token_urlsafe(24)
+    settings = Settings(
+        store="memory", tokens={token: ["read", "dispatch"]}, host="127.0.0.1", port=0
+    )
+    app = create_app(settings, store=store if store is not None else MemoryStore())
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
+    thread = threading.Thread(target=server.run, name="in-process-service", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + timeout_s
+    while not server.started:
+        if not thread.is_alive() or time.monotonic() > deadline:
+            raise RuntimeError("the in-process service did not start")
+        time.sleep(0.05)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    try:
+        yield f"http://127.0.0.1:{port}", token
+    finally:
+        server.should_exit = True
+        thread.join(timeout=15)
