@@ -1,4 +1,4 @@
-"""Command line: ``python -m app run|demo|openapi|import-city|token|worker``."""
+"""Command line: ``python -m app run|demo|replay|experiment|openapi|import-city|token|worker``."""
 
 from __future__ import annotations
 
@@ -368,6 +368,10 @@ def _parser() -> argparse.ArgumentParser:
         "import-city", help="build a city bundle from OSM XML or CSV (see import-city -h)", add_help=False
     )
     sub.add_parser("worker", help="the fleet-sizing worker", add_help=False)
+    sub.add_parser(
+        "experiment", help="the paper's numerical test, resumable (see experiment -h)", add_help=False
+    )
+    sub.add_parser("replay", help="simulate one horizon against the service (see replay -h)", add_help=False)
 
     tok = sub.add_parser("token", help="print a fresh random bearer token")
     tok.set_defaults(func=_cmd_token)
@@ -381,6 +385,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         from app.cities import import_city_cli
 
         return import_city_cli(args_list[1:], default_out=Settings().cities_dir)
+    if args_list and args_list[0] in ("experiment", "replay"):
+        from app.experiment import cli as experiment_cli
+
+        run = experiment_cli.experiment_main if args_list[0] == "experiment" else experiment_cli.replay_main
+        return run(args_list[1:])
     if args_list and args_list[0] == "worker":
         try:
             worker = importlib.import_module("app.worker")
