@@ -189,6 +189,7 @@ def simulate(
     dispatcher: Dispatcher,
     *,
     on_epoch: Callable[[int, int], None] | None = None,
+    start_nodes: Sequence[int] | None = None,
 ) -> RunTrace:
     """Run one operating horizon of ``demand`` (METHOD section 10).
 
@@ -200,6 +201,7 @@ def simulate(
     config : fleet sizes and seeds.
     dispatcher : where the decisions come from.
     on_epoch : called with (epochs done, epochs in all) after each epoch, for progress bars.
+    start_nodes : the taxis' start nodes (instrumented first), instead of seeded random nodes.
     """
     hz = city.horizon
     start_s = hz.start_s(demand.date)
@@ -209,11 +211,16 @@ def simulate(
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x51D]))
     n_nodes = city.network.n_nodes
     pfx = config.id_prefix
+    n_taxis = config.n_instrumented + config.n_ordinary
+    starts = rng.integers(n_nodes, size=n_taxis)
+    if start_nodes is not None:
+        if len(start_nodes) != n_taxis:
+            raise ValueError(f"start_nodes has {len(start_nodes)} nodes for {n_taxis} taxis")
+        starts = np.asarray(start_nodes, dtype=np.int64)
     taxis = [
-        _TaxiState(TaxiId(f"{pfx}i{k:03d}"), True, int(rng.integers(n_nodes)))
-        for k in range(config.n_instrumented)
+        _TaxiState(TaxiId(f"{pfx}i{k:03d}"), True, int(starts[k])) for k in range(config.n_instrumented)
     ] + [
-        _TaxiState(TaxiId(f"{pfx}o{k:03d}"), False, int(rng.integers(n_nodes)))
+        _TaxiState(TaxiId(f"{pfx}o{k:03d}"), False, int(starts[config.n_instrumented + k]))
         for k in range(config.n_ordinary)
     ]
     by_id = {t.id: t for t in taxis}
