@@ -19,6 +19,7 @@ __all__ = [
     "eval_path",
     "eval_pairs",
     "eval_targets",
+    "eval_tree",
     "entered_utility",
 ]
 
@@ -665,6 +666,143 @@ def eval_targets(
 
 
 @numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def eval_tree(
+    pred_edge: NDArray[np.int64],
+    tail: NDArray[np.int32],
+    source: int,
+    targets: NDArray[np.int64],
+    depart_s: float,
+    edge_time: NDArray[np.float64],
+    edge_len: NDArray[np.float64],
+    ec_ptr: NDArray[np.int64],
+    ec_cell: NDArray[np.int32],
+    ec_frac: NDArray[np.float64],
+    interval_shift_s: float,
+    interval_s: float,
+    k0: int,
+    gain: NDArray[np.float64],
+    gain_q: NDArray[np.int64],
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], int]:
+    """``eval_targets`` computed once per tree edge instead of once per path edge.
+
+    The tree paths to the targets share their prefixes; a depth-first walk over the union of those paths
+    carries each path's running state (time, gain, integer gain, length, largest slot, and the set of
+    (slot, cell) pairs seen so far, undone on the way back up) from a node to its children. Every quantity
+    is accumulated edge by edge from the source in travel order, exactly as ``eval_path`` does along one
+    path, so the results are bit-identical to ``eval_targets`` (unreachable targets included: they read
+    as an empty path, time 0, which ``eval_targets`` also returns for them).
+    """
+    n = pred_edge.shape[0]
+    k = targets.shape[0]
+    n_slots = gain.shape[0]
+    n_cells = gain.shape[1]
+    # the union of the targets' tree paths, and each member's children
+    in_union = np.zeros(n, dtype=np.bool_)
+    members = np.empty(n, dtype=np.int64)
+    n_mem = 0
+    for i in range(k):
+        v = targets[i]
+        while pred_edge[v] >= 0 and not in_union[v]:
+            in_union[v] = True
+            members[n_mem] = v
+            n_mem += 1
+            v = tail[pred_edge[v]]
+    kid_ptr = np.zeros(n + 1, dtype=np.int64)
+    for q in range(n_mem):
+        kid_ptr[tail[pred_edge[members[q]]] + 1] += 1
+    for v in range(n):
+        kid_ptr[v + 1] += kid_ptr[v]
+    fill = kid_ptr[:-1].copy()
+    kids = np.empty(max(n_mem, 1), dtype=np.int64)
+    for q in range(n_mem):
+        p = tail[pred_edge[members[q]]]
+        kids[fill[p]] = members[q]
+        fill[p] += 1
+    # running state per node of the union (and the source)
+    at_t = np.empty(n)
+    at_g = np.empty(n)
+    at_q = np.empty(n, dtype=np.int64)
+    at_l = np.empty(n)
+    at_ms = np.empty(n, dtype=np.int64)
+    at_t[source] = depart_s
+    at_g[source] = 0.0
+    at_q[source] = 0
+    at_l[source] = 0.0
+    at_ms[source] = 0
+    seen = np.zeros((n_slots, n_cells), dtype=np.bool_)
+    log_s = np.empty(n_slots * n_cells + 1, dtype=np.int64)
+    log_c = np.empty(n_slots * n_cells + 1, dtype=np.int64)
+    n_log = 0
+    st_node = np.empty(n_mem + 1, dtype=np.int64)
+    st_next = np.empty(n_mem + 1, dtype=np.int64)
+    st_log = np.empty(n_mem + 1, dtype=np.int64)
+    st_node[0] = source
+    st_next[0] = kid_ptr[source]
+    st_log[0] = 0
+    depth = 1
+    while depth > 0:
+        v = st_node[depth - 1]
+        it = st_next[depth - 1]
+        if it < kid_ptr[v + 1]:
+            st_next[depth - 1] = it + 1
+            w = kids[it]
+            e = pred_edge[w]
+            t = at_t[v]
+            g = at_g[v]
+            gq = at_q[v]
+            ms = at_ms[v]
+            te = edge_time[e]
+            start = n_log
+            for j in range(ec_ptr[e], ec_ptr[e + 1]):
+                entry = t + ec_frac[j] * te
+                slot = int(np.floor((entry + interval_shift_s) / interval_s)) - k0
+                if slot > ms:
+                    ms = slot
+                if slot >= n_slots:
+                    continue
+                c = ec_cell[j]
+                if seen[slot, c]:
+                    continue
+                seen[slot, c] = True
+                log_s[n_log] = slot
+                log_c[n_log] = c
+                n_log += 1
+                if gain[slot, c] > 0.0:
+                    g += gain[slot, c]
+                    gq += gain_q[slot, c]
+            at_t[w] = t + te
+            at_g[w] = g
+            at_q[w] = gq
+            at_l[w] = at_l[v] + edge_len[e]
+            at_ms[w] = ms
+            st_node[depth] = w
+            st_next[depth] = kid_ptr[w]
+            st_log[depth] = start
+            depth += 1
+        else:
+            for q in range(st_log[depth - 1], n_log):
+                seen[log_s[q], log_c[q]] = False
+            n_log = st_log[depth - 1]
+            depth -= 1
+    out_g = np.zeros(k)
+    out_q = np.zeros(k, dtype=np.int64)
+    out_t = np.zeros(k)
+    out_l = np.zeros(k)
+    max_slot = 0
+    for i in range(k):
+        v = targets[i]
+        if pred_edge[v] < 0:
+            continue  # the source itself, or not reached: an empty path, as eval_targets reads it
+        out_g[i] = at_g[v]
+        out_q[i] = at_q[v]
+        out_t[i] = at_t[v] - depart_s
+        out_l[i] = at_l[v]
+        if at_ms[v] > max_slot:
+            max_slot = at_ms[v]
+    return out_g, out_q, out_t, out_l, max_slot
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
 def entered_utility(
     ec_ptr: NDArray[np.int64], ec_cell: NDArray[np.int32], cell_value: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -708,8 +846,6 @@ def plan_kappas(
     k0: int,
     gain: NDArray[np.float64],
     gain_q: NDArray[np.int64],
-    stamp: NDArray[np.int64],
-    stamp_base: int,
 ) -> tuple[
     NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], int
 ]:
@@ -717,10 +853,10 @@ def plan_kappas(
 
     Exactly what ``routing.plan_routes`` does step by step: edge costs ``t_e (1 - kappa u_e / max u)`` per
     kappa (kappas > 0 skipped when no edge enters a cell of positive gain), one contracted search each,
-    every target's tree path evaluated, and per target the kappa with the largest phi kept (ties: the
-    earlier kappa). Returns the chosen kappa index per target (-1 unreachable), gain, time and length of
-    the chosen routes, the predecessor-edge arrays (one row per kappa; rows of skipped kappas are -1) and
-    the largest interval slot reached. ``stamp_base`` must leave ``len(kappas) * len(targets)`` fresh ids.
+    every target's tree path evaluated (``eval_tree``), and per target the kappa with the largest phi kept
+    (ties: the earlier kappa). Returns the chosen kappa index per target (-1 unreachable), gain, time and
+    length of the chosen routes, the predecessor-edge arrays (one row per kappa; rows of skipped kappas
+    are -1) and the largest interval slot reached.
     """
     m = edge_time.shape[0]
     n = c_kept_of.shape[0]
@@ -768,9 +904,10 @@ def plan_kappas(
             targets,
             targets,
         )
-        g, _gq, t, length, ms = eval_targets(
+        g, _gq, t, length, ms = eval_tree(
             pred,
             tail,
+            source,
             targets,
             depart_s,
             edge_time,
@@ -783,8 +920,6 @@ def plan_kappas(
             k0,
             gain,
             gain_q,
-            stamp,
-            stamp_base + ki * k,
         )
         if ms > max_slot:
             max_slot = ms

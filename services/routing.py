@@ -310,7 +310,6 @@ def _plan_routes_fused(
     """``plan_routes`` in one compiled call (``kernels.plan_kappas``) on the contracted graph."""
     c = contraction.forward(ga)
     kappas = np.asarray(city.params.kappas, dtype=np.float64)
-    stamp, first = table.stamps(len(kappas) * len(targets))
     idx, g, t, length, preds, max_slot = kernels.plan_kappas(
         *c.arrays,
         ga.tail,
@@ -324,8 +323,6 @@ def _plan_routes_fused(
         *table.clock,
         gain,
         gain_q,
-        stamp,
-        first,
     )
     missing = targets[idx < 0]
     if len(missing):
