@@ -139,7 +139,7 @@ def replay_main(argv: Sequence[str]) -> int:
                    False, args.tasks, args.rate)  # fmt: skip
     city, _ = load(spec.city)
     if args.demand is not None:
-        from services.sim.demand import read_demand_csv
+        from services.sim.demand_csv import read_demand_csv
 
         demand = read_demand_csv(city, args.demand)
     else:

@@ -68,7 +68,7 @@ def kpi_panels(cfg: ExperimentConfig, table: Sequence[dict[str, Any]], path: Pat
 def timeliness_figure(cfg: ExperimentConfig, results: dict[str, dict[str, Any]], n1: int, path: Path) -> Path:
     """Per POI task: delay (completion - scheduled) against scheduled time, with and without active sensing;
     unmonitored tasks drawn as crosses above the top."""
-    fig, axes = plt.subplots(1, len(cfg.scenarios), figsize=(4.6 * len(cfg.scenarios), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(cfg.scenarios), figsize=(4.6 * len(cfg.scenarios), 4.8), squeeze=False)
     for ax, sc in zip(axes[0], cfg.scenarios, strict=True):
         top = 0.0
         marks = []

@@ -22,8 +22,9 @@ from services.city import City
 from services.citydata import read_meta
 from services.dispatch import warm_up
 from services.network import SnapError
-from services.sim import demand as dm
 from services.sim.demand import DemandSet
+from services.sim.demand_chengdu import PoiDensity, chengdu_demand, poi_density, read_pois_csv
+from services.sim.demand_nyc import TripRecords, manhattan_demand, read_nyc_requests
 from services.sim.engine import RunTrace, SimConfig, poi_tasks, simulate
 from services.sim.kpi import run_kpis
 from services.sim.local import LocalDispatcher
@@ -77,28 +78,34 @@ def load(name: str, bundled_dir: Path = BUNDLED_DIR) -> tuple[City, Path]:
 def _pois(name: str) -> NDArray[np.float64] | None:
     city, bundle = load(name)
     files = read_meta(bundle).files
-    return dm.read_pois_csv(bundle / files["pois"]) if "pois" in files else None
+    return read_pois_csv(bundle / files["pois"]) if "pois" in files else None
+
+
+@lru_cache(maxsize=8)
+def _density(name: str) -> PoiDensity | None:
+    pois = _pois(name)
+    return None if pois is None else poi_density(load(name)[0], pois)
 
 
 @lru_cache(maxsize=4)
-def _records(name: str) -> Any:
+def _records(name: str) -> TripRecords:
     city, bundle = load(name)
     files = read_meta(bundle).files
     if "requests" not in files:
         raise ValueError(f"city {name!r} has neither POIs nor recorded requests to build demand from")
-    return dm.read_nyc_requests(bundle / files["requests"])
+    return read_nyc_requests(bundle / files["requests"])
 
 
 def demand_for(spec: RunSpec) -> DemandSet:
     """The run's demand: Chengdu's calibrated generator, or the recorded requests (bootstrapped for day > 0)."""
     city, _ = load(spec.city)
-    pois = _pois(spec.city)
-    if pois is not None:
+    density = _density(spec.city)
+    if density is not None:
         kwargs: dict[str, Any] = {} if spec.rate_per_hour is None else {"rate_per_hour": spec.rate_per_hour}
-        return dm.chengdu_demand(city, pois, seed=spec.seed, scenario=spec.scenario, day=spec.day, **kwargs)
+        return chengdu_demand(city, density, seed=spec.seed, scenario=spec.scenario, day=spec.day, **kwargs)
     if spec.scenario != 1:
         raise ValueError("scenarios 2 and 3 exist only for the synthetic generator (Chengdu)")
-    return dm.manhattan_demand(
+    return manhattan_demand(
         city, _records(spec.city), seed=spec.seed, day=spec.day, rate_per_hour=spec.rate_per_hour
     )
 
