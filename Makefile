@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test run demo bench openapi lint
+.PHONY: install test run demo replay experiment bench bench-epoch bench-sim bench-dro openapi lint
 
 install: $(STAMP)
 
@@ -24,8 +24,24 @@ run: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m app demo
 
-bench: $(STAMP)
+replay: $(STAMP)
+	$(PY) -m app replay $(ARGS)
+
+# The paper's numerical test (resumable; writes docs/results/). ARGS="--seeds 3" etc.
+experiment: $(STAMP)
+	$(PY) -m app experiment $(ARGS)
+
+# Every benchmark; each writes its own section of docs/PERFORMANCE.md.
+bench: bench-epoch bench-sim bench-dro
+
+bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
+
+bench-sim: $(STAMP)
+	$(PY) -m bench.bench_sim
+
+bench-dro: $(STAMP)
+	$(PY) -m bench.bench_dro
 
 openapi: $(STAMP)
 	$(PY) -m app openapi
