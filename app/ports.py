@@ -17,6 +17,12 @@ __all__ = [
     "EpochCommit",
     "CommitResult",
     "PutTasksResult",
+    "FleetRecordStatus",
+    "FleetRecord",
+    "PublishStatus",
+    "PublishResult",
+    "SolveRequest",
+    "EnqueueResult",
     "Store",
 ]
 
@@ -87,6 +93,60 @@ class PutTasksResult:
     conflicts: list[TaskId] = field(default_factory=list)
 
 
+FleetRecordStatus = Literal["published", "failed"]
+
+
+@dataclass(frozen=True, slots=True)
+class FleetRecord:
+    """One outcome of a fleet-sizing solve (docs/FLEET.md), as the current recommendation and the history
+    keep it.
+
+    ``published``: ``version`` (monotonic per city, 1, 2, ...) and ``body_json``, the recommendation
+    document. ``failed``: ``reason``; nothing was published and the last good recommendation stays current.
+    ``interval`` is the hour solved for (an ``IntervalKey``), ``request_id`` the admin request that asked
+    for the solve (``None`` for the hourly schedule).
+    """
+
+    status: FleetRecordStatus
+    computed_at_s: float
+    interval: int
+    version: int | None = None
+    body_json: str | None = None
+    reason: str | None = None
+    request_id: str | None = None
+
+
+PublishStatus = Literal["published", "version_mismatch"]
+
+
+@dataclass(frozen=True, slots=True)
+class PublishResult:
+    """``published``: ``version`` is the new current version. ``version_mismatch``: the record's version is
+    not the current one plus one (another solve published meanwhile); nothing written, ``version`` is the
+    current one."""
+
+    status: PublishStatus
+    version: int
+
+
+@dataclass(frozen=True, slots=True)
+class SolveRequest:
+    """An admin's request for a fleet-sizing solve now, queued for the worker."""
+
+    request_id: str
+    requested_at_s: float
+    requested_by: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class EnqueueResult:
+    """``request`` is the pending request: the one just queued (``created``) or one already waiting, which
+    the new one joins (a city has at most one pending request)."""
+
+    request: SolveRequest
+    created: bool
+
+
 class Store(Protocol):
     def ping(self) -> None:
         """Raise ``StoreUnavailable`` when the store cannot be reached."""
@@ -114,5 +174,34 @@ class Store(Protocol):
 
     def recorded_demand(self, city: str, day: str) -> list[str]:
         """The ``demand_json`` of the epochs committed on UTC day ``day`` (``YYYYMMDD``), in commit order."""
+
+    # -- fleet sizing (issue 4; docs/FLEET.md) --------------------------------------------------------
+
+    def publish_recommendation(self, city: str, record: FleetRecord, history_limit: int) -> PublishResult:
+        """Atomically, if ``record.version`` is the current version plus one (0 when none): make ``record``
+        (status ``published``) the current recommendation and push it on the history, which keeps the
+        newest ``history_limit`` entries."""
+
+    def record_solve_failure(self, city: str, record: FleetRecord, history_limit: int) -> None:
+        """Push a ``failed`` record on the history (bounded as above); the current recommendation stays."""
+
+    def current_recommendation(self, city: str) -> FleetRecord | None:
+        """The last published recommendation, if any."""
+
+    def recommendation_history(self, city: str, limit: int) -> list[FleetRecord]:
+        """Up to ``limit`` history entries (published and failed), newest first."""
+
+    def acquire_lock(self, city: str, name: str, ttl_s: float) -> str | None:
+        """Take the lock ``name`` of the city for ``ttl_s`` seconds unless someone holds it: a fresh token,
+        or ``None`` when it is held (Redis ``SET NX PX``)."""
+
+    def release_lock(self, city: str, name: str, token: str) -> bool:
+        """Release the lock if ``token`` still holds it (never another holder's); whether it did."""
+
+    def enqueue_solve_request(self, city: str, request: SolveRequest) -> EnqueueResult:
+        """Queue a solve request unless one is pending (then that one is returned, ``created=False``)."""
+
+    def claim_solve_request(self, city: str) -> SolveRequest | None:
+        """Take the pending request off the queue (exactly one claimant gets it), if any."""
 
     def close(self) -> None: ...

@@ -1,14 +1,16 @@
-"""Serialization shared by the store adapters: tasks as JSON, registration comparison, demand days."""
+"""Serialization shared by the store adapters: tasks and fleet records as JSON, registration comparison,
+demand days."""
 
 from __future__ import annotations
 
 import datetime as dt
 import json
+import secrets
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from app.ports import PutTasksResult
+from app.ports import FleetRecord, PutTasksResult, SolveRequest
 from services.model import Task, TaskId, TaxiId
 
 __all__ = [
@@ -20,6 +22,12 @@ __all__ = [
     "lookup_in",
     "utc_day",
     "format_time",
+    "fleet_record_to_json",
+    "fleet_record_from_json",
+    "solve_request_to_json",
+    "solve_request_from_json",
+    "check_fleet_record",
+    "new_lock_token",
 ]
 
 
@@ -108,3 +116,60 @@ def lookup_in(mapping: Mapping[TaskId, Task]) -> Callable[[TaskId], Task | None]
 def utc_day(time_s: float) -> str:
     """The UTC calendar day of a POSIX time as ``YYYYMMDD`` (the demand list key suffix)."""
     return dt.datetime.fromtimestamp(time_s, tz=dt.UTC).strftime("%Y%m%d")
+
+
+def fleet_record_to_json(record: FleetRecord) -> str:
+    """Compact, key-sorted JSON of a fleet-sizing record (the body travels as a string inside it)."""
+    doc: dict[str, Any] = {
+        "status": record.status,
+        "computed_at_s": float(record.computed_at_s),
+        "interval": int(record.interval),
+        "version": None if record.version is None else int(record.version),
+        "body": record.body_json,
+        "reason": record.reason,
+        "request_id": record.request_id,
+    }
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def fleet_record_from_json(text: str) -> FleetRecord:
+    """Inverse of ``fleet_record_to_json``."""
+    doc = json.loads(text)
+    version = doc.get("version")
+    return FleetRecord(
+        status=doc["status"],
+        computed_at_s=float(doc["computed_at_s"]),
+        interval=int(doc["interval"]),
+        version=None if version is None else int(version),
+        body_json=doc.get("body"),
+        reason=doc.get("reason"),
+        request_id=doc.get("request_id"),
+    )
+
+
+def solve_request_to_json(request: SolveRequest) -> str:
+    """Compact JSON of a queued solve request."""
+    doc = {"id": request.request_id, "at_s": float(request.requested_at_s), "by": request.requested_by}
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def solve_request_from_json(text: str) -> SolveRequest:
+    """Inverse of ``solve_request_to_json``."""
+    doc = json.loads(text)
+    return SolveRequest(str(doc["id"]), float(doc["at_s"]), doc.get("by"))
+
+
+def check_fleet_record(record: FleetRecord, status: str, history_limit: int) -> None:
+    """``ValueError`` unless ``record`` has ``status`` (and a version >= 1 and a body when published) and
+    ``history_limit`` is at least 1."""
+    if record.status != status:
+        raise ValueError(f"expected a {status!r} record, got {record.status!r}")
+    if status == "published" and (record.version is None or record.version < 1 or record.body_json is None):
+        raise ValueError("a published record needs a version >= 1 and a body")
+    if history_limit < 1:
+        raise ValueError(f"history_limit must be at least 1, got {history_limit}")
+
+
+def new_lock_token() -> str:
+    """A random lock token (only its holder can release the lock)."""
+    return secrets.token_hex(16)

@@ -9,12 +9,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
-from app.adapters.codec import classify_tasks, lookup_in, utc_day
+from app.adapters.codec import check_fleet_record, classify_tasks, lookup_in, new_lock_token, utc_day
 from app.ports import (
     CityState,
     CommitResult,
+    EnqueueResult,
     EpochCommit,
+    FleetRecord,
+    PublishResult,
     PutTasksResult,
+    SolveRequest,
     StoredEpoch,
 )
 from services.model import IntervalKey, Task, TaskId, TaxiId
@@ -35,6 +39,10 @@ class _City:
     visits: dict[tuple[IntervalKey, TaxiId], set[int]] = field(default_factory=dict)
     tasks: dict[TaskId, Task] = field(default_factory=dict)
     demand: dict[str, list[str]] = field(default_factory=dict)
+    fleet_current: FleetRecord | None = None
+    fleet_history: list[FleetRecord] = field(default_factory=list)  # newest first
+    locks: dict[str, tuple[str, float]] = field(default_factory=dict)  # name -> (token, expires at)
+    solve_queue: list[SolveRequest] = field(default_factory=list)
 
 
 def _visit_key(interval: IntervalKey, taxi: TaxiId) -> str:
@@ -188,6 +196,81 @@ class MemoryStore:
         """Demand recorded on one UTC day (``YYYYMMDD``), in commit order."""
         with self._lock:
             return list(self._city(city).demand.get(day, []))
+
+    # -- fleet sizing -----------------------------------------------------------------------------------
+
+    def publish_recommendation(self, city: str, record: FleetRecord, history_limit: int) -> PublishResult:
+        """Compare-and-set the current recommendation (version + 1) and push it on the bounded history."""
+        check_fleet_record(record, "published", history_limit)
+        assert record.version is not None
+        with self._lock:
+            c = self._city(city, create=True)
+            current = (
+                0 if c.fleet_current is None or c.fleet_current.version is None else c.fleet_current.version
+            )
+            if record.version != current + 1:
+                return PublishResult("version_mismatch", current)
+            c.fleet_current = record
+            c.fleet_history.insert(0, record)
+            del c.fleet_history[history_limit:]
+            return PublishResult("published", record.version)
+
+    def record_solve_failure(self, city: str, record: FleetRecord, history_limit: int) -> None:
+        """Push a failed record on the bounded history."""
+        check_fleet_record(record, "failed", history_limit)
+        with self._lock:
+            c = self._city(city, create=True)
+            c.fleet_history.insert(0, record)
+            del c.fleet_history[history_limit:]
+
+    def current_recommendation(self, city: str) -> FleetRecord | None:
+        """The last published recommendation, if any."""
+        with self._lock:
+            return self._city(city).fleet_current
+
+    def recommendation_history(self, city: str, limit: int) -> list[FleetRecord]:
+        """Up to ``limit`` history entries, newest first."""
+        with self._lock:
+            return list(self._city(city).fleet_history[: max(limit, 0)])
+
+    def acquire_lock(self, city: str, name: str, ttl_s: float) -> str | None:
+        """Take the lock unless a holder's TTL (on this store's clock) has not run out."""
+        if not ttl_s > 0:
+            raise ValueError(f"ttl_s must be positive, got {ttl_s}")
+        with self._lock:
+            c = self._city(city, create=True)
+            now = self._clock()
+            held = c.locks.get(name)
+            if held is not None and held[1] > now:
+                return None
+            token = new_lock_token()
+            c.locks[name] = (token, now + ttl_s)
+            return token
+
+    def release_lock(self, city: str, name: str, token: str) -> bool:
+        """Release the lock if ``token`` holds it and it has not expired."""
+        with self._lock:
+            c = self._city(city)
+            held = c.locks.get(name)
+            if held is None or held[0] != token or held[1] <= self._clock():
+                return False
+            del c.locks[name]
+            return True
+
+    def enqueue_solve_request(self, city: str, request: SolveRequest) -> EnqueueResult:
+        """Queue the request unless one is pending."""
+        with self._lock:
+            c = self._city(city, create=True)
+            if c.solve_queue:
+                return EnqueueResult(c.solve_queue[0], False)
+            c.solve_queue.append(request)
+            return EnqueueResult(request, True)
+
+    def claim_solve_request(self, city: str) -> SolveRequest | None:
+        """Pop the pending request, if any."""
+        with self._lock:
+            c = self._city(city)
+            return c.solve_queue.pop(0) if c.solve_queue else None
 
     def close(self) -> None:
         """Nothing to release."""

@@ -14,18 +14,40 @@ from redis.exceptions import TimeoutError as RedisTimeoutError
 from redis.exceptions import WatchError
 from redis.retry import Retry
 
-from app.adapters.codec import classify_tasks, format_time, task_from_json, task_to_json, utc_day
+from app.adapters.codec import (
+    check_fleet_record,
+    classify_tasks,
+    fleet_record_from_json,
+    fleet_record_to_json,
+    format_time,
+    new_lock_token,
+    solve_request_from_json,
+    solve_request_to_json,
+    task_from_json,
+    task_to_json,
+    utc_day,
+)
 from app.ports import (
     CityState,
     CommitResult,
+    EnqueueResult,
     EpochCommit,
+    FleetRecord,
+    PublishResult,
     PutTasksResult,
+    SolveRequest,
     StoredEpoch,
     StoreUnavailable,
 )
 from services.model import IntervalKey, Task, TaskId, TaxiId
 
-__all__ = ["RedisStore", "COMMIT_EPOCH_LUA"]
+__all__ = [
+    "RedisStore",
+    "COMMIT_EPOCH_LUA",
+    "PUBLISH_RECOMMENDATION_LUA",
+    "RELEASE_LOCK_LUA",
+    "ENQUEUE_SOLVE_LUA",
+]
 
 COMMIT_EPOCH_LUA = """
 -- Commit one dispatch epoch atomically (docs/DESIGN.md, "Exactly-once epochs").
@@ -79,6 +101,39 @@ redis.call('HSET', meta, 'last_time', c.time, 'last_epoch', c.epoch_id)
 return {'committed', version}
 """
 
+PUBLISH_RECOMMENDATION_LUA = """
+-- Publish a fleet-sizing recommendation if its version is the current one plus one (docs/FLEET.md).
+-- KEYS[1] current hash {version, record}, KEYS[2] history list (newest first).
+-- ARGV[1] the record's version, ARGV[2] the record's JSON, ARGV[3] how many history entries to keep.
+-- Returns {'published', version} | {'version_mismatch', current version}.
+local current = tonumber(redis.call('HGET', KEYS[1], 'version') or '0')
+if tonumber(ARGV[1]) ~= current + 1 then
+  return {'version_mismatch', tostring(current)}
+end
+redis.call('HSET', KEYS[1], 'version', ARGV[1], 'record', ARGV[2])
+redis.call('LPUSH', KEYS[2], ARGV[2])
+redis.call('LTRIM', KEYS[2], 0, tonumber(ARGV[3]) - 1)
+return {'published', ARGV[1]}
+"""
+
+RELEASE_LOCK_LUA = """
+-- Delete the lock KEYS[1] only if it still holds the caller's token ARGV[1] (never another holder's).
+if redis.call('GET', KEYS[1]) == ARGV[1] then
+  return redis.call('DEL', KEYS[1])
+end
+return 0
+"""
+
+ENQUEUE_SOLVE_LUA = """
+-- Queue a solve request (ARGV[1], JSON) on KEYS[1] unless one is pending; reply {created, pending request}.
+local head = redis.call('LINDEX', KEYS[1], 0)
+if head then
+  return {0, head}
+end
+redis.call('RPUSH', KEYS[1], ARGV[1])
+return {1, ARGV[1]}
+"""
+
 
 class RedisStore:
     """``Store`` on a Redis server; every connection failure surfaces as ``StoreUnavailable``."""
@@ -101,6 +156,9 @@ class RedisStore:
         where = kwargs.get("path") or f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}"
         self._where = f"redis://{where}/{kwargs.get('db', 0)}"  # no password in messages
         self._commit_script = self._client.register_script(COMMIT_EPOCH_LUA)
+        self._publish_script = self._client.register_script(PUBLISH_RECOMMENDATION_LUA)
+        self._release_script = self._client.register_script(RELEASE_LOCK_LUA)
+        self._enqueue_script = self._client.register_script(ENQUEUE_SOLVE_LUA)
 
     # -- keys -----------------------------------------------------------------------------------------
 
@@ -282,6 +340,71 @@ class RedisStore:
         """Demand recorded on one UTC day (``YYYYMMDD``), in commit order."""
         with self._guard("reading recorded demand"):
             return cast(list[str], self._client.lrange(self._key(city, "demand", day), 0, -1))
+
+    # -- fleet sizing ---------------------------------------------------------------------------------
+
+    def publish_recommendation(self, city: str, record: FleetRecord, history_limit: int) -> PublishResult:
+        """Compare-and-set the current recommendation and push it on the bounded history (one script)."""
+        check_fleet_record(record, "published", history_limit)
+        keys = [self._key(city, "fleet", "current"), self._key(city, "fleet", "history")]
+        args = [str(record.version), fleet_record_to_json(record), str(int(history_limit))]
+        with self._guard("publishing a recommendation"):
+            reply = cast(list[Any], self._publish_script(keys=keys, args=args))
+        if reply[0] == "published":
+            return PublishResult("published", int(reply[1]))
+        return PublishResult("version_mismatch", int(reply[1]))
+
+    def record_solve_failure(self, city: str, record: FleetRecord, history_limit: int) -> None:
+        """Push a failed record on the bounded history (MULTI/EXEC)."""
+        check_fleet_record(record, "failed", history_limit)
+        key = self._key(city, "fleet", "history")
+        with self._guard("recording a failed solve"):
+            pipe = self._client.pipeline(transaction=True)
+            pipe.lpush(key, fleet_record_to_json(record))
+            pipe.ltrim(key, 0, int(history_limit) - 1)
+            pipe.execute()
+
+    def current_recommendation(self, city: str) -> FleetRecord | None:
+        """The last published recommendation, if any."""
+        with self._guard("reading the recommendation"):
+            raw = cast(str | None, self._client.hget(self._key(city, "fleet", "current"), "record"))
+        return None if raw is None else fleet_record_from_json(raw)
+
+    def recommendation_history(self, city: str, limit: int) -> list[FleetRecord]:
+        """Up to ``limit`` history entries, newest first."""
+        if limit < 1:
+            return []
+        with self._guard("reading the recommendation history"):
+            raw = cast(list[str], self._client.lrange(self._key(city, "fleet", "history"), 0, limit - 1))
+        return [fleet_record_from_json(r) for r in raw]
+
+    def acquire_lock(self, city: str, name: str, ttl_s: float) -> str | None:
+        """``SET key token NX PX ttl``: a fresh token, or ``None`` while someone holds the lock."""
+        if not ttl_s > 0:
+            raise ValueError(f"ttl_s must be positive, got {ttl_s}")
+        token = new_lock_token()
+        ttl_ms = max(1, round(ttl_s * 1000))
+        with self._guard("taking a lock"):
+            ok = self._client.set(self._key(city, "lock", name), token, nx=True, px=ttl_ms)
+        return token if ok else None
+
+    def release_lock(self, city: str, name: str, token: str) -> bool:
+        """Delete the lock only if ``token`` still holds it (compare-and-delete script)."""
+        with self._guard("releasing a lock"):
+            return bool(self._release_script(keys=[self._key(city, "lock", name)], args=[token]))
+
+    def enqueue_solve_request(self, city: str, request: SolveRequest) -> EnqueueResult:
+        """Queue the request unless one is pending (one script)."""
+        key = self._key(city, "fleet", "requests")
+        with self._guard("queueing a solve request"):
+            reply = cast(list[Any], self._enqueue_script(keys=[key], args=[solve_request_to_json(request)]))
+        return EnqueueResult(solve_request_from_json(reply[1]), bool(int(reply[0])))
+
+    def claim_solve_request(self, city: str) -> SolveRequest | None:
+        """``LPOP`` the pending request, if any."""
+        with self._guard("claiming a solve request"):
+            raw = cast(str | None, self._client.lpop(self._key(city, "fleet", "requests")))
+        return None if raw is None else solve_request_from_json(raw)
 
     def close(self) -> None:
         """Release the connection pool."""
