@@ -1,4 +1,4 @@
-"""Command line: ``python -m app run|demo|replay|experiment|openapi|import-city|token|worker``."""
+"""Command line: ``python -m app COMMAND`` (run, demo, replay, experiment, fleet-experiment, openapi, ...)."""
 
 from __future__ import annotations
 
@@ -372,6 +372,9 @@ def _parser() -> argparse.ArgumentParser:
         "experiment", help="the paper's numerical test, resumable (see experiment -h)", add_help=False
     )
     sub.add_parser("replay", help="simulate one horizon against the service (see replay -h)", add_help=False)
+    sub.add_parser(
+        "fleet-experiment", help="DRO fleet sizing on train/test days, the paper's Table 2", add_help=False
+    )
 
     tok = sub.add_parser("token", help="print a fresh random bearer token")
     tok.set_defaults(func=_cmd_token)
@@ -385,10 +388,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         from app.cities import import_city_cli
 
         return import_city_cli(args_list[1:], default_out=Settings().cities_dir)
-    if args_list and args_list[0] in ("experiment", "replay"):
+    if args_list and args_list[0] in ("experiment", "fleet-experiment", "replay"):
         from app.experiment import cli as experiment_cli
 
-        run = experiment_cli.experiment_main if args_list[0] == "experiment" else experiment_cli.replay_main
+        run = {
+            "experiment": experiment_cli.experiment_main,
+            "fleet-experiment": experiment_cli.fleet_experiment_main,
+            "replay": experiment_cli.replay_main,
+        }[args_list[0]]
         return run(args_list[1:])
     if args_list and args_list[0] == "worker":
         try:

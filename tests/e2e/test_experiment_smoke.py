@@ -57,3 +57,27 @@ def test_replay_prints_kpis(how: list[str], capsys: pytest.CaptureFixture[str]) 
     assert replay_main([*how, "--n1", "3", "--n0", "3", "--tasks", "5", "--seed", "4"]) == 0
     out = capsys.readouterr().out
     assert "requests" in out and "design KPI" in out and "hour 3" in out
+
+
+def test_fleet_experiment_smoke(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from app.experiment.cli import fleet_experiment_main
+
+    report = tmp_path / "report"
+    argv = ["--scenarios", "1", "--sizes", "2,4", "--train-days", "3", "--test-days", "2", "--n0", "3",
+            "--tasks", "4", "--jobs", "1", "--out", str(tmp_path / "runs"), "--report-dir", str(report),
+            "--quiet", "--sweep-alphas", "0.05"]  # fmt: skip
+    assert fleet_experiment_main(argv) == 0
+    manifest = json.loads((report / "fleet_manifest.json").read_text())
+    s = manifest["summary"]["1"]
+    assert s["deterministic"]["size"] in (2, 4) and s["dro"]["size"] in (2, 4)
+    assert len(s["dro_rh"]["sizes_by_hour"]) == 4 and manifest["train_days"] == [1, 2, 3]
+    with (report / "fleet_table.csv").open() as f:
+        table = list(csv.DictReader(f))
+    assert [int(r["n1"]) for r in table] == [2, 4]
+    for r in table:  # the worst case is never below the sample mean for a KPI to minimize
+        assert float(r["dro_worst_case"]) >= float(r["deterministic_mean"]) - 1e-12
+    with (report / "fleet_sensitivity.csv").open() as f:
+        assert len(list(csv.DictReader(f))) == 7  # seven divergences x one alpha
+    assert (report / "figures" / "fleet_design_kpi_hist.png").stat().st_size > 5_000
+    assert "DRO_RH" in (report / "FLEET_SIZING.md").read_text()
+    assert "scenario 1: Deterministic N1=" in capsys.readouterr().out
