@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 __all__ = [
     "dijkstra",
     "dijkstra_contracted",
+    "tree_search",
     "walk_edges",
     "walk_succ",
     "eval_path",
@@ -469,6 +470,202 @@ def dijkstra_contracted(
 
 
 @numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def tree_search(
+    k_indptr: NDArray[np.int64],
+    se_head: NDArray[np.int64],
+    se_tail: NDArray[np.int64],
+    se_rev: NDArray[np.int64],
+    se_ptr: NDArray[np.int64],
+    se_edges: NDArray[np.int64],
+    se_node: NDArray[np.int64],
+    kept: NDArray[np.int64],
+    kept_of: NDArray[np.int64],
+    dead_end: NDArray[np.bool_],
+    pos_se: NDArray[np.int64],
+    pos_off: NDArray[np.int64],
+    cost_se: NDArray[np.float64],
+    source: int,
+    targets: NDArray[np.int64],
+    pred: NDArray[np.int64],
+) -> None:
+    """The predecessor edges of ``dijkstra_contracted`` with no limit, no ``aux`` and ``queries = targets``
+    (the searches of Algorithm 1), written into ``pred`` (all -1 on entry).
+
+    ``cost_se[p]`` is the cost of original edge ``se_edges[p]``: the costs in super-edge order, read
+    contiguously. Every distance is folded from the same values in the same order as in
+    ``dijkstra_contracted`` and the heap sees the same keys in the same order, so the tree is the same;
+    what is left out is only what Algorithm 1 never reads (distances, ``aux`` sums).
+    """
+    nk = kept.shape[0]
+    ns = se_head.shape[0]
+    tent = np.full(nk, np.inf)
+    pse = np.full(nk, -1, dtype=np.int64)
+    pstart = np.zeros(nk, dtype=np.int64)
+    done = np.zeros(nk, dtype=np.bool_)
+    need = np.zeros(nk, dtype=np.bool_)
+    sk = kept_of[source]
+    stop_early = targets.shape[0] > 0
+    remaining = 0
+    for t in targets:
+        if t == source:
+            continue
+        k = kept_of[t]
+        if k >= 0:
+            if not need[k]:
+                need[k] = True
+                remaining += 1
+            continue
+        for j in range(2):
+            s = pos_se[t, j]
+            if s < 0:
+                continue
+            if sk < 0:
+                os = _source_offset(pos_se, pos_off, source, s)
+                if os >= 0 and os < pos_off[t, j]:
+                    continue  # reached directly from the source along this super-edge
+            k = se_tail[s]
+            if not need[k]:
+                need[k] = True
+                remaining += 1
+    keys = np.empty(ns + 3)
+    vals = np.empty(ns + 3, dtype=np.int64)
+    size = 0
+    complete = not (stop_early and remaining == 0)  # False: unsettled kept nodes may still be near
+    if complete:
+        if sk >= 0:
+            tent[sk] = 0.0
+            size = _heap4_push(keys, vals, size, 0.0, sk)
+        else:
+            for j in range(2):
+                s = pos_se[source, j]
+                if s < 0:
+                    continue
+                os = pos_off[source, j]
+                h = se_head[s]
+                nd = 0.0
+                for p in range(se_ptr[s] + os, se_ptr[s + 1]):
+                    nd += cost_se[p]
+                if nd < tent[h]:
+                    tent[h] = nd
+                    pse[h] = s
+                    pstart[h] = os
+                    size = _heap4_push(keys, vals, size, nd, h)
+    while size > 0:
+        d = keys[0]
+        k = vals[0]
+        size = _heap4_pop(keys, vals, size)
+        if done[k]:
+            continue
+        done[k] = True
+        if need[k]:
+            remaining -= 1
+            if remaining == 0:
+                complete = False
+                break
+        for s in range(k_indptr[k], k_indptr[k + 1]):
+            h = se_head[s]
+            if done[h]:
+                continue
+            th = tent[h]
+            nd = d
+            ok = True
+            for p in range(se_ptr[s], se_ptr[s + 1]):
+                nd += cost_se[p]
+                if nd >= th:  # partial sums never decrease: no improvement
+                    ok = False
+                    break
+            if ok:
+                tent[h] = nd
+                pse[h] = s
+                pstart[h] = 0
+                if not dead_end[h]:
+                    size = _heap4_push(keys, vals, size, nd, h)
+                    continue
+                done[h] = True  # a dead end has no other way in: settled now, and nothing to relax
+                if need[h]:
+                    remaining -= 1
+                    if remaining == 0:
+                        complete = False
+                        size = 0
+                        break
+    for k in range(nk):
+        if done[k] and pse[k] >= 0:
+            pred[kept[k]] = se_edges[se_ptr[pse[k] + 1] - 1]
+    pred[source] = -1
+    unfolded = np.zeros(nk, dtype=np.bool_)
+    for q in targets:
+        if q == source:
+            continue
+        k = kept_of[q]
+        if k >= 0:
+            if done[k]:
+                _unfold_pred(k, se_tail, se_ptr, se_edges, se_node, pse, pstart, unfolded, pred)
+            continue
+        # interior node: the best of reaching it along each super-edge it lies on (ties: lower super-edge)
+        best = np.inf
+        bj = -1
+        bstart = 0
+        unknown = False
+        for j in range(2):
+            s = pos_se[q, j]
+            if s < 0:
+                continue
+            off = pos_off[q, j]
+            os = _source_offset(pos_se, pos_off, source, s) if sk < 0 else -1
+            if os >= 0 and os < off:
+                start = os
+                x = 0.0
+            else:
+                t = se_tail[s]
+                if not done[t]:
+                    unknown = unknown or not complete
+                    continue
+                if se_rev[s] >= 0 and pse[t] == se_rev[s]:
+                    continue  # the tail is reached through this very chain
+                start = 0
+                x = tent[t]
+            for p in range(se_ptr[s] + start, se_ptr[s] + off):
+                x += cost_se[p]
+            if x < best:
+                best = x
+                bj = j
+                bstart = start
+        if bj < 0 or unknown:
+            continue
+        s = pos_se[q, bj]
+        for p in range(se_ptr[s] + bstart, se_ptr[s] + pos_off[q, bj]):
+            pred[se_node[p]] = se_edges[p]
+        if bstart == 0:
+            _unfold_pred(se_tail[s], se_tail, se_ptr, se_edges, se_node, pse, pstart, unfolded, pred)
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def _unfold_pred(
+    k: int,
+    se_tail: NDArray[np.int64],
+    se_ptr: NDArray[np.int64],
+    se_edges: NDArray[np.int64],
+    se_node: NDArray[np.int64],
+    pse: NDArray[np.int64],
+    pstart: NDArray[np.int64],
+    unfolded: NDArray[np.bool_],
+    pred: NDArray[np.int64],
+) -> None:
+    """``_unfold_chain`` for the predecessor edges only."""
+    while not unfolded[k]:
+        unfolded[k] = True
+        s = pse[k]
+        if s < 0:
+            return
+        start = pstart[k]
+        for p in range(se_ptr[s] + start, se_ptr[s + 1] - 1):
+            pred[se_node[p]] = se_edges[p]
+        if start != 0:
+            return
+        k = se_tail[s]
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
 def walk_edges(pred_edge: NDArray[np.int64], tail: NDArray[np.int32], target: int) -> NDArray[np.int64]:
     """Edges of the tree path ending at ``target``, in travel order (empty at the root)."""
     count = 0
@@ -872,19 +1069,21 @@ def plan_kappas(
     out_t = np.full(k, np.nan)
     out_l = np.zeros(k)
     preds = np.full((kappas.shape[0], n), -1, dtype=np.int64)
-    cost = np.empty(m)
+    cost_se = np.empty(m)  # edge costs in super-edge order (what tree_search reads)
     max_slot = 0
     for ki in range(kappas.shape[0]):
         kappa = kappas[ki]
         if kappa == 0.0:
-            for e in range(m):
-                cost[e] = edge_time[e]
+            for p in range(m):
+                cost_se[p] = edge_time[c_se_edges[p]]
         elif umax > 0.0:
-            for e in range(m):
-                cost[e] = edge_time[e] * (1.0 - kappa * (u[e] / umax))
+            for p in range(m):
+                e = c_se_edges[p]
+                cost_se[p] = edge_time[e] * (1.0 - kappa * (u[e] / umax))
         else:
             continue
-        _dist, pred, _acc = dijkstra_contracted(
+        pred = preds[ki]
+        tree_search(
             c_indptr,
             c_se_head,
             c_se_tail,
@@ -897,12 +1096,10 @@ def plan_kappas(
             c_dead_end,
             c_pos_se,
             c_pos_off,
-            cost,
-            edge_time,
+            cost_se,
             source,
-            np.inf,
             targets,
-            targets,
+            pred,
         )
         g, _gq, t, length, ms = eval_tree(
             pred,
@@ -934,6 +1131,4 @@ def plan_kappas(
                 out_g[i] = g[i]
                 out_t[i] = t[i]
                 out_l[i] = length[i]
-        for v in range(n):
-            preds[ki, v] = pred[v]
     return out_i, out_g, out_t, out_l, preds, max_slot

@@ -111,6 +111,7 @@ class GainTable:
     _shift: float = 0.0
     _stamp: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
     _next_stamp: int = 1
+    _positive: tuple[list[int], list[int]] | None = None  # (slot, cell) of the positive terms, when needed
 
     @property
     def shift_s(self) -> float:
@@ -125,13 +126,29 @@ class GainTable:
     def for_taxi(
         self, visited: frozenset[tuple[IntervalKey, int]] | None
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """The terms for one taxi (``base`` with the pairs it is counted in set to 0) and their integer copy.
+
+        Only positive terms can change, so the work is the smaller of walking ``visited`` and looking up
+        the positive terms in it (none at all outside the horizon, where every term is 0).
+        """
         g = self.base
         if visited:
-            g = g.copy()
-            for k, c in visited:
-                s = int(k) - self.k0
-                if 0 <= s < g.shape[0]:
-                    g[s, c] = 0.0
+            if self._positive is None:
+                ps, pc = np.nonzero(g > 0.0)
+                self._positive = (ps.tolist(), pc.tolist())
+            pos_s, pos_c = self._positive
+            if pos_s:
+                g = g.copy()
+                if len(visited) <= len(pos_s):
+                    for k, c in visited:
+                        s = int(k) - self.k0
+                        if 0 <= s < g.shape[0]:
+                            g[s, c] = 0.0
+                else:
+                    k0 = self.k0
+                    for s, c in zip(pos_s, pos_c, strict=True):
+                        if (k0 + s, c) in visited:
+                            g[s, c] = 0.0
         return g, np.rint(g / self.unit).astype(np.int64)
 
     def stamps(self, n: int) -> tuple[NDArray[np.int64], int]:

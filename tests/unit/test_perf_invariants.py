@@ -103,3 +103,31 @@ def test_plan_kappas_on_the_contracted_graph_equals_per_kappa_reference(seed: in
         assert np.array_equal(getattr(got, name), getattr(ref, name)), name
     for i in range(len(targets)):
         assert np.array_equal(got.route(i).edges, ref.route(i).edges)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_tree_search_gives_the_paths_of_dijkstra_contracted(seed: int) -> None:
+    """The pred-only search of Algorithm 1 (costs in super-edge order) reads off the same tree path to every
+    target as ``dijkstra_contracted``: interior and kept sources, interior and kept targets, dead ends, chain
+    cycles, unreachable targets, a target at the source."""
+    from tests.unit.test_contraction import chain_graph, interior_sources
+
+    g = chain_graph(seed)
+    c = contraction.contract(g.indptr, g.head)
+    rng = np.random.default_rng(seed + 100)
+    cost = g.length * rng.uniform(0.2, 1.0, len(g.length))
+    for s in interior_sources(c, rng, 4):
+        for k in (1, 3, 20, g.n):
+            targets = rng.choice(g.n, size=min(k, g.n), replace=False).astype(np.int64)
+            if k == 3:
+                targets = np.concatenate([targets, [s]]).astype(np.int64)
+            _d, expect, _a = kernels.dijkstra_contracted(
+                *c.arrays, cost, g.length, s, np.inf, targets, targets
+            )
+            got = np.full(g.n, -1, dtype=np.int64)
+            kernels.tree_search(*c.arrays, cost[c.se_edges], s, targets, got)
+            for t in targets.tolist():
+                assert (got[t] >= 0) == (expect[t] >= 0)
+                assert np.array_equal(
+                    kernels.walk_edges(got, g.tail, t), kernels.walk_edges(expect, g.tail, t)
+                )
