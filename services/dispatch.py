@@ -65,28 +65,42 @@ class _Leg:
 
 def _g_route(city: City, edges: NDArray[np.int64]) -> tuple[tuple[int, int], ...]:
     """Ordered distinct cells crossed by the edges (first-entry order)."""
-    ec = city.edge_cells
     if len(edges) == 0:
         return ()
-    cells = np.concatenate([ec.cell[ec.ptr[e] : ec.ptr[e + 1]] for e in edges])
-    _, first = np.unique(cells, return_index=True)
-    return tuple(city.grid.col_row(int(c)) for c in cells[np.sort(first)])
+    ga = graph_arrays(city)
+    cells = kernels.distinct_cells(edges, ga.ec_ptr, ga.ec_cell, city.grid.n_cells)
+    return tuple(city.grid.col_row(c) for c in cells.tolist())
 
 
 @dataclass(frozen=True, slots=True)
 class _Pickups:
-    """Candidate pairs within the radius: (taxi index, rider index) -> (pickup length, wait), and per
-    rider the in-tree toward its origin from which a pickup leg is read off when the pair is matched."""
+    """Candidate pairs within the radius, as parallel arrays ordered by (rider, taxi): taxi index, rider
+    index, pickup length and wait; and per rider the in-tree toward its origin (reverse-graph predecessor
+    edges) from which a pickup leg is read off when the pair is matched."""
 
-    pairs: dict[tuple[int, int], tuple[float, float]]
-    succ: list[NDArray[np.int64]]
+    taxi: NDArray[np.int64]
+    rider: NDArray[np.int64]
+    length_m: NDArray[np.float64]
+    wait_s: NDArray[np.float64]
+    pred_rev: list[NDArray[np.int64]]
     taxi_nodes: NDArray[np.int64]
+
+    def find(self, i: int, j: int) -> int:
+        """Position of the pair (taxi ``i``, rider ``j``) in the arrays."""
+        n = len(self.taxi_nodes)
+        keys = self.rider * n + self.taxi
+        k = int(np.searchsorted(keys, j * n + i))
+        if k >= len(keys) or keys[k] != j * n + i:
+            raise KeyError((i, j))
+        return k
 
     def leg(self, city: City, i: int, j: int) -> _Leg:
         ga = graph_arrays(city)
-        edges = kernels.walk_succ(self.succ[j], ga.head, int(self.taxi_nodes[i]))
-        length, wait = self.pairs[(i, j)]
-        return _Leg(edges, length, wait)
+        pred = self.pred_rev[j]
+        succ = np.where(pred >= 0, ga.rev_edge[np.maximum(pred, 0)], -1)
+        edges = kernels.walk_succ(succ, ga.head, int(self.taxi_nodes[i]))
+        k = self.find(i, j)
+        return _Leg(edges, float(self.length_m[k]), float(self.wait_s[k]))
 
 
 def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> _Pickups:
@@ -96,9 +110,9 @@ def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> 
     limit_s = radius / ga.min_speed_mps * (1 + 1e-9)
     taxi_nodes = np.array([t.node for t in taxis], dtype=np.int64)
     none = np.zeros(0, dtype=np.int64)
-    pairs: dict[tuple[int, int], tuple[float, float]] = {}
-    succ: list[NDArray[np.int64]] = []
-    for j, rider in enumerate(riders):
+    found: list[tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]] = []
+    preds: list[NDArray[np.int64]] = []
+    for rider in riders:
         dist, pred_rev, length = contraction.dijkstra(
             ga,
             ga.rev_time_s,
@@ -109,15 +123,23 @@ def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> 
             reverse_graph=True,
             queries=taxi_nodes,
         )
-        succ.append(np.where(pred_rev >= 0, ga.rev_edge[np.maximum(pred_rev, 0)], -1))
+        preds.append(pred_rev)
         if len(taxi_nodes) == 0:
             continue
         lt = length[taxi_nodes]
-        ok = np.flatnonzero(np.isfinite(dist[taxi_nodes]) & (lt <= radius + 1e-6))
         wt = dist[taxi_nodes]
-        for i in ok.tolist():
-            pairs[(i, j)] = (float(lt[i]), float(wt[i]))
-    return _Pickups(pairs, succ, taxi_nodes)
+        ok = np.flatnonzero(np.isfinite(wt) & (lt <= radius + 1e-6))
+        found.append((ok, lt[ok], wt[ok]))
+    counts = [len(ok) for ok, _, _ in found]
+    if sum(counts):
+        taxi = np.concatenate([ok for ok, _, _ in found]).astype(np.int64)
+        rider_idx = np.repeat(np.arange(len(found), dtype=np.int64), counts)
+        lengths = np.concatenate([x for _, x, _ in found])
+        waits = np.concatenate([x for _, _, x in found])
+    else:
+        taxi = rider_idx = np.zeros(0, dtype=np.int64)
+        lengths = waits = np.zeros(0)
+    return _Pickups(taxi, rider_idx, lengths, waits, preds, taxi_nodes)
 
 
 def _service_leg(city: City, rider: Rider) -> _Leg:
@@ -167,13 +189,13 @@ def _step1(
     n_slots: int,
 ) -> tuple[list[tuple[int, int, float]], int, dict[str, float | int]]:
     """Matched (taxi index, rider index, gain) of Step 1 and the slots needed."""
-    pairs = [(i, j) for (i, j) in pickups.pairs if i < len(taxis)]
-    if not pairs:
+    instr = pickups.taxi < len(taxis)
+    if not instr.any():
         return [], n_slots, {"step1_candidates": 0}
     ga = graph_arrays(city)
-    pair_taxi = np.array([i for i, _ in pairs], dtype=np.int64)
-    pair_leg = np.array([j for _, j in pairs], dtype=np.int64)
-    wait = np.array([pickups.pairs[p][1] for p in pairs])
+    pair_taxi = pickups.taxi[instr]
+    pair_leg = pickups.rider[instr]
+    wait = pickups.wait_s[instr]
     wait_q = quantize(wait, _WAIT_UNIT_S)
     leg_ptr = np.zeros(len(service) + 1, dtype=np.int64)
     leg_ptr[1:] = np.cumsum([len(leg.edges) for leg in service])
@@ -184,9 +206,9 @@ def _step1(
     n_match = min(len(taxis), len(riders))
     k_sec = int(wait_q.max()) * n_match + 1
     cap = EXACT_LIMIT // (4 * n_match * k_sec)
-    taxis_used = sorted(set(pair_taxi.tolist()))
-    table_of = {i: n for n, i in enumerate(taxis_used)}
-    pair_table = np.array([table_of[i] for i in pair_taxi.tolist()], dtype=np.int64)
+    used = np.unique(pair_taxi)
+    taxis_used = used.tolist()
+    pair_table = np.searchsorted(used, pair_taxi).astype(np.int64)
     while True:
         table = gain_table(city, counts.counts, k0, n_slots, now)
         term_max = float(table.base.max(initial=0.0))
@@ -194,7 +216,7 @@ def _step1(
         per_taxi = [table.for_taxi(counts.visited.get(taxis[i].id)) for i in taxis_used]
         gains = np.stack([g for g, _ in per_taxi])
         gains_q = np.stack([q for _, q in per_taxi])
-        stamp, first = table.stamps(len(pairs))
+        stamp, first = table.stamps(len(pair_taxi))
         g, gq, max_slot = kernels.eval_pairs(
             pair_table,
             pair_leg,
@@ -218,22 +240,27 @@ def _step1(
     feasible[pair_taxi, pair_leg] = True
     prim[pair_taxi, pair_leg] = gq
     sec[pair_taxi, pair_leg] = wait_q
-    gain_of = {p: float(x) for p, x in zip(pairs, g, strict=True)}
     sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
-    out = [(int(i), int(j), gain_of[(int(i), int(j))]) for i, j in zip(sol.rows, sol.cols, strict=True)]
-    return out, n_slots, {"step1_candidates": len(pairs), "step1_gain_unit": table.unit}
+    n = len(pickups.taxi_nodes)
+    at = np.searchsorted(
+        pair_leg * n + pair_taxi, sol.cols * n + sol.rows
+    )  # pairs are ordered by (rider, taxi)
+    out = [(int(i), int(j), float(g[k])) for i, j, k in zip(sol.rows, sol.cols, at, strict=True)]
+    return out, n_slots, {"step1_candidates": len(pair_taxi), "step1_gain_unit": table.unit}
 
 
 def _step2(riders_left: Sequence[int], taxis: Sequence[int], pickups: _Pickups) -> list[tuple[int, int]]:
     """Step 2 over global taxi/rider indices: maximize matches, then minimize total wait."""
     feasible = np.zeros((len(taxis), len(riders_left)), dtype=bool)
     sec = np.zeros(feasible.shape, dtype=np.int64)
-    col = {j: b for b, j in enumerate(riders_left)}
-    row = {i: a for a, i in enumerate(taxis)}
-    for (i, j), (_length, wait) in pickups.pairs.items():
-        if i in row and j in col:
-            feasible[row[i], col[j]] = True
-            sec[row[i], col[j]] = int(quantize(np.array([wait]), _WAIT_UNIT_S)[0])
+    row = np.full(len(pickups.taxi_nodes), -1, dtype=np.int64)
+    row[np.asarray(taxis, dtype=np.int64)] = np.arange(len(taxis))
+    col = np.full(len(pickups.pred_rev), -1, dtype=np.int64)
+    col[np.asarray(riders_left, dtype=np.int64)] = np.arange(len(riders_left))
+    r, c = row[pickups.taxi], col[pickups.rider]
+    ok = (r >= 0) & (c >= 0)
+    feasible[r[ok], c[ok]] = True
+    sec[r[ok], c[ok]] = quantize(pickups.wait_s[ok], _WAIT_UNIT_S)
     prim = feasible.astype(np.int64)
     sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
     return [(taxis[int(a)], riders_left[int(b)]) for a, b in zip(sol.rows, sol.cols, strict=True)]

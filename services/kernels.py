@@ -17,6 +17,7 @@ __all__ = [
     "tree_search",
     "walk_edges",
     "walk_succ",
+    "distinct_cells",
     "eval_path",
     "eval_pairs",
     "eval_targets",
@@ -698,6 +699,24 @@ def walk_succ(succ_edge: NDArray[np.int64], head: NDArray[np.int32], start: int)
         out[i] = succ_edge[v]
         v = head[out[i]]
     return out
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def distinct_cells(
+    edges: NDArray[np.int64], ec_ptr: NDArray[np.int64], ec_cell: NDArray[np.int32], n_cells: int
+) -> NDArray[np.int64]:
+    """The distinct cells the edges cross, in order of first crossing (a path's G-route)."""
+    seen = np.zeros(n_cells, dtype=np.bool_)
+    out = np.empty(n_cells, dtype=np.int64)
+    n = 0
+    for e in edges:
+        for j in range(ec_ptr[e], ec_ptr[e + 1]):
+            c = ec_cell[j]
+            if not seen[c]:
+                seen[c] = True
+                out[n] = c
+                n += 1
+    return out[:n]
 
 
 @numba.njit(**_NOPYTHON)  # type: ignore[misc]

@@ -93,7 +93,7 @@ def path_nodes(city: City, start: int, edges: NDArray[np.int64]) -> tuple[int, .
     """Node sequence of a path given its start node and edges."""
     if len(edges) == 0:
         return (int(start),)
-    return (int(city.network.edge_u[edges[0]]), *(int(v) for v in city.network.edge_v[edges]))
+    return (int(city.network.edge_u[edges[0]]), *city.network.edge_v[edges].tolist())
 
 
 @dataclass(slots=True)
