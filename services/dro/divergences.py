@@ -82,7 +82,8 @@ def _kl_1p(u: FloatArray) -> FloatArray:
 
 
 def _kl_star(s: FloatArray) -> FloatArray:
-    return np.expm1(s)
+    with np.errstate(over="ignore"):
+        return np.expm1(s)
 
 
 def _burg(t: FloatArray) -> FloatArray:

@@ -22,6 +22,7 @@ __all__ = ["check_problem", "solve_exact", "dual_objective"]
 
 FloatArray = NDArray[np.float64]
 _SLACK = 1e-12  # relative slack on the conjugate's domain when checking a certificate
+_SATURATION_RTOL = 1e-12  # ρ within this of the saturation threshold counts as reaching it (rounding)
 
 
 def check_problem(values: ArrayLike, q: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -64,9 +65,9 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
     -------
     WorstCase
         With ``status`` ``"optimal"``, ``"saturated"`` (the ball reaches all mass on the highest value it
-        can reach: ``ρ >= I_φ(δ_top, q)``, e.g. ``-log q_top`` for KL, ``2 - 2 sqrt(q_top)`` Hellinger,
-        ``2 (1 - q_top)`` variation, ``1/q_top - 1`` modified χ², 2 for Hellinger and variation when the top
-        is an empty cell) or ``"degenerate"`` (one reachable value).
+        can reach: ``ρ >= I_φ(δ_top, q)`` to a relative ``1e-12``, e.g. ``-log q_top`` for KL,
+        ``2 - 2 sqrt(q_top)`` Hellinger, ``2 (1 - q_top)`` variation, ``1/q_top - 1`` modified χ², 2 for
+        Hellinger and variation when the top is an empty cell) or ``"degenerate"`` (one reachable value).
 
     Notes
     -----
@@ -108,7 +109,7 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
         at_top = full & (v == top)
         p_top[at_top] = qv[at_top] / float(qv[at_top].sum())
     i_top = divergence_value(p_top, qv, div)
-    if i_top <= r:
+    if i_top <= r * (1.0 + _SATURATION_RTOL):
         return done(p_top, "saturated", top, top, 0.0, f"rho >= I(top, q) = {i_top:.6g}: all mass on the top")
     if r == 0.0:
         return done(qv.copy(), "optimal", mean, mean, math.inf, "rho = 0: the empirical distribution")

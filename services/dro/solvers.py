@@ -221,9 +221,10 @@ def _beta_family(kind: str, r: Reduced) -> ReducedSolution:
     KKT on the data's cells: Burg ``p_j = q_j λ / (β - f_j)``, χ² ``p_j = q_j sqrt(λ / (β - f_j))``,
     Hellinger ``p_j = q_j λ² / (β - f_j)²``; ``Σ p = 1`` fixes ``λ`` given ``β`` and ``I_φ(p, q) = ρ`` fixes
     ``β > f_top``. Mass pops to the empty cell ``E`` when even ``β = f_E`` leaves budget (``g(f_E) < ρ``);
-    then ``β = f_E`` and ``λ`` solves the budget with the popped mass ``1 - Σ p``: Burg
-    ``t + log t = g(f_E) + 1 - ρ`` with ``t = λ Σ q/(f_E - f)``; χ² ``t = (1 + g(f_E)) / (1 + ρ)`` with
-    ``t = sqrt(λ) Σ q / sqrt(f_E - f)``; Hellinger ``λ = (2 - ρ) / (2 Σ q / (f_E - f))``.
+    then ``β = f_E`` and ``λ`` spends the budget, the popped mass being ``1 - Σ p``: Burg
+    ``log λ = Σ q log(f_E - f) - ρ`` (``I = Σ q log(q/p)``: popped mass is free beyond what it takes from
+    the data); χ² ``sqrt(λ) Σ q / sqrt(f_E - f) = (1 + g(f_E)) / (1 + ρ)``; Hellinger
+    ``λ = (2 - ρ) / (2 Σ q / (f_E - f))``.
     """
     f, q, rho = r.f, r.q, r.rho
     top = float(f[-1])
@@ -235,10 +236,7 @@ def _beta_family(kind: str, r: Reduced) -> ReducedSolution:
         if g_pop < rho:
             a = 1.0 / (gap + d_pop)
             if kind == "burg":
-                k = g_pop + 1.0 - rho
-                s = float(brentq(lambda s: math.exp(s) + s - k, k - 1.0, min(k, 0.0), xtol=1e-16, rtol=_RTOL))
-                t = math.exp(s)
-                lam = t / float(np.dot(q, a))
+                lam = math.exp(-float(np.dot(q, np.log(a))) - rho)
                 p = q * lam * a
             elif kind == "chi2":
                 t = (1.0 + g_pop) / (1.0 + rho)

@@ -7,11 +7,13 @@ empty cell ``p L`` when mass may pop there, and is fixed at 0 otherwise.
 
 from __future__ import annotations
 
+import warnings
+
 import cvxpy as cp
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["primal_worst_case", "POPPING"]
+__all__ = ["POPPING", "primal_max", "primal_worst_case", "textbook_divergence"]
 
 POPPING = {
     "kl": False,
@@ -40,16 +42,13 @@ def _divergence(name: str, p: cp.Expression, q: NDArray[np.float64]) -> cp.Expre
     raise ValueError(name)
 
 
-def primal_worst_case(
-    values: NDArray[np.float64], q: NDArray[np.float64], rho: float, divergence: str
+def primal_max(
+    c: NDArray[np.float64], q: NDArray[np.float64], rho: float, divergence: str
 ) -> tuple[float, NDArray[np.float64]]:
-    """Optimal value and ``p`` of the primal (values are normalized inside for the solver's sake)."""
+    """``max c·p`` over ``{p in the simplex : I_φ(p, q) <= ρ}`` and the maximizer."""
     full = q > 0
-    lo, hi = float(values.min()), float(values.max())
-    scale = hi - lo if hi > lo else 1.0
-    f = (values - lo) / scale
-    p = cp.Variable(values.size, nonneg=True)
-    cons = [cp.sum(p) == 1]
+    p = cp.Variable(q.size, nonneg=True)
+    cons: list[cp.Constraint] = [cp.sum(p) == 1]
     pf = p[np.flatnonzero(full)]
     if divergence == "chi2":  # (p - q)^2 / p <= s  as the cone  ||(2(p - q), p - s)|| <= p + s
         s = cp.Variable(int(full.sum()), nonneg=True)
@@ -64,11 +63,23 @@ def primal_worst_case(
         else:
             cons.append(p[empty] == 0)
     cons.append(cost <= rho)
-    prob = cp.Problem(cp.Maximize(f @ p), cons)
-    prob.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11, max_iter=500)
+    prob = cp.Problem(cp.Maximize(c @ p), cons)
+    with warnings.catch_warnings():  # "may be inaccurate" at these tight tolerances; callers check the value
+        warnings.simplefilter("ignore", UserWarning)
+        prob.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11, max_iter=500)
     if prob.status not in ("optimal", "optimal_inaccurate"):
         raise RuntimeError(f"cvxpy: {prob.status}")
-    return lo + scale * float(prob.value), np.asarray(p.value, dtype=np.float64)
+    return float(prob.value), np.asarray(p.value, dtype=np.float64)
+
+
+def primal_worst_case(
+    values: NDArray[np.float64], q: NDArray[np.float64], rho: float, divergence: str
+) -> tuple[float, NDArray[np.float64]]:
+    """Optimal value and ``p`` of the primal (values are normalized to [0, 1] for the solver's sake)."""
+    lo, hi = float(values.min()), float(values.max())
+    scale = hi - lo if hi > lo else 1.0
+    value, p = primal_max((values - lo) / scale, q, rho, divergence)
+    return lo + scale * value, p
 
 
 def textbook_divergence(p: NDArray[np.float64], q: NDArray[np.float64], divergence: str) -> float:
