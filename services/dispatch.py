@@ -36,6 +36,7 @@ from services.model import (
     Visit,
 )
 from services.routing import (
+    CountedIn,
     GainTable,
     Route,
     RouteSet,
@@ -187,6 +188,7 @@ def _step1(
     pickups: _Pickups,
     service: Sequence[_Leg],
     n_slots: int,
+    counted: CountedIn,
 ) -> tuple[list[tuple[int, int, float]], int, dict[str, float | int]]:
     """Matched (taxi index, rider index, gain) of Step 1 and the slots needed."""
     instr = pickups.taxi < len(taxis)
@@ -213,7 +215,7 @@ def _step1(
         table = gain_table(city, counts.counts, k0, n_slots, now)
         term_max = float(table.base.max(initial=0.0))
         table.unit = max(term_max * max(crossings, 1) / max(cap, 1), 1e-300)
-        per_taxi = [table.for_taxi(counts.visited.get(taxis[i].id)) for i in taxis_used]
+        per_taxi = [table.zeroed(counted(taxis[i].id)) for i in taxis_used]
         gains = np.stack([g for g, _ in per_taxi])
         gains_q = np.stack([q for _, q in per_taxi])
         stamp, first = table.stamps(len(pair_taxi))
@@ -274,8 +276,10 @@ def _step3(
     taxis: Sequence[Taxi],
     targets: NDArray[np.int64],
     n_slots: int,
-) -> tuple[list[tuple[int, Route]], int]:
-    """Step 3: (taxi index, route) for the matched taxi-POI pairs, before Algorithm 2."""
+    counted: CountedIn,
+) -> tuple[list[tuple[int, Route, NDArray[np.int64] | None]], int]:
+    """Step 3: (taxi index, route, the kappa = 0 path to the same POI) for the matched taxi-POI pairs,
+    before Algorithm 2."""
     if len(taxis) == 0 or len(targets) == 0:
         return [], n_slots
     while True:
@@ -283,7 +287,9 @@ def _step3(
         sets: list[RouteSet] = []
         max_slot = 0
         for taxi in taxis:
-            rs, ms = plan_routes(city, table, taxi.id, taxi.node, counts.visited.get(taxi.id), targets, now)
+            rs, ms = plan_routes(
+                city, table, taxi.id, taxi.node, None, targets, now, counted=counted(taxi.id)
+            )
             sets.append(rs)
             max_slot = max(max_slot, ms)
         if max_slot < n_slots:
@@ -296,7 +302,10 @@ def _step3(
     sol = max_weight_matching(
         lexicographic_weights(feasible, feasible.astype(np.int64), quantize(phi, unit), secondary_sense="max")
     )
-    return [(int(i), sets[int(i)].route(int(j))) for i, j in zip(sol.rows, sol.cols, strict=True)], n_slots
+    return [
+        (int(i), sets[int(i)].route(int(j)), sets[int(i)].path(int(j), 0.0))
+        for i, j in zip(sol.rows, sol.cols, strict=True)
+    ], n_slots
 
 
 def _visits(city: City, counts: CountsView, taxi: Taxi, edges: NDArray[np.int64], now: float) -> list[Visit]:
@@ -336,7 +345,8 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     n_slots = INITIAL_SLOTS
 
     # Step 1
-    s1, n_slots, s1_stats = _step1(city, counts, now, k0, riders, instr, pickups, service, n_slots)
+    counted = CountedIn(counts.visited, k0)
+    s1, n_slots, s1_stats = _step1(city, counts, now, k0, riders, instr, pickups, service, n_slots, counted)
     matches: list[RiderMatch] = []
     planned: list[PlannedPath] = []
     visits: list[Visit] = []
@@ -402,15 +412,17 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     history: list[float] = []
     passes = 0
     if p.active_sensing and free and len(targets):
-        s3, n_slots = _step3(city, counts, now, k0, free, targets, n_slots)
-        routes, history, passes = improve_routes(city, counts, [r for _, r in s3], now, n_slots)
+        s3, n_slots = _step3(city, counts, now, k0, free, targets, n_slots, counted)
+        routes, history, passes = improve_routes(
+            city, counts, [r for _, r, _ in s3], now, n_slots, fastest=[f for _, _, f in s3], counted=counted
+        )
         base = gain_table(city, counts.counts, k0, n_slots, now)
-        for (i, _), route in zip(s3, routes, strict=True):
+        for (i, _, _), route in zip(s3, routes, strict=True):
             taxi = free[i]
             g, _gq, _ms = _eval_leg(
                 city,
                 base,
-                *base.for_taxi(counts.visited.get(taxi.id)),
+                *base.zeroed(counted(taxi.id)),
                 _Leg(route.edges, route.length_m, route.time_s),
                 now,
             )

@@ -1062,6 +1062,9 @@ def plan_kappas(
     k0: int,
     gain: NDArray[np.float64],
     gain_q: NDArray[np.int64],
+    has_fastest: bool,
+    fastest: NDArray[np.int64],
+    fastest_head: NDArray[np.int64],
 ) -> tuple[
     NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], int
 ]:
@@ -1072,7 +1075,8 @@ def plan_kappas(
     every target's tree path evaluated (``eval_tree``), and per target the kappa with the largest phi kept
     (ties: the earlier kappa). Returns the chosen kappa index per target (-1 unreachable), gain, time and
     length of the chosen routes, the predecessor-edge arrays (one row per kappa; rows of skipped kappas
-    are -1) and the largest interval slot reached.
+    are -1) and the largest interval slot reached. With ``has_fastest`` the kappa = 0 tree is not grown but
+    given: the edges ``fastest`` of its path to the (single) target, entering ``fastest_head``.
     """
     m = edge_time.shape[0]
     n = c_kept_of.shape[0]
@@ -1092,34 +1096,38 @@ def plan_kappas(
     max_slot = 0
     for ki in range(kappas.shape[0]):
         kappa = kappas[ki]
-        if kappa == 0.0:
-            for p in range(m):
-                cost_se[p] = edge_time[c_se_edges[p]]
-        elif umax > 0.0:
-            for p in range(m):
-                e = c_se_edges[p]
-                cost_se[p] = edge_time[e] * (1.0 - kappa * (u[e] / umax))
-        else:
-            continue
         pred = preds[ki]
-        tree_search(
-            c_indptr,
-            c_se_head,
-            c_se_tail,
-            c_se_rev,
-            c_se_ptr,
-            c_se_edges,
-            c_se_node,
-            c_kept,
-            c_kept_of,
-            c_dead_end,
-            c_pos_se,
-            c_pos_off,
-            cost_se,
-            source,
-            targets,
-            pred,
-        )
+        if kappa == 0.0 and has_fastest:
+            for j in range(fastest.shape[0]):
+                pred[fastest_head[j]] = fastest[j]
+        else:
+            if kappa == 0.0:
+                for p in range(m):
+                    cost_se[p] = edge_time[c_se_edges[p]]
+            elif umax > 0.0:
+                for p in range(m):
+                    e = c_se_edges[p]
+                    cost_se[p] = edge_time[e] * (1.0 - kappa * (u[e] / umax))
+            else:
+                continue
+            tree_search(
+                c_indptr,
+                c_se_head,
+                c_se_tail,
+                c_se_rev,
+                c_se_ptr,
+                c_se_edges,
+                c_se_node,
+                c_kept,
+                c_kept_of,
+                c_dead_end,
+                c_pos_se,
+                c_pos_off,
+                cost_se,
+                source,
+                targets,
+                pred,
+            )
         g, _gq, t, length, ms = eval_tree(
             pred,
             tail,

@@ -30,6 +30,8 @@ __all__ = [
     "gain_table",
     "Route",
     "RouteSet",
+    "CountedIn",
+    "counted_in",
     "plan_routes",
     "joint_utility",
     "improve_routes",
@@ -111,7 +113,6 @@ class GainTable:
     _shift: float = 0.0
     _stamp: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
     _next_stamp: int = 1
-    _positive: tuple[list[int], list[int]] | None = None  # (slot, cell) of the positive terms, when needed
 
     @property
     def shift_s(self) -> float:
@@ -126,29 +127,19 @@ class GainTable:
     def for_taxi(
         self, visited: frozenset[tuple[IntervalKey, int]] | None
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """The terms for one taxi (``base`` with the pairs it is counted in set to 0) and their integer copy.
+        """The terms for one taxi (``base`` with the pairs it is counted in set to 0), and their integers."""
+        return self.zeroed(counted_in(visited, self.k0))
 
-        Only positive terms can change, so the work is the smaller of walking ``visited`` and looking up
-        the positive terms in it (none at all outside the horizon, where every term is 0).
-        """
+    def zeroed(
+        self, counted: tuple[NDArray[np.int64], NDArray[np.int64]]
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """``for_taxi`` given the taxi's pairs as arrays of intervals and cells (``counted_in``)."""
         g = self.base
-        if visited:
-            if self._positive is None:
-                ps, pc = np.nonzero(g > 0.0)
-                self._positive = (ps.tolist(), pc.tolist())
-            pos_s, pos_c = self._positive
-            if pos_s:
-                g = g.copy()
-                if len(visited) <= len(pos_s):
-                    for k, c in visited:
-                        s = int(k) - self.k0
-                        if 0 <= s < g.shape[0]:
-                            g[s, c] = 0.0
-                else:
-                    k0 = self.k0
-                    for s, c in zip(pos_s, pos_c, strict=True):
-                        if (k0 + s, c) in visited:
-                            g[s, c] = 0.0
+        rows = counted[0] - self.k0
+        keep = (rows >= 0) & (rows < g.shape[0])
+        if keep.any():
+            g = g.copy()
+            g[rows[keep], counted[1][keep]] = 0.0
         return g, np.rint(g / self.unit).astype(np.int64)
 
     def stamps(self, n: int) -> tuple[NDArray[np.int64], int]:
@@ -161,6 +152,40 @@ class GainTable:
         return self._stamp, first
 
 
+_NO_PAIRS = np.zeros(0, dtype=np.int64)
+
+
+def counted_in(
+    visited: frozenset[tuple[IntervalKey, int]] | None, k_min: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The (interval, cell) pairs of ``visited`` from interval ``k_min`` on, as two arrays."""
+    if not visited:
+        return _NO_PAIRS, _NO_PAIRS
+    ks: list[int] = []
+    cs: list[int] = []
+    for k, c in visited:
+        if k >= k_min:
+            ks.append(int(k))
+            cs.append(int(c))
+    return np.array(ks, dtype=np.int64), np.array(cs, dtype=np.int64)
+
+
+class CountedIn:
+    """Per epoch: each taxi's ``counted_in`` pairs from interval ``k0`` on, built once per taxi (the gain
+    tables of Steps 1 and 3 and of every Algorithm 2 re-plan zero the same pairs)."""
+
+    def __init__(self, visited: Mapping[TaxiId, frozenset[tuple[IntervalKey, int]]], k0: int) -> None:
+        self._visited = visited
+        self._k0 = k0
+        self._memo: dict[TaxiId, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
+
+    def __call__(self, taxi_id: TaxiId) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        got = self._memo.get(taxi_id)
+        if got is None:
+            got = self._memo[taxi_id] = counted_in(self._visited.get(taxi_id), self._k0)
+        return got
+
+
 def gain_table(
     city: City,
     counts: Mapping[IntervalKey, NDArray[np.int64]],
@@ -168,8 +193,11 @@ def gain_table(
     n_slots: int,
     depart_s: float,
     extra: Mapping[tuple[int, int], int] | None = None,
+    extra_counts: NDArray[np.int64] | None = None,
 ) -> GainTable:
-    """Marginal terms for intervals ``k0..k0+n_slots-1`` given ``counts`` (+ ``extra`` planned visits)."""
+    """Marginal terms for intervals ``k0..k0+n_slots-1`` given ``counts`` (+ ``extra`` planned visits per
+    (interval, cell), or the same as a dense ``extra_counts[slot, cell]``; counts are whole numbers, so
+    either way Lambda + n is exact)."""
     rho = city.params.rho
     n_cells = city.grid.n_cells
     base = np.zeros((n_slots, n_cells))
@@ -182,6 +210,8 @@ def gain_table(
             for (kk, c), n in extra.items():
                 if kk == k:
                     lam_f[c] += n
+        if extra_counts is not None:
+            lam_f = lam_f + extra_counts[s]
         base[s] = city.mu(k) * city.cell_weight * theta_gain(lam_f, 1.0, rho)
     return GainTable(city=city, k0=k0, base=base, _shift=city.horizon.shift_s(depart_s))
 
@@ -234,6 +264,7 @@ class RouteSet:
     length_m: NDArray[np.float64]
     tree: NDArray[np.int64]  # index into ``preds`` of the best kappa, per target
     preds: tuple[NDArray[np.int64], ...]
+    kappas: tuple[float, ...]  # the kappa of each tree in ``preds``
     tail: NDArray[np.int32]
 
     @property
@@ -241,6 +272,14 @@ class RouteSet:
         """phi per target (0 for a zero-length route)."""
         t = self.time_s
         return np.divide(self.gain, t, out=np.zeros_like(self.gain), where=t > 0)
+
+    def path(self, i: int, kappa: float) -> NDArray[np.int64] | None:
+        """Edges of the route to target ``i`` on the tree of ``kappa`` (None if that tree was not grown)."""
+        for ki, (k, pred) in enumerate(zip(self.kappas, self.preds, strict=True)):
+            if k == kappa and (pred[int(self.targets[i])] >= 0 or int(self.targets[i]) == self.source):
+                edges: NDArray[np.int64] = kernels.walk_edges(self.preds[ki], self.tail, int(self.targets[i]))
+                return edges
+        return None
 
     def route(self, i: int) -> Route:
         edges = kernels.walk_edges(self.preds[int(self.tree[i])], self.tail, int(self.targets[i]))
@@ -264,24 +303,40 @@ def plan_routes(
     visited: frozenset[tuple[IntervalKey, int]] | None,
     targets: NDArray[np.int64],
     depart_s: float,
+    *,
+    counted: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
+    fastest: NDArray[np.int64] | None = None,
 ) -> tuple[RouteSet, int]:
     """Algorithm 1 from one taxi to every target: the best-phi route over the kappa family.
 
     Returns the routes (one per target, same order) and the largest interval slot any route reached.
     Ties in phi keep the smaller kappa, so kappa = 0 (the fastest path) wins unless beaten.
+
+    ``counted`` is ``visited`` as ``counted_in`` arrays, when the caller has them. ``fastest``, for a single
+    target, is the kappa = 0 tree path to it when already known: the kappa = 0 cost is the travel time
+    whatever the gains, and a search's tree path to a node it settles does not depend on the other targets
+    (the search is the same up to the moment the node is settled), so that path is taken instead of
+    searching again.
     """
     ga = graph_arrays(city)
-    gain, gain_q = table.for_taxi(visited)
+    gain, gain_q = table.for_taxi(visited) if counted is None else table.zeroed(counted)
     k = len(targets)
+    if fastest is not None and k != 1:
+        raise ValueError("fastest: one target only")
     if contraction.ENABLED:
-        return _plan_routes_fused(city, ga, table, gain, gain_q, taxi_id, source, targets, depart_s)
+        return _plan_routes_fused(city, ga, table, gain, gain_q, taxi_id, source, targets, depart_s, fastest)
     best_phi = np.full(k, -np.inf)
     out_g, out_t, out_l = np.zeros(k), np.full(k, np.nan), np.zeros(k)
     out_kappa, out_tree = np.zeros(k), np.zeros(k, dtype=np.int64)
     preds: list[NDArray[np.int64]] = []
+    grown: list[float] = []
     max_slot = 0
     for kappa, cost in _kappa_costs(ga, gain[0], city.params.kappas):
-        _dist, pred, _ = contraction.dijkstra(ga, cost, source, np.inf, targets, ga.time_s)
+        if kappa == 0.0 and fastest is not None:
+            pred = np.full(city.network.n_nodes, -1, dtype=np.int64)
+            pred[ga.head[fastest]] = fastest
+        else:
+            _dist, pred, _ = contraction.dijkstra(ga, cost, source, np.inf, targets, ga.time_s)
         stamp, first = table.stamps(k)
         g, _gq, t, length, ms = kernels.eval_targets(
             pred,
@@ -306,10 +361,23 @@ def plan_routes(
         out_kappa[better] = kappa
         out_tree[better] = len(preds)
         preds.append(pred)
+        grown.append(kappa)
     missing = targets[np.isinf(best_phi)]
     if len(missing):
         raise ValueError(f"targets unreachable from node {source}: {missing[:5].tolist()}")
-    rs = RouteSet(taxi_id, source, targets, out_kappa, out_g, out_t, out_l, out_tree, tuple(preds), ga.tail)
+    rs = RouteSet(
+        taxi_id,
+        source,
+        targets,
+        out_kappa,
+        out_g,
+        out_t,
+        out_l,
+        out_tree,
+        tuple(preds),
+        tuple(grown),
+        ga.tail,
+    )
     return rs, max_slot
 
 
@@ -323,10 +391,12 @@ def _plan_routes_fused(
     source: int,
     targets: NDArray[np.int64],
     depart_s: float,
+    fastest: NDArray[np.int64] | None,
 ) -> tuple[RouteSet, int]:
     """``plan_routes`` in one compiled call (``kernels.plan_kappas``) on the contracted graph."""
     c = contraction.forward(ga)
     kappas = np.asarray(city.params.kappas, dtype=np.float64)
+    fixed = _NO_PAIRS if fastest is None else fastest
     idx, g, t, length, preds, max_slot = kernels.plan_kappas(
         *c.arrays,
         ga.tail,
@@ -340,11 +410,26 @@ def _plan_routes_fused(
         *table.clock,
         gain,
         gain_q,
+        fastest is not None,
+        fixed,
+        ga.head[fixed].astype(np.int64),
     )
     missing = targets[idx < 0]
     if len(missing):
         raise ValueError(f"targets unreachable from node {source}: {missing[:5].tolist()}")
-    rs = RouteSet(taxi_id, source, targets, kappas[idx], g, t, length, idx, tuple(preds), ga.tail)
+    rs = RouteSet(
+        taxi_id,
+        source,
+        targets,
+        kappas[idx],
+        g,
+        t,
+        length,
+        idx,
+        tuple(preds),
+        tuple(kappas.tolist()),
+        ga.tail,
+    )
     return rs, int(max_slot)
 
 
@@ -387,19 +472,40 @@ def improve_routes(
     routes: list[Route],
     depart_s: float,
     n_slots: int,
+    *,
+    fastest: Sequence[NDArray[np.int64] | None] | None = None,
+    counted: CountedIn | None = None,
 ) -> tuple[list[Route], list[float], int]:
     """Algorithm 2: re-plan each taxi's route against the others' planned visits; keep improvements.
 
     Each taxi keeps its POI. A re-planned route replaces the current one only if the joint utility of all
     routes rises. Stops after a pass without change or ``max_iter`` passes. Returns the routes, the joint
     utility after the initial matching and after every pass (non-decreasing), and the number of passes.
+
+    ``fastest[i]``, when given, is the kappa = 0 path of route ``i``'s taxi to its POI (from Step 3): the
+    re-plans take it instead of searching for it again (``plan_routes``). ``counted`` caches the taxis'
+    counted pairs for the epoch. The others' planned visits enter the gain table as a dense count per
+    (slot, cell), kept up to date as routes are replaced.
     """
     k0 = int(city.horizon.intervals_of(np.array([depart_s]))[0])
     visited = [counts.visited.get(r.taxi_id, frozenset()) for r in routes]
+    counted = counted or CountedIn(counts.visited, k0)
     pairs = [route_pairs(city, r, v, depart_s) for r, v in zip(routes, visited, strict=True)]
     total: Counter[tuple[int, int]] = Counter()
     for ps in pairs:
         total.update(ps)
+    n_cells = city.grid.n_cells
+
+    def slots_cells(ps: set[tuple[int, int]]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        rows = np.array([k - k0 for k, _ in ps], dtype=np.int64)
+        cells = np.array([c for _, c in ps], dtype=np.int64)
+        keep = (rows >= 0) & (rows < n_slots)
+        return rows[keep], cells[keep]
+
+    dense = [slots_cells(ps) for ps in pairs]
+    total_n = np.zeros((n_slots, n_cells), dtype=np.int64)
+    for rows, cells in dense:
+        total_n[rows, cells] += 1  # a route's pairs are distinct
     history = [_joint_from_counts(city, counts.counts, total)]
     passes = 0
     accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
@@ -411,16 +517,26 @@ def improve_routes(
             if planned_at[i] == accepted:
                 continue
             planned_at[i] = accepted
-            others = total.copy()
-            others.subtract(pairs[i])
-            table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra=+others)
+            others_n = total_n.copy()
+            others_n[dense[i]] -= 1
+            table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra_counts=others_n)
             rs, _ = plan_routes(
-                city, table, r.taxi_id, r.source, visited[i], np.array([r.target], dtype=np.int64), depart_s
+                city,
+                table,
+                r.taxi_id,
+                r.source,
+                visited[i],
+                np.array([r.target], dtype=np.int64),
+                depart_s,
+                counted=counted(r.taxi_id),
+                fastest=fastest[i] if fastest is not None else None,
             )
             cand = rs.route(0)
             if np.array_equal(cand.edges, r.edges):
                 continue
             cand_pairs = route_pairs(city, cand, visited[i], depart_s)
+            others = total.copy()
+            others.subtract(pairs[i])
             trial = others.copy()
             trial.update(cand_pairs)
             u_new = _joint_from_counts(city, counts.counts, trial)
@@ -428,6 +544,9 @@ def improve_routes(
                 routes[i] = cand
                 pairs[i] = cand_pairs
                 total = trial
+                dense[i] = slots_cells(cand_pairs)
+                total_n = others_n
+                total_n[dense[i]] += 1
                 history.append(u_new)
                 accepted += 1
                 planned_at[i] = accepted
