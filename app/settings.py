@@ -8,10 +8,11 @@ from typing import Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["Scope", "Settings", "SCOPES"]
+__all__ = ["Scope", "Settings", "SCOPES", "DivergenceName"]
 
-Scope = Literal["read", "dispatch"]
-SCOPES: tuple[Scope, ...] = ("read", "dispatch")
+Scope = Literal["read", "dispatch", "admin"]
+SCOPES: tuple[Scope, ...] = ("read", "dispatch", "admin")
+DivergenceName = Literal["kl", "burg", "j", "chi2", "modified_chi2", "hellinger", "variation"]
 
 
 class Settings(BaseSettings):
@@ -28,7 +29,7 @@ class Settings(BaseSettings):
     port: int = Field(default=8000, ge=0, le=65535, description="Port of `python -m app run`.")
     tokens: dict[str, list[Scope]] = Field(
         default_factory=dict,
-        description='Bearer tokens and their scopes, JSON: {"tok1": ["read", "dispatch"]}.',
+        description='Bearer tokens and their scopes (read, dispatch, admin), JSON: {"tok1": ["read"]}.',
     )
     cities_dir: Path = Field(default=Path("var/cities"), description="Directory of user-imported cities.")
     bundled_cities_dir: Path | None = Field(
@@ -47,6 +48,52 @@ class Settings(BaseSettings):
         default=8 * 86400, ge=3600, description="How long counts and epoch records are kept."
     )
     log_level: Literal["debug", "info", "warning", "error"] = Field(default="info", description="Log level.")
+    var_dir: Path = Field(
+        default=Path("var"), description="Directory for the service's files (worker run cache)."
+    )
+
+    # -- the fleet-sizing worker (`python -m app worker`, docs/FLEET.md) ----------------------------------
+    worker_cities: list[str] = Field(
+        default_factory=list,
+        description="Cities the worker sizes, JSON list (default []: every bundled city).",
+    )
+    worker_sizes: list[int] = Field(
+        default_factory=lambda: [10, 20, 30, 40, 50, 60],
+        min_length=1,
+        description="Candidate instrumented fleet sizes N1, JSON list.",
+    )
+    worker_days: int = Field(default=10, ge=2, le=366, description="M: days of demand history per solve.")
+    worker_divergence: DivergenceName = Field(
+        default="kl", description="phi-divergence of the ambiguity set."
+    )
+    worker_alpha: float = Field(default=0.05, gt=0.0, lt=1.0, description="Significance level alpha.")
+    worker_support: Literal["binned", "samples"] = Field(
+        default="binned", description="Support of the samples."
+    )
+    worker_bins: int = Field(default=10, ge=2, le=1000, description="Bins w of the binned support.")
+    worker_completion_target: float | None = Field(
+        default=0.95, ge=0.0, le=1.0, description="Worst-case POI completion rate to meet (null: off)."
+    )
+    worker_jobs: int = Field(default=2, ge=1, le=256, description="Processes simulating (size, day) runs.")
+    worker_n0: int = Field(default=60, ge=0, description="Ordinary (not instrumented) taxis in every run.")
+    worker_tasks: int = Field(default=85, ge=0, description="POI monitoring tasks in every run.")
+    worker_rate_per_hour: float | None = Field(
+        default=None, gt=0.0, description="Synthetic history: requests per hour (null: the city's default)."
+    )
+    worker_seed: int = Field(default=0, ge=0, description="Seed of the synthetic history, tasks and taxis.")
+    worker_lead_s: int = Field(
+        default=3600, ge=60, le=86400, description="Solve an hour this long before it starts."
+    )
+    worker_poll_s: float = Field(default=5.0, gt=0.0, le=3600.0, description="How often the queue is polled.")
+    worker_lock_ttl_s: int = Field(
+        default=1800, ge=10, description="Lifetime of a solve lock (a crash frees it)."
+    )
+    worker_metrics_port: int | None = Field(
+        default=None, ge=0, le=65535, description="Serve the worker's Prometheus metrics on this port."
+    )
+    worker_history: int = Field(
+        default=100, ge=1, le=10000, description="Recommendation history kept per city."
+    )
 
     @field_validator("tokens")
     @classmethod
@@ -55,3 +102,10 @@ class Settings(BaseSettings):
             if len(token) < 8 or any(c.isspace() for c in token):
                 raise ValueError("tokens must be at least 8 characters without whitespace")
         return value
+
+    @field_validator("worker_sizes")
+    @classmethod
+    def _sizes_sane(cls, value: list[int]) -> list[int]:
+        if any(x < 1 for x in value) or len(set(value)) != len(value):
+            raise ValueError("fleet sizes must be distinct positive integers")
+        return sorted(value)

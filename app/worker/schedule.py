@@ -1,0 +1,37 @@
+"""When the worker solves: the coming hour of a city's horizon and whether it is due (city local time)."""
+
+from __future__ import annotations
+
+from zoneinfo import ZoneInfo
+
+from services.city import Horizon
+from services.model import IntervalKey
+
+__all__ = ["interval_start_s", "coming_interval", "due_interval"]
+
+
+def interval_start_s(horizon: Horizon, k: int) -> float:
+    """POSIX time at which interval ``k`` starts (its local wall-clock start in the city's time zone)."""
+    return horizon.local_start(k).replace(tzinfo=ZoneInfo(horizon.timezone)).timestamp()
+
+
+def coming_interval(horizon: Horizon, now_s: float) -> IntervalKey:
+    """The first interval of the operating horizon that starts after ``now_s`` (today's next hour of the
+    horizon, or the first hour of the next day's)."""
+    k = int(horizon.interval_of(now_s)) + 1
+    for _ in range(horizon.per_day):
+        if horizon.in_horizon(k):
+            return IntervalKey(k)
+        k += 1
+    raise AssertionError("a day always holds a horizon interval")
+
+
+def due_interval(horizon: Horizon, now_s: float, lead_s: float) -> IntervalKey | None:
+    """The coming interval if it starts within ``lead_s`` of ``now_s`` (its solve is due), else ``None``.
+
+    With the default lead of one interval the hour ``h`` is solved from the start of hour ``h - 1``: at
+    07:00 for 08:00, at 08:00 for 09:00, ..., and nothing between the end of the horizon and the hour
+    before the next day's first interval.
+    """
+    k = coming_interval(horizon, now_s)
+    return k if interval_start_s(horizon, k) - now_s <= lead_s else None

@@ -1,0 +1,142 @@
+"""The worker loop: every few seconds, claim queued solve requests and run the solves that are due.
+
+Thin by design: *when* lives here (``app.worker.schedule``), *what* in ``FleetSizing.solve``. A solve of
+hour ``h`` is due from ``lead_s`` before ``h`` starts (default: the start of the previous hour, city local
+time); each worker tries it once, and the store lock plus the "already solved" check make sure only one of
+several workers solves it. A request from ``POST /v1/cities/{city}/fleet/solve`` is solved for the coming
+hour at the next poll, even if that hour is already solved.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+
+from prometheus_client import CollectorRegistry, Counter, Histogram
+
+from app.ports import StoreUnavailable
+from app.worker.schedule import coming_interval, due_interval
+from app.worker.sizing import FleetSizing, SolveOutcome
+from services.city import Horizon
+
+__all__ = ["WorkerMetrics", "FleetWorker"]
+
+log = logging.getLogger(__name__)
+
+
+class WorkerMetrics:
+    """The worker's Prometheus metrics (its own registry; served when ``SD_WORKER_METRICS_PORT`` is set)."""
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry(auto_describe=True)
+        self.solves = Counter(
+            "sd_fleet_solves",
+            "Fleet-sizing solve attempts by outcome (published, failed, skipped, busy).",
+            ["outcome"],
+            registry=self.registry,
+        )
+        self.solve_seconds = Histogram(
+            "sd_fleet_solve_seconds",
+            "Wall time of published and failed solves.",
+            buckets=(1, 5, 15, 30, 60, 120, 300, 600, 1800),
+            registry=self.registry,
+        )
+        for outcome in ("published", "failed", "skipped", "busy"):
+            self.solves.labels(outcome=outcome)
+
+    def observe(self, outcome: SolveOutcome) -> None:
+        """Count one attempt."""
+        self.solves.labels(outcome=outcome.status).inc()
+        if outcome.status in ("published", "failed"):
+            self.solve_seconds.observe(outcome.wall_s)
+
+
+class FleetWorker:
+    """Polls the solve queues and runs the scheduled solves of ``cities``."""
+
+    def __init__(
+        self,
+        sizing: FleetSizing,
+        cities: Sequence[str],
+        *,
+        lead_s: float = 3600.0,
+        poll_s: float = 5.0,
+        clock: Callable[[], float] = time.time,
+        metrics: WorkerMetrics | None = None,
+    ) -> None:
+        self.sizing = sizing
+        self.cities = list(cities)
+        self.lead_s = lead_s
+        self.poll_s = poll_s
+        self.clock = clock
+        self.metrics = metrics or WorkerMetrics()
+        self._attempted: dict[str, int] = {}  # city -> the last hour this worker tried on schedule
+        self._horizons: dict[str, Horizon] = {}
+
+    def horizon(self, city: str) -> Horizon:
+        """The city's operating horizon (the city is loaded once)."""
+        if city not in self._horizons:
+            self._horizons[city] = self.sizing.load_city(city).horizon
+        return self._horizons[city]
+
+    def _done(self, outcome: SolveOutcome) -> SolveOutcome:
+        self.metrics.observe(outcome)
+        if outcome.status == "skipped":
+            log.info("fleet %s, interval %d: already solved", outcome.city, outcome.interval)
+        elif outcome.status == "busy":
+            log.info("fleet %s, interval %d: another worker is solving it", outcome.city, outcome.interval)
+        return outcome
+
+    def requested(self, city: str) -> SolveOutcome | None:
+        """Claim the city's pending request, if any, and solve the coming hour for it. When another worker
+        holds that hour's lock the request goes back on the queue for the next poll."""
+        request = self.sizing.store.claim_solve_request(city)
+        if request is None:
+            return None
+        target = coming_interval(self.horizon(city), self.clock())
+        outcome = self.sizing.solve(city, target, request=request)
+        if outcome.status == "busy":
+            self.sizing.store.enqueue_solve_request(city, request)
+        return self._done(outcome)
+
+    def scheduled(self, city: str) -> SolveOutcome | None:
+        """Solve the coming hour if it is due and this worker has not tried it yet."""
+        target = due_interval(self.horizon(city), self.clock(), self.lead_s)
+        if target is None or self._attempted.get(city) == target:
+            return None
+        outcome = self.sizing.solve(city, target)
+        if outcome.status != "busy":  # busy: try again at the next poll (the holder may fail)
+            self._attempted[city] = target
+        return self._done(outcome)
+
+    def tick(self) -> list[SolveOutcome]:
+        """One pass over the cities: requests first, then scheduled solves. A store outage is logged and
+        the pass goes on with the next city (the loop survives it)."""
+        outcomes: list[SolveOutcome] = []
+        for city in self.cities:
+            for step in (self.requested, self.scheduled):
+                try:
+                    outcome = step(city)
+                except StoreUnavailable as exc:
+                    log.warning("fleet %s: store unavailable, retrying at the next poll: %s", city, exc)
+                    break
+                if outcome is not None:
+                    outcomes.append(outcome)
+        return outcomes
+
+    def once(self, city: str) -> SolveOutcome:
+        """Solve the coming hour now (even if already solved), unless another worker is solving it."""
+        target = coming_interval(self.horizon(city), self.clock())
+        return self._done(self.sizing.solve(city, target, force=True))
+
+    def run(self, stop: threading.Event) -> None:
+        """Tick every ``poll_s`` seconds until ``stop`` is set."""
+        cities = ", ".join(self.cities)
+        log.info(
+            "fleet worker: %s; polling every %.0f s, solving %.0f s ahead", cities, self.poll_s, self.lead_s
+        )
+        while not stop.is_set():
+            self.tick()
+            stop.wait(self.poll_s)

@@ -1,0 +1,333 @@
+"""The fleet-sizing worker end to end: real whole-day simulations of Chengdu with a tiny configuration
+(sizes 2 and 4, 3 days, 4 ordinary taxis, 3 POI tasks, 10 requests an hour), published through the memory
+store and a real Redis, and served by the API."""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from zoneinfo import ZoneInfo
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.adapters import MemoryStore, RedisStore
+from app.experiment.workload import RunSpec, demand_for, load, run_result
+from app.main import create_app
+from app.ports import EpochCommit, SolveRequest, Store
+from app.settings import Settings
+from app.worker import main as worker_main
+from app.worker.runs import DayJob, DayResult, PoolRunner, RunBatch, RunCache, run_day
+from app.worker.service import FleetWorker
+from app.worker.sizing import FleetSizing, SizingConfig, SolveOutcome
+from services.sim.demand import DemandSet, Request
+
+CITY = "chengdu"
+TINY = SizingConfig(sizes=(2, 4), days=3, n0=4, n_tasks=3, rate_per_hour=10.0, lookback_days=9)
+SHANGHAI = ZoneInfo("Asia/Shanghai")
+TOKEN, ADMIN = "tok-read-worker-1", "tok-admin-worker1"
+
+
+def local(day: int, hour: int, minute: int = 0) -> float:
+    return dt.datetime(2026, 11, day, hour, minute, tzinfo=SHANGHAI).timestamp()
+
+
+class Clock:
+    """A settable clock shared by the worker and the solve."""
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+@pytest.fixture(params=["memory", "redis"])
+def make_store(request: pytest.FixtureRequest) -> Iterator[Callable[[], Store]]:
+    """Factory of store objects on one shared state: the same MemoryStore, or RedisStores (each with its own
+    connections, like separate processes) under one fresh prefix."""
+    if request.param == "memory":
+        shared = MemoryStore()
+        yield lambda: shared
+        return
+    url: str = request.getfixturevalue("redis_url")
+    prefix: str = request.getfixturevalue("redis_prefix")
+    made: list[RedisStore] = []
+
+    def make() -> Store:
+        made.append(RedisStore(url, prefix=prefix))
+        return made[-1]
+
+    yield make
+    for s in made:
+        s.close()
+
+
+def worker(
+    store: Store, cache: Path, clock: Clock, config: SizingConfig = TINY, runner: PoolRunner | None = None
+) -> FleetWorker:
+    sizing = FleetSizing(store, runner or PoolRunner(RunCache(cache), 1), config, clock=clock)
+    return FleetWorker(sizing, [CITY], lead_s=3600.0, poll_s=0.05, clock=clock)
+
+
+def client_for(store: Store) -> TestClient:
+    settings = Settings(tokens={TOKEN: ["read"], ADMIN: ["admin"]})
+    return TestClient(create_app(settings, store=store))
+
+
+def auth(token: str = TOKEN) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+def only(outcomes: Sequence[SolveOutcome]) -> SolveOutcome:
+    assert len(outcomes) == 1, outcomes
+    return outcomes[0]
+
+
+def test_hourly_solves_publish_and_later_hours_reuse_the_runs(
+    make_store: Callable[[], Store], tmp_path: Path
+) -> None:
+    store = make_store()
+    clock = Clock(local(23, 6, 30))
+    w = worker(store, tmp_path, clock)
+    assert w.tick() == []  # 08:00 is 90 min away: not due
+    clock.t = local(23, 7, 0)
+    first = only(w.tick())
+    assert (first.status, first.version) == ("published", 1)
+    assert w.tick() == []  # tried once per hour
+    body = json.loads(store.current_recommendation(CITY).body_json)  # type: ignore[union-attr]
+    assert body["interval"] == "2026-11-23T08:00" and body["trigger"] == "schedule"
+    assert body["solve"]["runs"] == 6 and body["solve"]["cached_runs"] == 0
+    assert body["data_window"]["source"] == "synthetic"
+    assert body["data_window"]["days"] == ["synthetic-1", "synthetic-2", "synthetic-3"]
+
+    # the same numbers the experiment's own code path gives for these runs
+    for row in body["daily_table"]:
+        specs = [RunSpec(CITY, n1=row["size"], n0=4, day=d, n_tasks=3, rate_per_hour=10.0) for d in (1, 2, 3)]
+        runs = [run_result(spec) for spec in specs]
+        assert row["mean"] == pytest.approx(np.mean([r["kpis"]["design_kpi"] for r in runs]), rel=1e-12)
+        hour0 = [r["hours"][0]["design_kpi"] for r in runs]
+        assert body["hour_table"][TINY.sizes.index(row["size"])]["mean"] == pytest.approx(np.mean(hour0))
+    assert body["data_window"]["requests_per_day"] == [
+        len(demand_for(RunSpec(CITY, day=d, rate_per_hour=10.0)).requests) for d in (1, 2, 3)
+    ]
+
+    clock.t = local(23, 8, 0)
+    second = only(w.tick())
+    assert (second.status, second.version) == ("published", 2)
+    body2 = json.loads(store.current_recommendation(CITY).body_json)  # type: ignore[union-attr]
+    assert body2["interval"] == "2026-11-23T09:00" and body2["position"] == 1
+    assert body2["solve"]["cached_runs"] == 6  # the whole-day runs of the 08:00 solve
+    assert body2["daily_table"] == body["daily_table"]
+
+    with client_for(store) as client:
+        r = client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth())
+        assert r.status_code == 200, r.text
+        rec = r.json()
+        assert rec["version"] == 2 and rec["interval"] == "2026-11-23T09:00"
+        assert rec["computed_at"] == "2026-11-23T08:00:00+08:00"
+        assert rec["chosen"]["dro_rh"] == rec["dro_rh_by_hour"][1]["size"]
+        history = client.get(f"/v1/cities/{CITY}/fleet/recommendations", headers=auth()).json()["entries"]
+        assert [(e["status"], e["version"], e["interval"]) for e in history] == [
+            ("published", 2, "2026-11-23T09:00"),
+            ("published", 1, "2026-11-23T08:00"),
+        ]
+
+
+class CountingRunner(PoolRunner):
+    def __init__(self, cache: RunCache) -> None:
+        super().__init__(cache, 1)
+        self.batches = 0
+
+    def run(self, jobs: Sequence[DayJob]) -> RunBatch:
+        self.batches += 1
+        return super().run(jobs)
+
+
+def test_two_workers_racing_for_one_hour_solve_it_once(
+    make_store: Callable[[], Store], tmp_path: Path
+) -> None:
+    clock = Clock(local(23, 7, 0))
+    runners = [CountingRunner(RunCache(tmp_path / f"cache-{i}")) for i in range(2)]  # no shared cache
+    workers = [worker(make_store(), tmp_path, clock, runner=r) for r in runners]
+    barrier = threading.Barrier(2)
+    seen: list[list[str]] = [[], []]
+
+    def race(i: int) -> None:
+        barrier.wait()
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            statuses = [o.status for o in workers[i].tick()]
+            seen[i] += statuses
+            if statuses and statuses[-1] != "busy":
+                return
+            time.sleep(0.05)  # busy: the other holds the hour's lock; try again at the next poll
+
+    threads = [threading.Thread(target=race, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    finals = sorted(s[-1] for s in seen)
+    assert finals == ["published", "skipped"], seen
+    assert sum(r.batches for r in runners) == 1  # exactly one solve simulated anything
+    store = make_store()
+    assert [(h.status, h.version) for h in store.recommendation_history(CITY, 10)] == [("published", 1)]
+
+
+def fail_size_4(job: DayJob) -> DayResult:
+    """A simulation that breaks for fleet size 4 (module level: the runner may send it to processes)."""
+    if job.spec.n1 == 4:
+        raise RuntimeError("size 4 broke")
+    return run_day(job)
+
+
+def test_a_failing_simulation_keeps_the_last_good_recommendation(
+    make_store: Callable[[], Store], tmp_path: Path
+) -> None:
+    store = make_store()
+    clock = Clock(local(23, 7, 0))
+    assert only(worker(store, tmp_path / "good", clock).tick()).status == "published"
+    good = store.current_recommendation(CITY)
+
+    clock.t = local(23, 7, 20)
+    store.enqueue_solve_request(CITY, SolveRequest("req-broken", clock.t, "admin"))
+    broken = worker(store, tmp_path / "b", clock, runner=PoolRunner(RunCache(tmp_path / "b"), 1, fail_size_4))
+    out = broken.requested(CITY)
+    assert out is not None
+    assert out.status == "failed" and out.request_id == "req-broken"
+    assert out.reason is not None and "3 of 6 runs failed (partial solve)" in out.reason
+    assert "RuntimeError: size 4 broke" in out.reason
+    assert store.current_recommendation(CITY) == good
+    history = store.recommendation_history(CITY, 10)
+    assert [(h.status, h.version, h.request_id) for h in history] == [
+        ("failed", None, "req-broken"),
+        ("published", 1, None),
+    ]
+    assert broken.metrics.solves.labels(outcome="failed")._value.get() == 1
+
+    with client_for(store) as client:
+        rec = client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth()).json()
+        assert rec["version"] == 1 and rec["interval"] == "2026-11-23T08:00"
+        entries = client.get(f"/v1/cities/{CITY}/fleet/recommendations", headers=auth()).json()["entries"]
+        assert entries[0]["status"] == "failed" and "size 4 broke" in entries[0]["reason"]
+
+    # the runs that finished were cached: a retry with a working simulator only redoes size 4
+    store.enqueue_solve_request(CITY, SolveRequest("req-retry", clock.t, "admin"))
+    retry = worker(store, tmp_path / "b", clock).requested(CITY)
+    assert retry is not None
+    assert (retry.status, retry.version, retry.request_id) == ("published", 2, "req-retry")
+    body = json.loads(store.current_recommendation(CITY).body_json)  # type: ignore[union-attr]
+    assert body["solve"]["cached_runs"] == 3 and body["trigger"] == "request"
+    assert body["daily_table"] == json.loads(good.body_json)["daily_table"]  # type: ignore[union-attr]
+
+
+def test_an_admin_request_is_picked_up_at_the_next_poll(tmp_path: Path) -> None:
+    store = MemoryStore()
+    clock = Clock(local(23, 12, 30))  # after the horizon: nothing is due on schedule
+    w = worker(store, tmp_path, clock)
+    assert w.tick() == []
+    with client_for(store) as client:
+        r = client.post(f"/v1/cities/{CITY}/fleet/solve", headers=auth(ADMIN))
+        assert r.status_code == 202, r.text
+        request_id = r.json()["request_id"]
+        assert client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth()).status_code == 404
+        stop = threading.Event()
+        loop = threading.Thread(target=w.run, args=(stop,))
+        loop.start()
+        try:
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                r = client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth())
+                if r.status_code == 200:
+                    break
+                time.sleep(0.05)
+        finally:
+            stop.set()
+            loop.join()
+        rec = r.json()
+        assert r.status_code == 200 and rec["request_id"] == request_id and rec["trigger"] == "request"
+        assert rec["interval"] == "2026-11-24T08:00"  # the coming hour of the horizon
+    assert w.tick() == []  # the request was consumed
+
+
+def recorded_epochs(demand: DemandSet, ids: np.ndarray, epoch_s: int = 200, patience: int = 2) -> list[str]:
+    """The set's riders as the service records them: every rider in the epochs from its request on, for
+    ``patience`` epochs (a waiting rider recurs)."""
+    start = int(min(r.time_s for r in demand.requests)) // epoch_s * epoch_s
+    end = int(max(r.time_s for r in demand.requests)) + patience * epoch_s
+    out = []
+    for t in range(start + epoch_s, end + epoch_s, epoch_s):
+        riders = [
+            {"id": r.id, "origin": int(ids[r.origin]), "destination": int(ids[r.destination]),
+             "requested_at": "", "requested_at_s": r.time_s}
+            for r in demand.requests
+            if r.time_s <= t < r.time_s + patience * epoch_s
+        ]  # fmt: skip
+        out.append(json.dumps({"epoch_id": f"{demand.date}-{t}", "time_s": float(t), "riders": riders}))
+    return out
+
+
+def test_recorded_demand_is_used_once_m_days_exist(tmp_path: Path) -> None:
+    city, _ = load(CITY)
+    store = MemoryStore()
+    dates = ["2026-11-21", "2026-11-22"]
+    expected = []
+    for d, date in enumerate(dates, start=7):
+        synthetic = demand_for(RunSpec(CITY, day=d, rate_per_hour=10.0))
+        shift = city.horizon.start_s(date) - city.horizon.start_s(synthetic.date)
+        moved = tuple(
+            Request(f"{date}-{r.id}", r.time_s + shift, r.origin, r.destination) for r in synthetic.requests
+        )
+        expected.append(len(moved))
+        for doc in recorded_epochs(
+            dataclasses.replace(synthetic, date=date, requests=moved), city.network.node_ids
+        ):
+            t = json.loads(doc)["time_s"]
+            version = store.load_state(CITY, [], []).version
+            commit = EpochCommit(f"e{t}", "h", t, version, (), (), "{}", demand_json=doc)
+            assert store.commit_epoch(CITY, commit).status == "committed"
+    config = dataclasses.replace(TINY, days=2)
+    out = worker(store, tmp_path, Clock(local(23, 7, 0)), config).tick()
+    assert only(out).status == "published"
+    window = json.loads(store.current_recommendation(CITY).body_json)["data_window"]  # type: ignore[union-attr]
+    assert window["source"] == "recorded" and window["days"] == ["2026-11-22", "2026-11-21"]
+    assert window["requests_per_day"] == expected[::-1] and window["seed"] is None
+
+
+def test_two_processes_give_the_same_runs_as_one(tmp_path: Path) -> None:
+    city = load(CITY)[0]
+    sizing = FleetSizing(MemoryStore(), PoolRunner(RunCache(tmp_path / "unused"), 1), TINY)
+    jobs = list(sizing.jobs(city, sizing.window(city, city.horizon.interval_of(local(23, 8)))).values())
+    pooled = PoolRunner(RunCache(tmp_path / "pool"), 2)
+    try:
+        two = pooled.run(jobs)
+    finally:
+        pooled.close()
+    one = PoolRunner(RunCache(tmp_path / "single"), 1).run(jobs)
+    assert two.failures == {} and two.cached == 0 and len(two.results) == 6
+
+    def numbers(batch: RunBatch) -> dict[str, tuple[float, tuple[float, ...], int]]:
+        return {k: (r.design_kpi, r.hour_cost_cny, r.n_requests) for k, r in batch.results.items()}
+
+    assert numbers(two) == numbers(one)
+
+
+def test_worker_command_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setenv("SD_STORE", "memory")
+    monkeypatch.setenv("SD_VAR_DIR", str(tmp_path))
+    argv = ["--once", "--city", CITY, "--sizes", "2,4", "--days", "3", "--tasks", "3", "--n0", "4",
+            "--rate", "10", "--jobs", "1"]  # fmt: skip
+    assert worker_main(argv) == 0
+    assert "published version 1" in capsys.readouterr().out
+    assert len(list((tmp_path / "fleet-runs").glob("*.json"))) == 6
+    assert worker_main(["--once", "--city", "atlantis"]) == 2
+    assert "unknown cities" in capsys.readouterr().err

@@ -1,0 +1,294 @@
+"""The fleet-sizing worker's parts without simulation: schedule, recorded demand, history window, run cache
+and runner, settings and options. (Real solves: tests/e2e/test_worker.py.)"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import logging
+import math
+from pathlib import Path
+from typing import get_args
+from zoneinfo import ZoneInfo
+
+import pytest
+from pydantic import ValidationError
+
+from app.adapters import MemoryStore
+from app.cities import CityRegistry
+from app.experiment.workload import RunSpec
+from app.ports import EpochCommit
+from app.settings import DivergenceName, Settings
+from app.worker.cli import parser, settings_from_args
+from app.worker.recorded import RecordedDemandError, demand_from_records, local_day_records, recorded_days
+from app.worker.runs import DayJob, DayResult, PoolRunner, RunCache
+from app.worker.schedule import coming_interval, due_interval, interval_start_s
+from app.worker.sizing import FleetSizing, SizingConfig
+from services.city import City, Horizon
+from services.dro import DIVERGENCE_NAMES
+from services.sim.demand import DemandSet, Request
+from tests.api.fakes import CITY, build_bundle, node_id
+
+SHANGHAI = ZoneInfo("Asia/Shanghai")
+
+
+def at(day: int, hour: int, minute: int = 0, second: int = 0, month: int = 11) -> float:
+    """POSIX time of a local Chengdu wall-clock time in 2026."""
+    return dt.datetime(2026, month, day, hour, minute, second, tzinfo=SHANGHAI).timestamp()
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory: pytest.TempPathFactory) -> City:
+    """The API tests' 5 x 5 lattice city (Asia/Shanghai, horizon 08:00-12:00)."""
+    root = build_bundle(tmp_path_factory.mktemp("cities"))
+    return CityRegistry(bundled_dir=tmp_path_factory.mktemp("none"), user_dir=root).get(CITY)
+
+
+# ----------------------------------------------------------------------------------------------- schedule
+
+
+@pytest.mark.parametrize(
+    ("now", "coming", "due"),
+    [
+        ((23, 6, 59, 59), (23, 8), None),  # 3601 s ahead: not yet
+        ((23, 7, 0, 0), (23, 8), (23, 8)),
+        ((23, 7, 59, 59), (23, 8), (23, 8)),
+        ((23, 8, 0, 0), (23, 9), (23, 9)),  # an hour that starts now is not "coming"
+        ((23, 10, 30, 0), (23, 11), (23, 11)),
+        ((23, 11, 0, 0), (24, 8), None),  # the horizon ends at 12:00: next is tomorrow 08:00
+        ((23, 23, 30, 0), (24, 8), None),
+        ((30, 11, 15, 0), (1, 8), None),  # across a month end (the 1st is in December)
+    ],
+)
+def test_coming_and_due_hours(
+    now: tuple[int, int, int, int], coming: tuple[int, int], due: tuple[int, int] | None
+) -> None:
+    hz = Horizon()  # Asia/Shanghai, 4 hours from 08:00
+    t = at(*now)
+    month = 12 if coming[0] == 1 else 11
+    k = coming_interval(hz, t)
+    assert interval_start_s(hz, k) == at(coming[0], coming[1], month=month)
+    assert hz.in_horizon(k)
+    d = due_interval(hz, t, 3600.0)
+    assert (d is None) == (due is None) and (d is None or d == k)
+
+
+def test_due_in_another_time_zone_and_lead() -> None:
+    hz = Horizon(timezone="America/New_York")
+    t = dt.datetime(2026, 7, 1, 6, 30, tzinfo=ZoneInfo("America/New_York")).timestamp()
+    k = coming_interval(hz, t)
+    assert hz.label(k) == "2026-07-01T08:00"
+    assert due_interval(hz, t, 3600.0) is None and due_interval(hz, t, 5400.0) == k
+
+
+# ------------------------------------------------------------------------------------------ recorded demand
+
+
+def record(epoch: str, time_s: float, riders: list[tuple[str, int, int, float]]) -> str:
+    """An epoch's demand as the service records it (``DispatchService._demand``)."""
+    return json.dumps(
+        {
+            "epoch_id": epoch,
+            "time": dt.datetime.fromtimestamp(time_s, tz=SHANGHAI).isoformat(),
+            "time_s": time_s,
+            "riders": [
+                {"id": i, "origin": o, "destination": d, "requested_at": "", "requested_at_s": t}
+                for i, o, d, t in riders
+            ],
+        }
+    )
+
+
+def test_recorded_epochs_become_a_demand_set(tiny: City) -> None:
+    t0 = at(23, 8)
+    a = ("a", node_id(0, 0), node_id(4, 4), t0 + 10.7)
+    records = [
+        record("e1", t0 + 200, [a, ("b", node_id(1, 0), node_id(2, 3), t0 + 150)]),
+        # a waits: recorded again (here even with a later time: the first one seen is kept)
+        record(
+            "e2",
+            t0 + 400,
+            [
+                (a[0], a[1], a[2], t0 + 50),
+                ("c", node_id(3, 3), node_id(0, 1), t0 + 390),
+                ("x", 999_999, node_id(0, 1), t0 + 399),
+            ],
+        ),
+        record("e3", t0 + 600, [("p", node_id(2, 2), node_id(1, 1), at(22, 23, 59))]),  # the day before
+    ]
+    ds = demand_from_records(tiny, "2026-11-23", records)
+    assert isinstance(ds, DemandSet) and ds.city == CITY and ds.date == "2026-11-23"
+    assert ds.generator == "recorded" and ds.seed is None
+    assert [r.id for r in ds.requests] == ["a", "b", "c"]
+    assert [r.time_s for r in ds.requests] == [t0 + 10, t0 + 150, t0 + 390]
+    ids = tiny.network.node_ids
+    assert [(int(ids[r.origin]), int(ids[r.destination])) for r in ds.requests] == [
+        (node_id(0, 0), node_id(4, 4)),
+        (node_id(1, 0), node_id(2, 3)),
+        (node_id(3, 3), node_id(0, 1)),
+    ]
+    assert ds.params == {"epochs": 3, "rider_rows": 6, "unknown_nodes": 1}
+    net = tiny.network
+    p = Request(
+        "p", float(math.floor(at(22, 23, 59))), net.index_of(node_id(2, 2)), net.index_of(node_id(1, 1))
+    )
+    assert demand_from_records(tiny, "2026-11-22", records).requests == (p,)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    ["not json", '{"epoch_id": "e1"}', '{"epoch_id": "e1", "riders": [{"id": "a"}]}', '{"riders": 3}'],
+)
+def test_malformed_records_are_an_error(tiny: City, bad: str) -> None:
+    with pytest.raises(RecordedDemandError, match="2026-11-23"):
+        demand_from_records(tiny, "2026-11-23", [bad])
+
+
+def commit_demand(store: MemoryStore, city: str, docs: list[tuple[float, str]]) -> None:
+    """Commit one epoch per (time, demand JSON), as the API does."""
+    for i, (time_s, doc) in enumerate(docs):
+        version = store.load_state(city, [], []).version
+        commit = EpochCommit(f"e{time_s:.0f}", "h", time_s, version, (), (), "{}", demand_json=doc)
+        assert store.commit_epoch(city, commit).status == "committed", i
+
+
+def test_a_local_day_spans_two_utc_days(tiny: City) -> None:
+    store = MemoryStore()
+    r1 = ("r1", node_id(0, 0), node_id(1, 1), at(23, 1))  # UTC 22 Nov 17:00
+    r2 = ("r2", node_id(1, 1), node_id(2, 2), at(23, 9))  # UTC 23 Nov 01:00
+    r3 = ("r3", node_id(2, 2), node_id(3, 3), at(24, 1))  # UTC 23 Nov 17:00, local 24 Nov
+    commit_demand(store, CITY, [(r[3] + 60, record(r[0], r[3] + 60, [r])) for r in (r1, r2, r3)])
+    assert len(local_day_records(store, tiny, dt.date(2026, 11, 23))) == 3
+    found = recorded_days(store, tiny, dt.date(2026, 11, 25), want=5, lookback_days=4)
+    assert [(d.date.isoformat(), [r.id for r in d.demand.requests]) for d in found] == [
+        ("2026-11-24", ["r3"]),
+        ("2026-11-23", ["r1", "r2"]),
+    ]
+    assert [d.date.day for d in recorded_days(store, tiny, dt.date(2026, 11, 25), 1, 4)] == [24]
+    assert recorded_days(store, tiny, dt.date(2026, 11, 25), 5, lookback_days=1) == found[:1]
+
+
+def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path: Path) -> None:
+    store = MemoryStore()
+    docs = []
+    for day in (20, 21, 22):
+        t = at(day, 9)
+        docs.append((t, record(f"d{day}", t, [(f"r{day}", node_id(0, 0), node_id(4, 4), t - 30)])))
+    commit_demand(store, CITY, docs)
+    k = tiny.horizon.interval_of(at(23, 9))
+    runner = PoolRunner(RunCache(tmp_path), 1)
+    two = FleetSizing(store, runner, SizingConfig(days=2, lookback_days=7)).window(tiny, k)
+    assert two.source == "recorded" and two.recorded_available == 2
+    assert [d.label for d in two.days] == ["2026-11-22", "2026-11-21"]
+    assert [d.spec_day for d in two.days] == [
+        dt.date(2026, 11, 22).toordinal(),
+        dt.date(2026, 11, 21).toordinal(),
+    ]
+    assert all(d.demand is not None and len(d.demand.requests) == 1 for d in two.days)
+    four = FleetSizing(store, runner, SizingConfig(days=4, lookback_days=7, seed=5)).window(tiny, k)
+    assert four.source == "synthetic" and four.recorded_available == 3
+    assert [(d.label, d.spec_day, d.demand) for d in four.days] == [
+        (f"synthetic-{d}", d, None) for d in range(1, 5)
+    ]
+    assert "3 day(s) of recorded demand" in four.note and "seed 5" in four.note
+    # the look-back bounds the search (retention): two days back finds only the 22nd
+    short = FleetSizing(store, runner, SizingConfig(days=2, lookback_days=1)).window(tiny, k)
+    assert short.source == "synthetic" and short.recorded_available == 1
+
+
+# -------------------------------------------------------------------------------------------- runs, cache
+
+
+def result(key: str, size: int, kpi: float = 2.5) -> DayResult:
+    return DayResult(
+        key, size, "2026-11-23", 140, kpi, float("nan"), (0.0, 1.5, kpi, 3.0), (0.0, 3.0, 5.0, 6.0), 0.2
+    )
+
+
+def test_cache_round_trip_and_unreadable_files(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    cache = RunCache(tmp_path / "runs")
+    assert cache.get("k") is None
+    r = result("k", 20)
+    cache.put(r)
+    back = cache.get("k")
+    assert back is not None and math.isnan(back.completion_rate)
+    assert back.to_json() == r.to_json() and back.hour_cost_cny == r.hour_cost_cny
+    (tmp_path / "runs" / "bad.json").write_text("{truncated")
+    with caplog.at_level(logging.WARNING):
+        assert cache.get("bad") is None
+    assert "unreadable cached run" in caplog.text
+
+
+def test_job_keys_name_the_inputs() -> None:
+    spec = RunSpec(city="chengdu", n1=20, day=3)
+    d1 = DemandSet("chengdu", "2026-11-23", (Request("a", 1.0e9, 1, 2),), "recorded")
+    d2 = DemandSet("chengdu", "2026-11-23", (Request("a", 1.0e9, 1, 3),), "recorded")
+    keys = {DayJob(spec).key, DayJob(spec, d1).key, DayJob(spec, d2).key, DayJob(RunSpec(n1=30, day=3)).key}
+    assert len(keys) == 4
+    assert DayJob(spec, d1).key == DayJob(spec, DemandSet("chengdu", "2026-11-23", d1.requests, "x")).key
+
+
+def test_runner_uses_the_cache_and_reports_failures_without_caching_them(tmp_path: Path) -> None:
+    calls: list[int] = []
+
+    def fake(job: DayJob) -> DayResult:
+        calls.append(job.spec.n1)
+        if job.spec.n1 == 30:
+            raise ValueError("no taxis left")
+        return result(job.key, job.spec.n1, kpi=job.spec.n1 / 10)
+
+    runner = PoolRunner(RunCache(tmp_path), 1, run_fn=fake)
+    jobs = [DayJob(RunSpec(n1=x, day=1)) for x in (10, 20, 30)]
+    batch = runner.run([*jobs, jobs[0]])  # a repeated job runs once
+    assert sorted(calls) == [10, 20, 30] and batch.cached == 0
+    assert set(batch.results) == {jobs[0].key, jobs[1].key}
+    assert batch.failures == {jobs[2].key: "ValueError: no taxis left"}
+    again = runner.run(jobs)
+    assert sorted(calls) == [10, 20, 30, 30] and again.cached == 2
+    assert again.results[jobs[1].key].design_kpi == 2.0
+
+
+# ------------------------------------------------------------------------------------- settings, options
+
+
+def test_divergence_names_match_the_engine() -> None:
+    assert set(get_args(DivergenceName)) == set(DIVERGENCE_NAMES)
+
+
+def test_settings_and_config() -> None:
+    s = Settings(worker_sizes=[40, 20], worker_days=3, worker_divergence="burg", retention_s=3 * 86400)
+    cfg = SizingConfig.from_settings(s)
+    assert cfg.sizes == (20, 40) and cfg.days == 3 and cfg.ambiguity.divergence == "burg"
+    assert cfg.lookback_days == 4 and cfg.completion_target == 0.95
+    assert Settings(tokens={"abcdefgh12": ["admin"]}).tokens == {"abcdefgh12": ["admin"]}
+    for bad in ({"worker_sizes": [10, 10]}, {"worker_sizes": [0]}, {"worker_days": 1}, {"worker_alpha": 1.0}):
+        with pytest.raises(ValidationError):
+            Settings(**bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="days"):
+        SizingConfig(days=1)
+
+
+def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SD_WORKER_DAYS", "7")
+    monkeypatch.setenv("SD_WORKER_JOBS", "3")
+    options = [
+        "--sizes",
+        "4,2",
+        "--target",
+        "off",
+        "--city",
+        "chengdu",
+        "--divergence",
+        "chi2",
+        "--jobs",
+        "1",
+    ]
+    args = parser().parse_args(options)
+    s = settings_from_args(args)
+    assert s.worker_sizes == [2, 4] and s.worker_completion_target is None and s.worker_cities == ["chengdu"]
+    assert s.worker_divergence == "chi2" and s.worker_jobs == 1 and s.worker_days == 7
+    assert settings_from_args(parser().parse_args([])).worker_completion_target == 0.95
+    with pytest.raises(SystemExit):
+        parser().parse_args(["--sizes", "two"])
+    with pytest.raises(ValidationError):
+        settings_from_args(parser().parse_args(["--alpha", "2"]))
