@@ -11,7 +11,7 @@ from fastapi import FastAPI
 from fastapi.routing import APIRoute
 from starlette.types import ASGIApp
 
-from app.api import cities, dispatch, dro, ops
+from app.api import cities, dispatch, dro, fleet, ops
 from app.api.handlers import error_response, install_error_handlers
 from app.api.limits import BodyLimit
 from app.errors import ServiceError
@@ -112,6 +112,7 @@ def create_app(
     app.include_router(cities.router)
     app.include_router(dispatch.router)
     app.include_router(dro.router)
+    app.include_router(fleet.router)
     return app
 
 

@@ -1,0 +1,107 @@
+"""Fleet-sizing routes: the worker's current recommendation and its history (scope `read`), and a request for
+a solve now (scope `admin`; queued for the worker, never solved inside the request). docs/FLEET.md."""
+
+from __future__ import annotations
+
+import time
+import uuid
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Query
+from pydantic import ValidationError
+
+from app.api.deps import CityName, Principal, ReadAccess, ServiceDep, _require
+from app.api.responses import READ_ERRORS, errors
+from app.errors import InternalError, NoData
+from app.ports import FleetRecord, SolveRequest
+from app.schemas import format_time
+from app.schemas_fleet import FleetHistoryEntryOut, FleetHistoryOut, FleetRecommendationOut, SolveRequestOut
+
+__all__ = ["router", "AdminAccess"]
+
+router = APIRouter(prefix="/v1/cities", tags=["fleet"])
+
+AdminAccess = Annotated[Principal, Depends(_require("admin"))]
+
+HISTORY_MAX = 100
+
+
+def _recommendation(record: FleetRecord, timezone: str) -> FleetRecommendationOut:
+    """A published record as served; a document this version cannot read is an internal error."""
+    try:
+        return FleetRecommendationOut.of(record, timezone)
+    except (ValidationError, ValueError, TypeError) as exc:
+        raise InternalError(f"stored recommendation version {record.version} cannot be read: {exc}") from exc
+
+
+@router.get(
+    "/{city}/fleet/recommendation",
+    response_model=FleetRecommendationOut,
+    summary="Current fleet-size recommendation",
+    responses=READ_ERRORS,
+)
+def get_recommendation(city: CityName, _: ReadAccess, service: ServiceDep) -> FleetRecommendationOut:
+    """The worker's latest published recommendation: the chosen size per method (Deterministic, DRO, DRO_RH
+    for the coming hour, the completion target), the per-size tables (mean, worst case, premium, rho, m),
+    divergence, alpha, the data window, computed_at and version. 404 `no_data` before the first solve."""
+    tz = service.city(city).horizon.timezone
+    record = service.store.current_recommendation(city)
+    if record is None:
+        raise NoData(
+            f"no fleet recommendation for {city!r} yet: the worker (python -m app worker) publishes one "
+            "before every hour of the horizon; POST .../fleet/solve asks for one now"
+        )
+    return _recommendation(record, tz)
+
+
+@router.get(
+    "/{city}/fleet/recommendations",
+    response_model=FleetHistoryOut,
+    summary="Recommendation history",
+    responses=READ_ERRORS,
+)
+def list_recommendations(
+    city: CityName,
+    _: ReadAccess,
+    service: ServiceDep,
+    limit: Annotated[int, Query(ge=1, le=HISTORY_MAX, description="Most entries to return.")] = 20,
+) -> FleetHistoryOut:
+    """Solves of the city, newest first: published ones with their recommendation, failed ones with the
+    reason (a failed solve keeps the previous recommendation current)."""
+    hz = service.city(city).horizon
+    entries = []
+    for record in service.store.recommendation_history(city, limit):
+        entries.append(
+            FleetHistoryEntryOut(
+                status=record.status,
+                computed_at=format_time(record.computed_at_s, hz.timezone),
+                interval=hz.label(record.interval),
+                version=record.version,
+                reason=record.reason,
+                request_id=record.request_id,
+                recommendation=_recommendation(record, hz.timezone) if record.status == "published" else None,
+            )
+        )
+    return FleetHistoryOut(city=city, entries=entries)
+
+
+@router.post(
+    "/{city}/fleet/solve",
+    status_code=202,
+    response_model=SolveRequestOut,
+    summary="Ask the worker for a solve now",
+    responses=errors(401, 403, 404, 422, 500, 503),
+)
+def post_solve(city: CityName, principal: AdminAccess, service: ServiceDep) -> SolveRequestOut:
+    """Queue a solve of the coming hour for the worker, which polls its queue every few seconds (202 with the
+    request id; the solve shows up in the history with that id). A request already pending is not
+    duplicated: this one joins it (`already_queued`, same id)."""
+    tz = service.city(city).horizon.timezone
+    request = SolveRequest(uuid.uuid4().hex, time.time(), principal.name)
+    result = service.store.enqueue_solve_request(city, request)
+    return SolveRequestOut(
+        request_id=result.request.request_id,
+        city=city,
+        status="queued" if result.created else "already_queued",
+        requested_at=format_time(result.request.requested_at_s, tz),
+    )
