@@ -80,8 +80,12 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
     v, qv = check_problem(values, q)
     r = check_rho(rho)
     full = qv > 0
-    uniq, inverse = np.unique(v[full], return_inverse=True)
-    group_q = np.bincount(inverse, weights=qv[full]).astype(np.float64)
+    v_full = v[full]
+    if np.all(v_full[1:] > v_full[:-1]):  # distinct and ascending, as bins are: nothing to merge
+        uniq, inverse, group_q = v_full, np.arange(v_full.size), qv[full]
+    else:
+        uniq, inverse = np.unique(v_full, return_inverse=True)
+        group_q = np.bincount(inverse, weights=qv[full]).astype(np.float64)
     pop: int | None = None
     if div.popping and not np.all(full):
         empty = np.flatnonzero(~full)
@@ -98,19 +102,29 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
             value, mean, r, int(v.size), v, qv, p, status, div.name, "exact", eta, lam, i_p, note
         )
 
+    def all_on_top() -> FloatArray:
+        p_top = np.zeros_like(qv)
+        if pop is not None:
+            p_top[pop] = 1.0
+        else:
+            at_top = full & (v == top)
+            p_top[at_top] = qv[at_top] / float(qv[at_top].sum())
+        return p_top
+
     if scale == 0.0:
         return done(
             qv.copy(), "degenerate", mean, mean, 0.0, "one reachable value: the worst case for every rho"
         )
-    p_top = np.zeros_like(qv)
+    # I_φ of all mass on the top: every data cell loses its mass (φ(0) each), the top gains it
     if pop is not None:
-        p_top[pop] = 1.0
+        i_top = div.phi_at_zero + div.slope_at_infinity
     else:
-        at_top = full & (v == top)
-        p_top[at_top] = qv[at_top] / float(qv[at_top].sum())
-    i_top = divergence_value(p_top, qv, div)
+        q_top = float(group_q[-1])
+        i_top = q_top * float(div.phi(np.array([1.0 / q_top]))[0]) + (1.0 - q_top) * div.phi_at_zero
     if i_top <= r * (1.0 + _SATURATION_RTOL):
-        return done(p_top, "saturated", top, top, 0.0, f"rho >= I(top, q) = {i_top:.6g}: all mass on the top")
+        return done(
+            all_on_top(), "saturated", top, top, 0.0, f"rho >= I(top, q) = {i_top:.6g}: all mass on the top"
+        )
     if r == 0.0:
         return done(qv.copy(), "optimal", mean, mean, math.inf, "rho = 0: the empirical distribution")
 
@@ -125,7 +139,12 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
     except Unbracketed as edge:
         if edge.side == "above":
             return done(
-                p_top, "saturated", top, top, 0.0, "rho within rounding of saturation: all mass on the top"
+                all_on_top(),
+                "saturated",
+                top,
+                top,
+                0.0,
+                "rho within rounding of saturation: all mass on the top",
             )
         return done(
             qv.copy(), "optimal", mean, mean, math.inf, "rho within rounding of 0: the empirical distribution"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from services.dro.divergences import Divergence, get_divergence
 from services.dro.inputs import DroInputError, check_alpha
@@ -37,7 +37,7 @@ def rho_from_alpha(divergence: str | Divergence, alpha: float, n_samples: int, n
         raise DroInputError("samples", f"the number of samples must be a positive integer, got {n_samples}")
     if isinstance(n_cells, bool) or int(n_cells) != n_cells or n_cells < 2:
         raise DroInputError("bins", f"the number of cells must be an integer >= 2, got {n_cells}")
-    quantile = float(chi2.ppf(1.0 - a, int(n_cells) - 1))
+    quantile = float(chdtri(int(n_cells) - 1, a))  # χ²_{m-1, 1-α}: the inverse survival function at α
     if div.curvature is None:
         return math.sqrt(quantile / int(n_samples))
     return div.curvature / (2.0 * int(n_samples)) * quantile

@@ -99,6 +99,36 @@ def _increasing_root(h: Callable[[float], float], x0: float, lo: float | None = 
     return float(brentq(h, a, b, xtol=_XTOL, rtol=_RTOL, maxiter=500))
 
 
+def _newton_increasing(
+    fun: Callable[[float], tuple[float, float]], x: float, lo: float = -math.inf, hi: float = math.inf
+) -> float:
+    """Root of an increasing ``fun`` (returning value and derivative): Newton steps kept in a bracket.
+
+    A step that leaves the known bracket ``(lo, hi)`` is replaced by bisection when both ends are known,
+    and no step moves more than 4 units (the functions here are in log-parameters). Leaving ``±700`` (the
+    exponent range of a double) raises :class:`Unbracketed`.
+    """
+    for _ in range(400):
+        if not -_REACH <= x <= _REACH:
+            raise Unbracketed("above" if x > 0 else "below")
+        value, slope = fun(x)
+        if value == 0.0:
+            return x
+        if value < 0.0:
+            lo = max(lo, x)
+        else:
+            hi = min(hi, x)
+        step = -value / slope if slope > 0.0 else math.copysign(4.0, -value)
+        step = max(-4.0, min(4.0, step))
+        nxt = x + step
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else x + step
+        if abs(nxt - x) <= 1e-15 * (1.0 + abs(x)):
+            return nxt
+        x = nxt
+    return x
+
+
 # ----------------------------------------------------------------------------------------- closed forms
 
 
@@ -177,22 +207,28 @@ def solve_kl(r: Reduced) -> ReducedSolution:
     """Kullback-Leibler: ``inf_{λ > 0} λρ + λ log Σ_j q_j exp(f_j / λ)`` by a root in ``θ = 1/λ``.
 
     The optimal ``p_j ∝ q_j exp(θ f_j)`` (exponential tilting); ``θ`` solves ``KL(p_θ, q) = ρ``, which is
-    increasing in ``θ`` from 0 to ``-log q_top`` (saturation is handled before).
+    increasing in ``θ`` from 0 to ``-log q_top`` (saturation is handled before), with derivative
+    ``θ Var_p(f)``: a bracketed Newton in ``log θ`` from the small-ρ answer ``θ = sqrt(2ρ / var)``.
     """
     f, q, rho = r.f, r.q, r.rho
     gap = f - f[-1]  # <= 0, so exp never overflows
 
-    def tilt(x: float) -> tuple[float, FloatArray, float]:
+    def tilt(x: float) -> tuple[float, float, FloatArray, float]:
+        """KL(p_θ, q) - ρ, its derivative in ``x = log θ`` (θ² Var_p(f)), p_θ, and log Σ q e^{θ gap}."""
         theta = math.exp(x)
         z = theta * gap
         log_s = math.log1p(float(np.dot(q, np.expm1(z))))  # log Σ q e^z, accurate when z is small
         w = q * np.exp(z - log_s)
-        return float(np.dot(w, z)) - log_s, w, log_s
+        mean_z = float(np.dot(w, z))
+        return mean_z - log_s - rho, float(np.dot(w, (z - mean_z) ** 2)), w, log_s
 
-    x = _increasing_root(lambda x: tilt(x)[0] - rho, 0.0)
-    _, w, log_s = tilt(x)
+    var = float(np.dot(q, f * f))  # f is centered: small ρ gives θ ≈ sqrt(2ρ / var)
+    x = _newton_increasing(lambda x: tilt(x)[0:2], 0.5 * math.log(2.0 * rho / var))
+    _, _, w, log_s = tilt(x)
     lam = math.exp(-x)
-    return ReducedSolution(w, 0.0, lam * log_s + float(f[-1]), lam, "1-D dual root (exponential tilt)")
+    return ReducedSolution(
+        w, 0.0, lam * log_s + float(f[-1]), lam, "1-D dual root, Newton (exponential tilt)"
+    )
 
 
 def _jensen_gap(kind: str, f: FloatArray, q: FloatArray, d: float) -> float:
@@ -286,33 +322,6 @@ def solve_hellinger(r: Reduced) -> ReducedSolution:
 
 
 # ------------------------------------------------------------------------------------------ J-divergence
-
-
-def _newton_increasing(
-    fun: Callable[[float], tuple[float, float]], x: float, lo: float = -math.inf, hi: float = math.inf
-) -> float:
-    """Root of an increasing ``fun`` (returning value and derivative): Newton steps kept in a bracket.
-
-    A step that leaves the known bracket ``(lo, hi)`` is replaced by bisection when both ends are known,
-    and no step moves more than 4 units (the functions here are in log-parameters).
-    """
-    for _ in range(200):
-        value, slope = fun(x)
-        if value == 0.0:
-            return x
-        if value < 0.0:
-            lo = max(lo, x)
-        else:
-            hi = min(hi, x)
-        step = -value / slope if slope > 0.0 else math.copysign(4.0, -value)
-        step = max(-4.0, min(4.0, step))
-        nxt = x + step
-        if not lo < nxt < hi:
-            nxt = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else x + step
-        if abs(nxt - x) <= 1e-15 * (1.0 + abs(x)):
-            return nxt
-        x = nxt
-    return x
 
 
 def _j_newton(f: FloatArray, q: FloatArray, rho: float, c_hi: float) -> tuple[float, float] | None:

@@ -43,9 +43,12 @@ def _divergence(name: str, p: cp.Expression, q: NDArray[np.float64]) -> cp.Expre
 
 
 def primal_max(
-    c: NDArray[np.float64], q: NDArray[np.float64], rho: float, divergence: str
+    c: NDArray[np.float64], q: NDArray[np.float64], rho: float, divergence: str, *, tol: float | None = 1e-11
 ) -> tuple[float, NDArray[np.float64]]:
-    """``max c·p`` over ``{p in the simplex : I_φ(p, q) <= ρ}`` and the maximizer."""
+    """``max c·p`` over ``{p in the simplex : I_φ(p, q) <= ρ}`` and the maximizer.
+
+    ``tol``: CLARABEL's gap and feasibility tolerances (``None``: the solver's defaults).
+    """
     full = q > 0
     p = cp.Variable(q.size, nonneg=True)
     cons: list[cp.Constraint] = [cp.sum(p) == 1]
@@ -66,19 +69,27 @@ def primal_max(
     prob = cp.Problem(cp.Maximize(c @ p), cons)
     with warnings.catch_warnings():  # "may be inaccurate" at these tight tolerances; callers check the value
         warnings.simplefilter("ignore", UserWarning)
-        prob.solve(solver=cp.CLARABEL, tol_gap_abs=1e-11, tol_gap_rel=1e-11, tol_feas=1e-11, max_iter=500)
+        if tol is None:
+            prob.solve(solver=cp.CLARABEL)
+        else:
+            prob.solve(solver=cp.CLARABEL, tol_gap_abs=tol, tol_gap_rel=tol, tol_feas=tol, max_iter=500)
     if prob.status not in ("optimal", "optimal_inaccurate"):
         raise RuntimeError(f"cvxpy: {prob.status}")
     return float(prob.value), np.asarray(p.value, dtype=np.float64)
 
 
 def primal_worst_case(
-    values: NDArray[np.float64], q: NDArray[np.float64], rho: float, divergence: str
+    values: NDArray[np.float64],
+    q: NDArray[np.float64],
+    rho: float,
+    divergence: str,
+    *,
+    tol: float | None = 1e-11,
 ) -> tuple[float, NDArray[np.float64]]:
     """Optimal value and ``p`` of the primal (values are normalized to [0, 1] for the solver's sake)."""
     lo, hi = float(values.min()), float(values.max())
     scale = hi - lo if hi > lo else 1.0
-    value, p = primal_max((values - lo) / scale, q, rho, divergence)
+    value, p = primal_max((values - lo) / scale, q, rho, divergence, tol=tol)
     return lo + scale * value, p
 
 
