@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -43,10 +44,11 @@ from services.routing import (
     gain_table,
     graph_arrays,
     improve_routes,
+    parallel_map,
     path_nodes,
     plan_routes,
+    timed_pairs,
 )
-from services.sensing import timed_cells
 from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
 
 __all__ = ["decide", "warm_up", "INITIAL_SLOTS"]
@@ -282,16 +284,16 @@ def _step3(
     before Algorithm 2."""
     if len(taxis) == 0 or len(targets) == 0:
         return [], n_slots
+    pairs = [counted(taxi.id) for taxi in taxis]
+
+    def plan(table: GainTable, a: int) -> tuple[RouteSet, int]:
+        return plan_routes(city, table, taxis[a].id, taxis[a].node, None, targets, now, counted=pairs[a])
+
     while True:
         table = gain_table(city, counts.counts, k0, n_slots, now)
-        sets: list[RouteSet] = []
-        max_slot = 0
-        for taxi in taxis:
-            rs, ms = plan_routes(
-                city, table, taxi.id, taxi.node, None, targets, now, counted=counted(taxi.id)
-            )
-            sets.append(rs)
-            max_slot = max(max_slot, ms)
+        planned = parallel_map(functools.partial(plan, table), range(len(taxis)))
+        sets: list[RouteSet] = [rs for rs, _ in planned]
+        max_slot = max(ms for _, ms in planned)
         if max_slot < n_slots:
             break
         n_slots = max_slot + 1
@@ -310,7 +312,7 @@ def _step3(
 
 def _visits(city: City, counts: CountsView, taxi: Taxi, edges: NDArray[np.int64], now: float) -> list[Visit]:
     seen = counts.visited.get(taxi.id, frozenset())
-    return [Visit(taxi.id, k, c) for k, c in timed_cells(city, edges, now).pairs() if (k, c) not in seen]
+    return [Visit(taxi.id, k, c) for k, c in timed_pairs(city, edges, now) if (k, c) not in seen]
 
 
 def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[Task]) -> Decision:

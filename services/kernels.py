@@ -18,6 +18,8 @@ __all__ = [
     "walk_edges",
     "walk_succ",
     "distinct_cells",
+    "crossings",
+    "first_pairs",
     "eval_path",
     "eval_pairs",
     "eval_targets",
@@ -717,6 +719,66 @@ def distinct_cells(
                 out[n] = c
                 n += 1
     return out[:n]
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def crossings(
+    edges: NDArray[np.int64],
+    depart_s: float,
+    edge_time: NDArray[np.float64],
+    ec_ptr: NDArray[np.int64],
+    ec_cell: NDArray[np.int32],
+    ec_frac: NDArray[np.float64],
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Every cell crossing of a path and its time, as ``sensing.timed_cells`` computes them: edge ``i``
+    starts at ``depart_s`` plus the running sum of the earlier edges' times, a crossing at ``start +
+    fraction x edge time``."""
+    total = 0
+    for e in edges:
+        total += ec_ptr[e + 1] - ec_ptr[e]
+    cells = np.empty(total, dtype=np.int64)
+    entry = np.empty(total)
+    n = 0
+    run = 0.0
+    for i in range(edges.shape[0]):
+        e = edges[i]
+        te = edge_time[e]
+        start = depart_s + run
+        for j in range(ec_ptr[e], ec_ptr[e + 1]):
+            cells[n] = ec_cell[j]
+            entry[n] = start + ec_frac[j] * te
+            n += 1
+        run = te if i == 0 else run + te
+    return cells, entry
+
+
+@numba.njit(**_NOPYTHON)  # type: ignore[misc]
+def first_pairs(
+    cells: NDArray[np.int64], entry: NDArray[np.float64], shift_s: float, interval_s: float, n_cells: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The distinct (interval, cell) pairs of timed crossings, in order of first entry; the interval of a
+    time is ``floor((t + shift_s) / interval_s)``."""
+    n = cells.shape[0]
+    ks = np.empty(n, dtype=np.int64)
+    k_min = 0
+    k_max = 0
+    for i in range(n):
+        ks[i] = np.int64(np.floor((entry[i] + shift_s) / interval_s))
+        if i == 0 or ks[i] < k_min:
+            k_min = ks[i]
+        if i == 0 or ks[i] > k_max:
+            k_max = ks[i]
+    seen = np.zeros((k_max - k_min + 1 if n else 0, n_cells), dtype=np.bool_)
+    out_k = np.empty(n, dtype=np.int64)
+    out_c = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if not seen[ks[i] - k_min, cells[i]]:
+            seen[ks[i] - k_min, cells[i]] = True
+            out_k[m] = ks[i]
+            out_c[m] = cells[i]
+            m += 1
+    return out_k[:m], out_c[:m]
 
 
 @numba.njit(**_NOPYTHON)  # type: ignore[misc]

@@ -11,9 +11,13 @@ the plain fastest path, so the result is never worse than the fastest path.
 from __future__ import annotations
 
 import functools
+import os
+import threading
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,7 +25,7 @@ from numpy.typing import NDArray
 from services import contraction, kernels
 from services.city import City
 from services.model import CountsView, IntervalKey, TaxiId
-from services.sensing import theta_gain, timed_cells
+from services.sensing import theta_gain
 
 __all__ = [
     "GraphArrays",
@@ -36,7 +40,54 @@ __all__ = [
     "joint_utility",
     "improve_routes",
     "path_nodes",
+    "timed_pairs",
+    "WORKERS",
+    "parallel_map",
 ]
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+WORKERS = min(4, _cpus())
+"""Threads that share independent searches (Step 3's taxis, the riders' pickup and service searches,
+Algorithm 2's re-plans). The compiled kernels release the GIL, so on a machine with a free core they run side
+by side; results are collected in order, so decisions do not depend on it. 1 runs everything on the
+calling thread."""
+
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def parallel_map(fn: Callable[[_T], _R], items: Sequence[_T]) -> list[_R]:
+    """``[fn(x) for x in items]``, the items split into contiguous chunks run on ``WORKERS`` threads when
+    there are enough of them. ``fn`` must not itself call ``parallel_map``. The first exception (in item
+    order) is raised, as the serial loop would."""
+    global _pool
+    workers = WORKERS
+    if workers <= 1 or len(items) < 2 * workers:
+        return [fn(x) for x in items]
+    with _pool_lock:
+        if _pool is None or getattr(_pool, "_max_workers", 0) != workers:
+            _pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sd-search")
+        pool = _pool
+    n_chunks = min(len(items), 4 * workers)
+    bounds = np.linspace(0, len(items), n_chunks + 1).astype(int).tolist()
+    futures = [
+        pool.submit(lambda a, b: [fn(x) for x in items[a:b]], a, b)
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+    ]
+    out: list[_R] = []
+    for f in futures:
+        out.extend(f.result())
+    return out
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -330,6 +381,7 @@ def plan_routes(
     out_kappa, out_tree = np.zeros(k), np.zeros(k, dtype=np.int64)
     preds: list[NDArray[np.int64]] = []
     grown: list[float] = []
+    stamps = np.zeros(gain.shape, dtype=np.int64)
     max_slot = 0
     for kappa, cost in _kappa_costs(ga, gain[0], city.params.kappas):
         if kappa == 0.0 and fastest is not None:
@@ -337,7 +389,10 @@ def plan_routes(
             pred[ga.head[fastest]] = fastest
         else:
             _dist, pred, _ = contraction.dijkstra(ga, cost, source, np.inf, targets, ga.time_s)
-        stamp, first = table.stamps(k)
+        stamp, first = (
+            stamps,
+            1 + len(preds) * k,
+        )  # a scratch array of this call's own: threads may share the table
         g, _gq, t, length, ms = kernels.eval_targets(
             pred,
             ga.tail,
@@ -433,13 +488,24 @@ def _plan_routes_fused(
     return rs, int(max_slot)
 
 
+def timed_pairs(city: City, edges: NDArray[np.int64], depart_s: float) -> list[tuple[IntervalKey, int]]:
+    """``sensing.timed_cells(city, edges, depart_s).pairs()`` computed by the compiled kernels: the same
+    crossing times (same operations in the same order), intervals and first-entry order."""
+    ga = graph_arrays(city)
+    cells, entry = kernels.crossings(np.asarray(edges, dtype=np.int64), float(depart_s), ga.time_s, *ga.cells)
+    if len(cells) == 0:
+        return []
+    shift = city.horizon.shift_s(float(entry[0]))
+    ks, cs = kernels.first_pairs(cells, entry, shift, float(city.horizon.interval_s), city.grid.n_cells)
+    return list(zip(ks.tolist(), cs.tolist(), strict=True))
+
+
 def route_pairs(
     city: City, route: Route, visited: frozenset[tuple[IntervalKey, int]] | None, depart_s: float
 ) -> set[tuple[int, int]]:
     """The (interval, cell) pairs a route would add to Lambda (first visits not already counted)."""
-    tc = timed_cells(city, route.edges, depart_s)
     seen = visited or frozenset()
-    return {p for p in tc.pairs() if p not in seen}
+    return {p for p in timed_pairs(city, route.edges, depart_s) if p not in seen}
 
 
 def joint_utility(

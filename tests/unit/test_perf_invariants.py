@@ -230,3 +230,50 @@ def test_algorithm2_with_known_fastest_paths_and_dense_counts_equals_reference(c
     finally:
         contraction.ENABLED = True
     assert replaced > 0
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_timed_pairs_equal_sensing_timed_cells(seed: int) -> None:
+    """The compiled timed G-route is ``sensing.timed_cells(...).pairs()`` exactly (crossing times,
+    intervals near a boundary, first-entry order, repeated cells, the empty path); the G-route kernel
+    gives its cells in first-crossing order."""
+    from services.dispatch import _g_route
+    from services.routing import timed_pairs
+    from services.sensing import timed_cells
+
+    rng = np.random.default_rng(seed + 900)
+    city = jittered_city(rng, n=9, spacing=380.0)
+    ga = graph_arrays(city)
+    n = city.network.n_nodes
+    for trial in range(25):
+        depart = T0 + 3600.0 * (seed % 3) - float(rng.uniform(0, 400))
+        src = int(rng.integers(n))
+        _d, pred, _a = kernels.dijkstra(
+            ga.indptr,
+            ga.head,
+            ga.time_s * rng.uniform(0.2, 1, len(ga.time_s)),
+            src,
+            np.inf,
+            np.zeros(0, np.int64),
+            ga.time_s,
+        )
+        edges = kernels.walk_edges(pred, ga.tail, int(rng.integers(n)))
+        if trial % 5 == 0:
+            edges = np.concatenate([edges, edges[::-1][: len(edges) // 2]]).astype(
+                np.int64
+            )  # cells crossed again
+        if trial == 1:
+            edges = np.zeros(0, dtype=np.int64)
+        assert timed_pairs(city, edges, depart) == timed_cells(city, edges, depart).pairs()
+        cells = [
+            city.grid.col_row(int(c))
+            for c in dict.fromkeys(
+                city.edge_cells.cell[
+                    np.concatenate(
+                        [np.arange(city.edge_cells.ptr[e], city.edge_cells.ptr[e + 1]) for e in edges]
+                        or [np.zeros(0, np.int64)]
+                    )
+                ].tolist()
+            )
+        ]
+        assert list(_g_route(city, edges)) == cells
