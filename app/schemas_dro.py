@@ -39,7 +39,7 @@ class WorstCaseIn(BaseModel):
     )
     bins: StrictInt = Field(default=10, ge=2, le=MAX_BINS, description="Number of bins (binned support).")
     method: Literal["exact", "box_lp"] = Field(
-        default="exact", description="The exact worst case, or the paper's box LP (Eq. 24, binned only)."
+        default="exact", description="The exact worst case, or the paper's box LP (Eq. 28, binned only)."
     )
 
     @field_validator("rho")

@@ -1,9 +1,12 @@
-"""The paper's box-constrained LP (Eq. (24)): an outer approximation of the worst-case expectation.
+"""The paper's box-constrained LP (Eq. (28)): an outer approximation of the worst-case expectation.
 
-Each ``p_i`` is bounded by the projection of the φ-ball on coordinate ``i`` (Eq. (23)),
+Each ``p_i`` is bounded by the projection of the φ-ball on coordinate ``i`` (Eq. (27)),
 ``[p̲_i, p̄_i] = {p_i : p in the simplex, I_φ(p, q) <= ρ}``, and the LP maximizes ``Σ g_i p_i`` over the
 simplex intersected with that box. The box contains the ball, so the LP's value is at least the exact worst
 case on the same cells; on realistic data it overstates it considerably (METHOD section 8: about 10-28 %).
+
+Equation numbers count the paper's numbered equations as the rest of the code does (sensing Eq. (1)-(3),
+matching (4)-(16)); METHOD section 8 calls this LP "Eq. (24)".
 """
 
 from __future__ import annotations
@@ -70,7 +73,7 @@ def coordinate_bounds(
 
 
 def solve_box_lp(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | Divergence) -> WorstCase:
-    """``max { Σ g_i p_i : Σ p_i = 1, p̲_i <= p_i <= p̄_i }`` (Eq. (24)) with ``scipy.optimize.linprog``.
+    """``max { Σ g_i p_i : Σ p_i = 1, p̲_i <= p_i <= p̄_i }`` (Eq. (28)) with ``scipy.optimize.linprog``.
 
     ``values`` are the grid points (the paper's bin midpoints ``g_i = L + (i - 1/2) Δ``). The returned ``p``
     lies in the box, not necessarily in the ball: ``divergence_at_p`` may exceed ρ. ``eta`` and ``lam`` are
@@ -127,5 +130,5 @@ def solve_box_lp(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | 
         eta=math.nan,
         lam=math.nan,
         divergence_at_p=divergence_value(p, qv, div),
-        note="paper Eq. (24): LP over the box of coordinate projections (outer approximation)",
+        note="paper Eq. (28): LP over the box of coordinate projections (outer approximation)",
     )

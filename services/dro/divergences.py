@@ -4,7 +4,7 @@ Each :class:`Divergence` carries φ, its convex conjugate φ*, the curvature φ'
 the slope at infinity ``L = lim φ(t)/t`` (finite exactly when mass may "pop" to cells the data left empty),
 and φ(0) (finite exactly when the data's cells may be "suppressed" to zero mass).
 
-The divergence of ``p`` from ``q`` (Eq. (19) of the paper, ``I_φ(p, q) = Σ_j q_j φ(p_j / q_j)``) uses the
+The divergence of ``p`` from ``q`` (Eq. (20) of the paper, ``I_φ(p, q) = Σ_j q_j φ(p_j / q_j)``) uses the
 usual conventions for empty cells: ``0 · φ(p / 0) = p · L`` (infinite when ``L`` is and ``p > 0``), and 0
 when ``p = 0``.
 """
@@ -211,7 +211,7 @@ def get_divergence(name: str | Divergence) -> Divergence:
 
 
 def divergence_value(p: ArrayLike, q: ArrayLike, divergence: str | Divergence) -> float:
-    """``I_φ(p, q) = Σ_j q_j φ(p_j / q_j)`` (Eq. (19)); an empty cell (``q_j = 0``) costs ``p_j · L``.
+    """``I_φ(p, q) = Σ_j q_j φ(p_j / q_j)`` (Eq. (20)); an empty cell (``q_j = 0``) costs ``p_j · L``.
 
     Near ``p_j = q_j`` a term is evaluated as ``q_j φ(1 + u_j)`` with ``u_j = (p_j - q_j) / q_j`` (accurate
     for tiny divergences), elsewhere from ``t_j = p_j / q_j`` (accurate for tiny ``p_j``).

@@ -36,7 +36,7 @@ def worst_case(
     divergence
         One of ``kl`` (default), ``burg``, ``j``, ``chi2``, ``modified_chi2``, ``hellinger``, ``variation``.
     alpha, rho
-        Either the significance level (default 0.05; ``ρ`` then follows Eq. (22) with ``m`` cells, see
+        Either the significance level (default 0.05; ``ρ`` then follows Eq. (25) with ``m`` cells, see
         :func:`~services.dro.radius.rho_from_alpha`) or the radius itself; not both.
     support
         ``"binned"`` (default; ``bins`` equal-width bins over ``[min, max]``, bin means as values) or
@@ -45,7 +45,7 @@ def worst_case(
         ``w``, the number of bins (``>= 2``).
     method
         ``"exact"`` (default; :func:`~services.dro.exact.solve_exact` on the bin means) or ``"box_lp"`` (the
-        paper's Eq. (24) on the bin midpoints, binned support only).
+        paper's Eq. (28) on the bin midpoints, binned support only).
 
     Raises
     ------

@@ -47,7 +47,7 @@ def check_problem(values: ArrayLike, q: ArrayLike) -> tuple[FloatArray, FloatArr
 
 
 def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | Divergence) -> WorstCase:
-    """``sup { Σ p_j f_j : p in the simplex, I_φ(p, q) <= ρ }`` exactly (Eq. (18), ball of Eq. (20)).
+    """``sup { Σ p_j f_j : p in the simplex, I_φ(p, q) <= ρ }`` exactly (Eq. (18), ball of Eq. (21)).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""The radius of the φ-divergence ball from a significance level (paper Eq. (22); METHOD section 8)."""
+"""The radius of the φ-divergence ball from a significance level (paper Eq. (25); METHOD section 8)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ __all__ = ["rho_from_alpha"]
 
 
 def rho_from_alpha(divergence: str | Divergence, alpha: float, n_samples: int, n_cells: int) -> float:
-    """``ρ = φ''(1) / (2M) · χ²_{m-1, 1-α}`` (Eq. (22)); variation: ``ρ_V = sqrt(χ²_{m-1, 1-α} / M)``.
+    """``ρ = φ''(1) / (2M) · χ²_{m-1, 1-α}`` (Eq. (25)); variation: ``ρ_V = sqrt(χ²_{m-1, 1-α} / M)``.
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """Exact worst-case expectations, one solver per divergence, on a reduced and normalized problem.
 
-The problem (METHOD section 8, paper Eq. (18) with the ball of Eq. (20))::
+The problem (METHOD section 8, paper Eq. (18) with the ball of Eq. (21))::
 
     sup { Σ_j p_j f_j : p in the simplex, I_φ(p, q) <= ρ }
 
@@ -11,7 +11,7 @@ dominated: a unit of mass costs ``L`` on any of them). Saturation, ``ρ = 0`` an
 with by the caller (:mod:`services.dro.exact`).
 
 Every solver returns the worst-case ``p`` over the reduced cells, the mass popped to the empty cell, and
-the dual certificate ``(η, λ)`` of the convex dual (Ben-Tal et al. 2013, Eq. (2.8))::
+the dual certificate ``(η, λ)`` of the convex dual (Ben-Tal et al. 2013)::
 
     inf_{λ >= 0, η}  η + λρ + λ Σ_{q_j > 0} q_j φ*((f_j - η) / λ),   with f_j - η <= λ L on empty cells,
 

@@ -1,4 +1,4 @@
-"""The paper's box LP (Eq. 24): its box is the ball's projection; it bounds the exact worst case."""
+"""The paper's box LP (Eq. 28): its box is the ball's projection; it bounds the exact worst case."""
 
 from __future__ import annotations
 
