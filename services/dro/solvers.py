@@ -126,7 +126,7 @@ def _newton_increasing(
         if abs(nxt - x) <= 1e-15 * (1.0 + abs(x)):
             return nxt
         x = nxt
-    return x
+    raise ArithmeticError(f"Newton's method did not converge (last x = {x})")
 
 
 # ----------------------------------------------------------------------------------------- closed forms

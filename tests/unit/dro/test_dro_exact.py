@@ -96,6 +96,9 @@ def test_worst_case_p_is_feasible_and_certified_by_the_dual(name: str) -> None:
         if q.sum() == 0:
             continue
         q /= q.sum()
+        if rng.random() < 0.5:  # cells in any order
+            order = rng.permutation(m)
+            values, q = values[order], q[order]
         rho = float(np.exp(rng.uniform(np.log(1e-6), np.log(5.0))))
         wc = solve_exact(values, q, rho, name)
         _assert_feasible(wc, name)
