@@ -310,6 +310,13 @@ def _step3(
     ], n_slots
 
 
+def _touching(city: City, paths: Sequence[PlannedPath], nodes: NDArray[np.bool_]) -> list[PlannedPath]:
+    """The paths that pass through at least one of ``nodes`` (in order): the only ones ``tasks.reaches`` can
+    find a pending task on, so it is given only these."""
+    head = city.network.edge_v
+    return [p for p in paths if nodes[p.start] or bool(nodes[head[p.edges]].any())]
+
+
 def _visits(city: City, counts: CountsView, taxi: Taxi, edges: NDArray[np.int64], now: float) -> list[Visit]:
     seen = counts.visited.get(taxi.id, frozenset())
     return [Visit(taxi.id, k, c) for k, c in timed_pairs(city, edges, now) if (k, c) not in seen]
@@ -401,7 +408,9 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     unmatched = tuple(riders[j].id for j in range(len(riders)) if j not in taken)
 
     # Step 3: open tasks not already reached by a Step 1 path, grouped by POI node
-    passive1 = reaches(city, planned, tasks)
+    task_nodes = np.zeros(city.network.n_nodes, dtype=bool)
+    task_nodes[[t.node for t in tasks if t.status == "pending"]] = True
+    passive1 = reaches(city, _touching(city, planned, task_nodes), tasks)
     open_tasks = sorted(
         (t for t in tasks if t.is_open(now) and t.id not in passive1), key=lambda t: (t.scheduled_at_s, t.id)
     )
@@ -446,7 +455,7 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
             planned.append(PlannedPath(taxi.id, taxi.node, route.edges, now, target_task=task_id))
             visits.extend(_visits(city, counts, taxi, route.edges, now))
 
-    found = reaches(city, planned, tasks)
+    found = reaches(city, _touching(city, planned, task_nodes), tasks)
     updates = {t.id: t for t in due_completions(tasks, now)}
     updates.update({t.id: t for t in apply_reaches(tasks, found, now)})
     task_updates = tuple(updates.values())
