@@ -573,50 +573,72 @@ def improve_routes(
     for rows, cells in dense:
         total_n[rows, cells] += 1  # a route's pairs are distinct
     history = [_joint_from_counts(city, counts.counts, total)]
+    zeros = [counted(r.taxi_id) for r in routes]
+    targets = [np.array([r.target], dtype=np.int64) for r in routes]
+
+    def replan(total_n: NDArray[np.int64], i: int) -> tuple[Route, NDArray[np.int64]]:
+        """Route ``i`` re-planned against the counts plus the others' visits (``total_n`` less its own)."""
+        r = routes[i]
+        others_n = total_n.copy()
+        others_n[dense[i]] -= 1
+        table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra_counts=others_n)
+        rs, _ = plan_routes(
+            city,
+            table,
+            r.taxi_id,
+            r.source,
+            visited[i],
+            targets[i],
+            depart_s,
+            counted=zeros[i],
+            fastest=fastest[i] if fastest is not None else None,
+        )
+        return rs.route(0), others_n
+
+    # Re-plans are independent until one is accepted: a batch of the next ones is planned at once (on
+    # WORKERS threads) and taken in order; after an acceptance the rest of the batch is planned again
+    # against the new counts, so the outcome is that of one re-plan after the other.
+    batch = 1 if WORKERS <= 1 else 4 * WORKERS
     passes = 0
     accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
     planned_at = [-1] * len(routes)
     for _ in range(city.params.max_iter):
         passes += 1
         changed = False
-        for i, r in enumerate(routes):
-            if planned_at[i] == accepted:
-                continue
-            planned_at[i] = accepted
-            others_n = total_n.copy()
-            others_n[dense[i]] -= 1
-            table = gain_table(city, counts.counts, k0, n_slots, depart_s, extra_counts=others_n)
-            rs, _ = plan_routes(
-                city,
-                table,
-                r.taxi_id,
-                r.source,
-                visited[i],
-                np.array([r.target], dtype=np.int64),
-                depart_s,
-                counted=counted(r.taxi_id),
-                fastest=fastest[i] if fastest is not None else None,
-            )
-            cand = rs.route(0)
-            if np.array_equal(cand.edges, r.edges):
-                continue
-            cand_pairs = route_pairs(city, cand, visited[i], depart_s)
-            others = total.copy()
-            others.subtract(pairs[i])
-            trial = others.copy()
-            trial.update(cand_pairs)
-            u_new = _joint_from_counts(city, counts.counts, trial)
-            if u_new > history[-1] * (1 + 1e-12) + 1e-300:
-                routes[i] = cand
-                pairs[i] = cand_pairs
-                total = trial
-                dense[i] = slots_cells(cand_pairs)
-                total_n = others_n
-                total_n[dense[i]] += 1
-                history.append(u_new)
-                accepted += 1
-                planned_at[i] = accepted
-                changed = True
+        i = 0
+        while i < len(routes):
+            todo: list[int] = []
+            j = i
+            while j < len(routes) and len(todo) < batch:
+                if planned_at[j] != accepted:
+                    todo.append(j)
+                j += 1
+            i = j
+            for a, (cand, others_n) in zip(
+                todo, parallel_map(functools.partial(replan, total_n), todo), strict=True
+            ):
+                planned_at[a] = accepted
+                if np.array_equal(cand.edges, routes[a].edges):
+                    continue
+                cand_pairs = route_pairs(city, cand, visited[a], depart_s)
+                others = total.copy()
+                others.subtract(pairs[a])
+                trial = others.copy()
+                trial.update(cand_pairs)
+                u_new = _joint_from_counts(city, counts.counts, trial)
+                if u_new > history[-1] * (1 + 1e-12) + 1e-300:
+                    routes[a] = cand
+                    pairs[a] = cand_pairs
+                    total = trial
+                    dense[a] = slots_cells(cand_pairs)
+                    total_n = others_n
+                    total_n[dense[a]] += 1
+                    history.append(u_new)
+                    accepted += 1
+                    planned_at[a] = accepted
+                    changed = True
+                    i = a + 1  # the rest of the batch saw the old counts
+                    break
         if not changed:
             break
     return routes, history, passes

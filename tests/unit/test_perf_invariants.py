@@ -183,14 +183,19 @@ def reference_improve_routes(city, counts, routes, depart_s, n_slots):  # type: 
     return routes, history, passes
 
 
-@pytest.mark.parametrize("contracted", [True, False])
-def test_algorithm2_with_known_fastest_paths_and_dense_counts_equals_reference(contracted: bool) -> None:
-    """``improve_routes`` fed the Step 3 fastest paths (no kappa = 0 re-search) and keeping the others' visits
-    as a dense count gives the same routes, the same utility history (bit for bit) and the same passes as
-    the reference; on these instances it does replace routes, so the acceptance path is exercised."""
+@pytest.mark.parametrize("contracted,workers", [(True, 1), (True, 2), (False, 1), (False, 3)])
+def test_algorithm2_with_known_fastest_paths_and_dense_counts_equals_reference(
+    contracted: bool, workers: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``improve_routes`` fed the Step 3 fastest paths (no kappa = 0 re-search), keeping the others' visits
+    as a dense count and planning batches of re-plans on several threads gives the same routes, the same
+    utility history (bit for bit) and the same passes as the reference; on these instances it does
+    replace routes, so the acceptance path (and the re-planning of a batch after it) is exercised."""
+    from services import routing
     from services.model import CountsView, TaxiId
     from services.routing import CountedIn, improve_routes, plan_routes
 
+    monkeypatch.setattr(routing, "WORKERS", workers)
     replaced = 0
     try:
         contraction.ENABLED = contracted
@@ -210,7 +215,7 @@ def test_algorithm2_with_known_fastest_paths_and_dense_counts_equals_reference(c
             )
             table = gain_table(city, counts.counts, k0, 3, now)
             routes, fastest = [], []
-            for t in range(int(rng.integers(3, 8))):
+            for t in range(int(rng.integers(3, 14))):
                 tid = TaxiId(f"t{t}")
                 src, dst = (int(x) for x in rng.choice(n, 2, replace=False))
                 rs, _ = plan_routes(
