@@ -113,9 +113,10 @@ def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> 
     limit_s = radius / ga.min_speed_mps * (1 + 1e-9)
     taxi_nodes = np.array([t.node for t in taxis], dtype=np.int64)
     none = np.zeros(0, dtype=np.int64)
-    found: list[tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]] = []
-    preds: list[NDArray[np.int64]] = []
-    for rider in riders:
+
+    def search(
+        rider: Rider,
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
         dist, pred_rev, length = contraction.dijkstra(
             ga,
             ga.rev_time_s,
@@ -126,13 +127,14 @@ def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> 
             reverse_graph=True,
             queries=taxi_nodes,
         )
-        preds.append(pred_rev)
-        if len(taxi_nodes) == 0:
-            continue
         lt = length[taxi_nodes]
         wt = dist[taxi_nodes]
         ok = np.flatnonzero(np.isfinite(wt) & (lt <= radius + 1e-6))
-        found.append((ok, lt[ok], wt[ok]))
+        return pred_rev, ok, lt[ok], wt[ok]
+
+    searched = parallel_map(search, riders)
+    preds = [x[0] for x in searched]
+    found = [x[1:] for x in searched] if len(taxi_nodes) else []
     counts = [len(ok) for ok, _, _ in found]
     if sum(counts):
         taxi = np.concatenate([ok for ok, _, _ in found]).astype(np.int64)
@@ -350,7 +352,7 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     taxis = instr + ordinary  # instrumented first: indices < len(instr) are instrumented
 
     pickups = _pickup_legs(city, riders, taxis)
-    service = [_service_leg(city, r) for r in riders]
+    service = parallel_map(functools.partial(_service_leg, city), riders)
     n_slots = INITIAL_SLOTS
 
     # Step 1
