@@ -87,13 +87,13 @@ class _Pickups:
     wait_s: NDArray[np.float64]
     pred_rev: list[NDArray[np.int64]]
     taxi_nodes: NDArray[np.int64]
+    keys: NDArray[np.int64]  # rider * number of taxis + taxi: ascending
 
     def find(self, i: int, j: int) -> int:
         """Position of the pair (taxi ``i``, rider ``j``) in the arrays."""
-        n = len(self.taxi_nodes)
-        keys = self.rider * n + self.taxi
-        k = int(np.searchsorted(keys, j * n + i))
-        if k >= len(keys) or keys[k] != j * n + i:
+        key = j * len(self.taxi_nodes) + i
+        k = int(np.searchsorted(self.keys, key))
+        if k >= len(self.keys) or self.keys[k] != key:
             raise KeyError((i, j))
         return k
 
@@ -144,7 +144,7 @@ def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> 
     else:
         taxi = rider_idx = np.zeros(0, dtype=np.int64)
         lengths = waits = np.zeros(0)
-    return _Pickups(taxi, rider_idx, lengths, waits, preds, taxi_nodes)
+    return _Pickups(taxi, rider_idx, lengths, waits, preds, taxi_nodes, rider_idx * len(taxi_nodes) + taxi)
 
 
 def _service_leg(city: City, rider: Rider) -> _Leg:
