@@ -62,7 +62,7 @@ Algorithm 2's re-plans). The compiled kernels release the GIL, so on a machine w
 by side; results are collected in order, so decisions do not depend on it. 1 runs everything on the
 calling thread."""
 
-_pool: ThreadPoolExecutor | None = None
+_pool: tuple[ThreadPoolExecutor, int, int] | None = None  # (pool, its workers, the process it was made in)
 _pool_lock = threading.Lock()
 
 
@@ -75,9 +75,13 @@ def parallel_map(fn: Callable[[_T], _R], items: Sequence[_T]) -> list[_R]:
     if workers <= 1 or len(items) < 2 * workers:
         return [fn(x) for x in items]
     with _pool_lock:
-        if _pool is None or getattr(_pool, "_max_workers", 0) != workers:
-            _pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sd-search")
-        pool = _pool
+        if _pool is None or _pool[1:] != (workers, os.getpid()):  # a forked child has none of the threads
+            _pool = (
+                ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sd-search"),
+                workers,
+                os.getpid(),
+            )
+        pool = _pool[0]
     n_chunks = min(len(items), 4 * workers)
     bounds = np.linspace(0, len(items), n_chunks + 1).astype(int).tolist()
     futures = [

@@ -282,3 +282,45 @@ def test_timed_pairs_equal_sensing_timed_cells(seed: int) -> None:
             )
         ]
         assert list(_g_route(city, edges)) == cells
+
+
+def test_parallel_map_keeps_order_and_raises_the_first_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    from services import routing
+
+    monkeypatch.setattr(routing, "WORKERS", 3)
+    assert routing.parallel_map(lambda x: x * x, range(50)) == [x * x for x in range(50)]
+    assert routing.parallel_map(lambda x: x, []) == []
+
+    def fail(x: int) -> int:
+        if x in (17, 41):
+            raise ValueError(f"item {x}")
+        return x
+
+    with pytest.raises(ValueError, match="item 17"):
+        routing.parallel_map(fail, range(50))
+
+
+@pytest.mark.parametrize("name", ["chengdu", "manhattan"])
+def test_decide_is_the_same_on_one_thread_and_several(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Whole epochs on the bundled cities (counts committed between them) with WORKERS = 1 and 2."""
+    from services import routing
+    from services.citydata import load_city
+    from services.dispatch import decide
+    from services.model import CountsView
+    from tests.unit.test_contraction import CITIES, random_epochs
+
+    city = load_city(CITIES / name)
+    counts: dict[IntervalKey, np.ndarray] = {}
+    visited: dict[str, set[tuple[IntervalKey, int]]] = {}
+    for snap, tasks in random_epochs(city, 5, 4 if name == "chengdu" else 2):
+        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})  # type: ignore[misc]
+        monkeypatch.setattr(routing, "WORKERS", 1)
+        one = decide(city, view, snap, tasks)
+        monkeypatch.setattr(routing, "WORKERS", 2)
+        two = decide(city, view, snap, tasks)
+        assert one == two
+        assert one.task_assignments
+        for v in one.visits:
+            if (v.interval, v.cell) not in visited.setdefault(v.taxi_id, set()):
+                visited[v.taxi_id].add((v.interval, v.cell))
+                counts.setdefault(v.interval, np.zeros(city.grid.n_cells, dtype=np.int64))[v.cell] += 1
