@@ -974,12 +974,15 @@ def eval_tree(
     k = targets.shape[0]
     n_slots = gain.shape[0]
     n_cells = gain.shape[1]
-    # the union of the targets' tree paths, and each member's children
+    # the union of the targets' tree paths, each member's children, and where each target's result goes
     in_union = np.zeros(n, dtype=np.bool_)
+    first_of = np.full(n, -1, dtype=np.int64)  # the first index in ``targets`` of a node
     members = np.empty(n, dtype=np.int64)
     n_mem = 0
     for i in range(k):
         v = targets[i]
+        if first_of[v] < 0:
+            first_of[v] = i
         while pred_edge[v] >= 0 and not in_union[v]:
             in_union[v] = True
             members[n_mem] = v
@@ -996,17 +999,12 @@ def eval_tree(
         p = tail[pred_edge[members[q]]]
         kids[fill[p]] = members[q]
         fill[p] += 1
-    # running state per node of the union (and the source)
-    at_t = np.empty(n)
-    at_g = np.empty(n)
-    at_q = np.empty(n, dtype=np.int64)
-    at_l = np.empty(n)
-    at_ms = np.empty(n, dtype=np.int64)
-    at_t[source] = depart_s
-    at_g[source] = 0.0
-    at_q[source] = 0
-    at_l[source] = 0.0
-    at_ms[source] = 0
+    out_g = np.zeros(k)
+    out_q = np.zeros(k, dtype=np.int64)
+    out_t = np.zeros(k)
+    out_l = np.zeros(k)
+    out_ms = np.zeros(k, dtype=np.int64)
+    # depth-first, the running state of the current path kept per depth
     seen = np.zeros((n_slots, n_cells), dtype=np.bool_)
     log_s = np.empty(n_slots * n_cells + 1, dtype=np.int64)
     log_c = np.empty(n_slots * n_cells + 1, dtype=np.int64)
@@ -1014,21 +1012,31 @@ def eval_tree(
     st_node = np.empty(n_mem + 1, dtype=np.int64)
     st_next = np.empty(n_mem + 1, dtype=np.int64)
     st_log = np.empty(n_mem + 1, dtype=np.int64)
+    st_t = np.empty(n_mem + 1)
+    st_g = np.empty(n_mem + 1)
+    st_q = np.empty(n_mem + 1, dtype=np.int64)
+    st_l = np.empty(n_mem + 1)
+    st_ms = np.empty(n_mem + 1, dtype=np.int64)
     st_node[0] = source
     st_next[0] = kid_ptr[source]
     st_log[0] = 0
-    depth = 1
-    while depth > 0:
-        v = st_node[depth - 1]
-        it = st_next[depth - 1]
+    st_t[0] = depart_s
+    st_g[0] = 0.0
+    st_q[0] = 0
+    st_l[0] = 0.0
+    st_ms[0] = 0
+    depth = 0
+    while depth >= 0:
+        v = st_node[depth]
+        it = st_next[depth]
         if it < kid_ptr[v + 1]:
-            st_next[depth - 1] = it + 1
+            st_next[depth] = it + 1
             w = kids[it]
             e = pred_edge[w]
-            t = at_t[v]
-            g = at_g[v]
-            gq = at_q[v]
-            ms = at_ms[v]
+            t = st_t[depth]
+            g = st_g[depth]
+            gq = st_q[depth]
+            ms = st_ms[depth]
             te = edge_time[e]
             start = n_log
             for j in range(ec_ptr[e], ec_ptr[e + 1]):
@@ -1048,35 +1056,39 @@ def eval_tree(
                 if gain[slot, c] > 0.0:
                     g += gain[slot, c]
                     gq += gain_q[slot, c]
-            at_t[w] = t + te
-            at_g[w] = g
-            at_q[w] = gq
-            at_l[w] = at_l[v] + edge_len[e]
-            at_ms[w] = ms
+            length = st_l[depth] + edge_len[e]
+            depth += 1
             st_node[depth] = w
             st_next[depth] = kid_ptr[w]
             st_log[depth] = start
-            depth += 1
+            st_t[depth] = t + te
+            st_g[depth] = g
+            st_q[depth] = gq
+            st_l[depth] = length
+            st_ms[depth] = ms
+            i = first_of[w]
+            if i >= 0:
+                out_g[i] = g
+                out_q[i] = gq
+                out_t[i] = (t + te) - depart_s
+                out_l[i] = length
+                out_ms[i] = ms
         else:
-            for q in range(st_log[depth - 1], n_log):
+            for q in range(st_log[depth], n_log):
                 seen[log_s[q], log_c[q]] = False
-            n_log = st_log[depth - 1]
+            n_log = st_log[depth]
             depth -= 1
-    out_g = np.zeros(k)
-    out_q = np.zeros(k, dtype=np.int64)
-    out_t = np.zeros(k)
-    out_l = np.zeros(k)
     max_slot = 0
     for i in range(k):
-        v = targets[i]
-        if pred_edge[v] < 0:
-            continue  # the source itself, or not reached: an empty path, as eval_targets reads it
-        out_g[i] = at_g[v]
-        out_q[i] = at_q[v]
-        out_t[i] = at_t[v] - depart_s
-        out_l[i] = at_l[v]
-        if at_ms[v] > max_slot:
-            max_slot = at_ms[v]
+        f = first_of[targets[i]]
+        if f != i:  # a repeated target: the result of its first occurrence
+            out_g[i] = out_g[f]
+            out_q[i] = out_q[f]
+            out_t[i] = out_t[f]
+            out_l[i] = out_l[f]
+            out_ms[i] = out_ms[f]
+        if out_ms[i] > max_slot:
+            max_slot = out_ms[i]
     return out_g, out_q, out_t, out_l, max_slot
 
 
