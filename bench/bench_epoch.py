@@ -335,12 +335,17 @@ def write_report(results: dict[str, dict]) -> None:
             before, after = r["load_average"]["before"], r["load_average"]["after"]
             lines.append(
                 f"- {name}: load average (1/5/15 min) {before[0]:.2f}/{before[1]:.2f}/{before[2]:.2f} before, "
-                f"{after[0]:.2f}/{after[1]:.2f}/{after[2]:.2f} after (other work on the machine meanwhile)"
+                f"{after[0]:.2f}/{after[1]:.2f}/{after[2]:.2f} after its runs (the machine is shared)"
             )
+    inside = ", ".join(
+        f"{name} {r['inprocess_in_horizon']['n']} of {r['inprocess']['n']}"
+        for name, r in results.items()
+        if "inprocess_in_horizon" in r
+    )
     lines += [
         "",
-        "Where the time goes: the tail is the epochs inside the sensing horizon (08:00-12:00: the first 72 of the",
-        "200; `inprocess_in_horizon` in the JSON) with many open tasks; outside it every gain is 0 and Step 3 grows",
+        f"Where the time goes: the tail is the epochs inside the sensing horizon (08:00-12:00: {inside or '-'};",
+        "`inprocess_in_horizon` in the JSON) with many open tasks; outside it every gain is 0 and Step 3 grows",
         "only the fastest-path tree. Step 3 grows four trees per vacant instrumented taxi (one per kappa), each until",
         "every open POI is settled, on the network with degree-2 chains contracted (`services/contraction.py`;",
         "Chengdu 6,536 -> 2,236 nodes, Manhattan barely contracts), and evaluates every POI's route in one walk over",
