@@ -46,7 +46,9 @@ def dev_settings(settings: Settings) -> tuple[Settings, str | None]:
     if settings.tokens:
         return settings, None
     token = new_token()
-    return settings.model_copy(update={"tokens": {token: ["read", "dispatch"]}, "host": "127.0.0.1"}), token
+    return settings.model_copy(
+        update={"tokens": {token: ["read", "dispatch", "admin"]}, "host": "127.0.0.1"}
+    ), token
 
 
 def openapi_document() -> str:
@@ -302,7 +304,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             print(
                 f"SD_TOKENS is not set: ignoring host {requested_host!r}, binding 127.0.0.1 only", flush=True
             )
-        print(f"development token (scopes read, dispatch): {token}", flush=True)
+        print(f"development token (scopes read, dispatch, admin): {token}", flush=True)
         print(
             f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.port}/v1/cities",
             flush=True,

@@ -50,7 +50,8 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 _bearer = HTTPBearer(
     auto_error=False,
-    description="A token from SD_TOKENS; GET /v1/... needs scope `read`, POST needs `dispatch`.",
+    description="A token from SD_TOKENS; GET /v1/... needs scope `read`, epoch and task posts `dispatch`, "
+    "POST /v1/dro/worst-case `read`, POST .../fleet/solve `admin`.",
 )
 
 

@@ -28,7 +28,7 @@ def test_openapi_writes_the_document(tmp_path: Path) -> None:
 
 def test_dev_settings_make_a_token_and_bind_loopback() -> None:
     s, token = cli.dev_settings(Settings(tokens={}, host="0.0.0.0"))
-    assert token is not None and s.tokens == {token: ["read", "dispatch"]} and s.host == "127.0.0.1"
+    assert token is not None and s.tokens == {token: ["read", "dispatch", "admin"]} and s.host == "127.0.0.1"
     configured = Settings(tokens={"abcdefgh123": ["read"]}, host="0.0.0.0")
     assert cli.dev_settings(configured) == (configured, None)
 
@@ -43,7 +43,7 @@ def test_settings_from_environment(monkeypatch: pytest.MonkeyPatch) -> None:
         and s.store == "redis"
         and s.max_body_bytes == 2048
     )
-    monkeypatch.setenv("SD_TOKENS", '{"tok1-abcdefgh": ["admin"]}')
+    monkeypatch.setenv("SD_TOKENS", '{"tok1-abcdefgh": ["root"]}')
     with pytest.raises(ValueError):
         Settings()
 
