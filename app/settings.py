@@ -45,7 +45,9 @@ class Settings(BaseSettings):
         default=8, ge=1, le=100, description="Solve/commit tries on version conflicts."
     )
     retention_s: int = Field(
-        default=8 * 86400, ge=3600, description="How long counts and epoch records are kept."
+        default=15 * 86400,
+        ge=3600,
+        description="How long counts, epoch records and recorded demand are kept (longer than the worker's M days).",
     )
     log_level: Literal["debug", "info", "warning", "error"] = Field(default="info", description="Log level.")
     var_dir: Path = Field(
