@@ -47,7 +47,7 @@ class Settings(BaseSettings):
     retention_s: int = Field(
         default=15 * 86400,
         ge=3600,
-        description="How long counts, epoch records and recorded demand are kept (longer than the worker's M days).",
+        description="How long counts, epoch records and recorded demand are kept (over the worker's M days).",
     )
     log_level: Literal["debug", "info", "warning", "error"] = Field(default="info", description="Log level.")
     var_dir: Path = Field(
