@@ -186,6 +186,46 @@ def _source_offset(pos_se: NDArray[np.int64], pos_off: NDArray[np.int64], source
     return -1
 
 
+@numba.njit(inline="always", **_NOPYTHON)  # type: ignore[misc]
+def _target_need(
+    kept_of: NDArray[np.int64],
+    se_tail: NDArray[np.int64],
+    pos_se: NDArray[np.int64],
+    pos_off: NDArray[np.int64],
+    source: int,
+    targets: NDArray[np.int64],
+    nk: int,
+) -> tuple[NDArray[np.bool_], int]:
+    """The kept nodes a search must settle before every target is known, and how many there are: a kept
+    target itself, and for an interior target the tail of each super-edge it lies on (unless the source
+    reaches it directly along that super-edge)."""
+    need = np.zeros(nk, dtype=np.bool_)
+    sk = kept_of[source]
+    remaining = 0
+    for t in targets:
+        if t == source:
+            continue
+        k = kept_of[t]
+        if k >= 0:
+            if not need[k]:
+                need[k] = True
+                remaining += 1
+            continue
+        for j in range(2):
+            s = pos_se[t, j]
+            if s < 0:
+                continue
+            if sk < 0:
+                os = _source_offset(pos_se, pos_off, source, s)
+                if os >= 0 and os < pos_off[t, j]:
+                    continue  # reached directly from the source along this super-edge
+            k = se_tail[s]
+            if not need[k]:
+                need[k] = True
+                remaining += 1
+    return need, remaining
+
+
 @numba.njit(**_NOPYTHON)  # type: ignore[misc]
 def _unfold_chain(
     k: int,
@@ -274,31 +314,9 @@ def dijkstra_contracted(
     pse = np.full(nk, -1, dtype=np.int64)
     pstart = np.zeros(nk, dtype=np.int64)
     done = np.zeros(nk, dtype=np.bool_)
-    need = np.zeros(nk, dtype=np.bool_)
     sk = kept_of[source]
     stop_early = targets.shape[0] > 0
-    remaining = 0
-    for t in targets:
-        if t == source:
-            continue
-        k = kept_of[t]
-        if k >= 0:
-            if not need[k]:
-                need[k] = True
-                remaining += 1
-            continue
-        for j in range(2):
-            s = pos_se[t, j]
-            if s < 0:
-                continue
-            if sk < 0:
-                os = _source_offset(pos_se, pos_off, source, s)
-                if os >= 0 and os < pos_off[t, j]:
-                    continue  # reached directly from the source along this super-edge
-            k = se_tail[s]
-            if not need[k]:
-                need[k] = True
-                remaining += 1
+    need, remaining = _target_need(kept_of, se_tail, pos_se, pos_off, source, targets, nk)
     keys = np.empty(ns + 3)
     vals = np.empty(ns + 3, dtype=np.int64)
     size = 0
@@ -505,31 +523,9 @@ def tree_search(
     pse = np.full(nk, -1, dtype=np.int64)
     pstart = np.zeros(nk, dtype=np.int64)
     done = np.zeros(nk, dtype=np.bool_)
-    need = np.zeros(nk, dtype=np.bool_)
     sk = kept_of[source]
     stop_early = targets.shape[0] > 0
-    remaining = 0
-    for t in targets:
-        if t == source:
-            continue
-        k = kept_of[t]
-        if k >= 0:
-            if not need[k]:
-                need[k] = True
-                remaining += 1
-            continue
-        for j in range(2):
-            s = pos_se[t, j]
-            if s < 0:
-                continue
-            if sk < 0:
-                os = _source_offset(pos_se, pos_off, source, s)
-                if os >= 0 and os < pos_off[t, j]:
-                    continue  # reached directly from the source along this super-edge
-            k = se_tail[s]
-            if not need[k]:
-                need[k] = True
-                remaining += 1
+    need, remaining = _target_need(kept_of, se_tail, pos_se, pos_off, source, targets, nk)
     keys = np.empty(ns + 3)
     vals = np.empty(ns + 3, dtype=np.int64)
     size = 0
