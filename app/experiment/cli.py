@@ -27,14 +27,24 @@ __all__ = ["experiment_main", "fleet_experiment_main", "replay_main"]
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _ints(text: str) -> tuple[int, ...]:
+def _numbers(kind: type[int] | type[float], text: str) -> tuple[Any, ...]:
+    """A comma-separated list of at least one number (argparse type)."""
+    what = "integers" if kind is int else "numbers"
     try:
-        values = tuple(int(v) for v in text.split(",") if v.strip())
+        values = tuple(kind(v) for v in text.split(",") if v.strip())
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated {what}, got {text!r}") from None
     if not values:
-        raise argparse.ArgumentTypeError("expected at least one integer")
+        raise argparse.ArgumentTypeError(f"expected at least one of the {what}")
     return values
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    return _numbers(int, text)
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    return _numbers(float, text)
 
 
 def experiment_main(argv: Sequence[str]) -> int:
@@ -76,13 +86,6 @@ def experiment_main(argv: Sequence[str]) -> int:
         f"process(es); report: {args.report_dir / 'EXPERIMENT.md'}"
     )
     return 0
-
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
 
 
 def fleet_experiment_main(argv: Sequence[str]) -> int:

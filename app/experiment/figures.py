@@ -38,19 +38,31 @@ def _series(table: Sequence[dict[str, Any]], column: str, scenario: int, mode: s
     return dict(sorted(out.items()))
 
 
+def _band(ax: Any, table: Sequence[dict[str, Any]], column: str, scenario: int, scale: float = 1.0) -> None:
+    """One scenario's ``column`` against N1 (runs with active sensing): the mean over seeds, band = min-max."""
+    s = _series(table, column, scenario, "active")
+    if not s:
+        return
+    x = np.array(list(s))
+    v = [np.array(vals) * scale for vals in s.values()]
+    color = _COLORS.get(scenario)
+    ax.plot(x, [a.mean() for a in v], "o-", color=color, label=f"scenario {scenario}")
+    ax.fill_between(x, [a.min() for a in v], [a.max() for a in v], color=color, alpha=0.15)
+
+
+def _save(fig: Any, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def kpi_panels(cfg: ExperimentConfig, table: Sequence[dict[str, Any]], path: Path) -> Path:
     """The paper's Figures C.1-C.3 in one: each KPI against N1, one line per scenario, band = min-max over seeds."""
     fig, axes = plt.subplots(2, 3, figsize=(13, 7.2))
     for ax, (column, label, scale) in zip(axes.ravel(), _PANELS, strict=True):
         for sc in cfg.scenarios:
-            s = _series(table, column, sc, "active")
-            if not s:
-                continue
-            x = np.array(list(s))
-            v = [np.array(vals) * scale for vals in s.values()]
-            mean = np.array([a.mean() for a in v])
-            ax.plot(x, mean, "o-", color=_COLORS.get(sc), label=f"scenario {sc}")
-            ax.fill_between(x, [a.min() for a in v], [a.max() for a in v], color=_COLORS.get(sc), alpha=0.15)
+            _band(ax, table, column, sc, scale)
         ax.set_xlabel("instrumented taxis N1")
         ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
@@ -59,10 +71,7 @@ def kpi_panels(cfg: ExperimentConfig, table: Sequence[dict[str, Any]], path: Pat
         f"{cfg.city}: KPIs against the instrumented fleet (N0 = {cfg.n0}, {cfg.seeds} seeds; line = mean, band = min-max)",
         fontsize=11,
     )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def timeliness_figure(cfg: ExperimentConfig, results: dict[str, dict[str, Any]], n1: int, path: Path) -> Path:
@@ -104,10 +113,7 @@ def timeliness_figure(cfg: ExperimentConfig, results: dict[str, dict[str, Any]],
     fig.suptitle(
         "POI monitoring timeliness, all seeds pooled (x above the points: never monitored)", fontsize=11
     )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _start(result: dict[str, Any]) -> float:
@@ -173,27 +179,15 @@ def route_figure(result: dict[str, Any], path: Path) -> Path:
         f"{city.name}: {len(routes)} enhanced A* monitoring routes (scenario {s['scenario']}, N1 = {s['n1']}, seed {s['seed']})",
         fontsize=10,
     )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def price_figure(cfg: ExperimentConfig, table: Sequence[dict[str, Any]], path: Path) -> Path:
     """Price of sensing against N1: extra average wait and extra riders unserved versus wait-only matching."""
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for sc in cfg.scenarios:
-        for ax, column, scale in (
-            (axes[0], "pos_extra_avg_wait_s", 1.0),
-            (axes[1], "pos_extra_riders_lost", 1.0),
-        ):
-            s = _series(table, column, sc, "active")
-            if not s:
-                continue
-            xs = np.array(list(s))
-            v = [np.array(vals) * scale for vals in s.values()]
-            ax.plot(xs, [a.mean() for a in v], "o-", color=_COLORS.get(sc), label=f"scenario {sc}")
-            ax.fill_between(xs, [a.min() for a in v], [a.max() for a in v], color=_COLORS.get(sc), alpha=0.15)
+        _band(axes[0], table, "pos_extra_avg_wait_s", sc)
+        _band(axes[1], table, "pos_extra_riders_lost", sc)
     axes[0].set_title("extra average wait vs wait-only matching (s)", fontsize=10)
     axes[1].set_title("extra riders unserved vs wait-only matching", fontsize=10)
     for ax in axes:
@@ -201,10 +195,7 @@ def price_figure(cfg: ExperimentConfig, table: Sequence[dict[str, Any]], path: P
         ax.set_xlabel("instrumented taxis N1")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def experiment_figures(

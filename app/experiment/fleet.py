@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from app.experiment.figures import _save  # noqa: E402
 from app.experiment.reference import _git_commit  # noqa: E402
 from app.experiment.runner import run_all  # noqa: E402
 from app.experiment.workload import RunSpec  # noqa: E402
@@ -203,10 +204,7 @@ def _histogram(cfg: FleetExperimentConfig, hist: dict[int, dict[str, list[float]
         ax.set_xlabel("CNY per instrumented vehicle-hour")
         ax.set_ylabel("test days")
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _report(

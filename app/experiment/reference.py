@@ -21,6 +21,7 @@ from app.experiment.runner import run_all
 from app.experiment.workload import RunSpec, load
 from services.sim.demand import DEMAND_VERSION
 from services.sim.engine import SIM_VERSION
+from services.sim.kpi import price_of_sensing
 
 __all__ = ["ExperimentConfig", "specs", "rows", "run_experiment", "aggregate", "KPI_COLUMNS"]
 
@@ -87,14 +88,7 @@ def rows(results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
         row.update({c: r["kpis"].get(c) for c in KPI_COLUMNS})
         base = by_key.get(RunSpec(**{**s, "keep_routes": False}).baseline().key)
         if base is not None and not s["wait_only"]:
-            k, b = r["kpis"], base["kpis"]
-            row["pos_extra_wait_s"] = k["total_wait_s"] - b["total_wait_s"]
-            row["pos_extra_avg_wait_s"] = (
-                None
-                if k["avg_wait_s"] is None or b["avg_wait_s"] is None
-                else k["avg_wait_s"] - b["avg_wait_s"]
-            )
-            row["pos_extra_riders_lost"] = k["riders_unserved"] - b["riders_unserved"]
+            row.update({f"pos_{k}": v for k, v in price_of_sensing(r["kpis"], base["kpis"]).items()})
         out.append(row)
     return out
 

@@ -10,6 +10,8 @@ plus the subsidy; the design KPI is that per instrumented vehicle-hour (METHOD s
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -191,15 +193,24 @@ def run_kpis(city: City, trace: RunTrace) -> RunKpis:
     )
 
 
-def price_of_sensing(run: RunKpis, baseline: RunKpis) -> dict[str, float]:
+def price_of_sensing(run: Mapping[str, Any], baseline: Mapping[str, Any]) -> dict[str, float | None]:
     """What sensing cost the riders, against the same demand and seed matched on wait alone.
 
-    ``extra_wait_s``: total request-to-pickup wait of the run minus the baseline's; ``extra_riders_lost``:
-    riders left unserved minus the baseline's; ``extra_avg_wait_s``: difference of the average waits.
+    ``run`` and ``baseline`` are ``RunKpis.scalars()`` (or the same numbers read back from JSON, where a
+    NaN average is ``None``). ``extra_wait_s``: total request-to-pickup wait of the run minus the
+    baseline's; ``extra_avg_wait_s``: difference of the average waits (``None`` when either run matched
+    nobody); ``extra_riders_lost``: riders left unserved minus the baseline's; ``matching_rate_drop``.
     """
+
+    def diff(key: str, a: Mapping[str, Any], b: Mapping[str, Any]) -> float | None:
+        x, y = a.get(key), b.get(key)
+        if x is None or y is None or not (math.isfinite(x) and math.isfinite(y)):
+            return None
+        return float(x) - float(y)
+
     return {
-        "extra_wait_s": run.total_wait_s - baseline.total_wait_s,
-        "extra_avg_wait_s": run.avg_wait_s - baseline.avg_wait_s,
-        "extra_riders_lost": float(run.riders_unserved - baseline.riders_unserved),
-        "matching_rate_drop": baseline.matching_rate - run.matching_rate,
+        "extra_wait_s": diff("total_wait_s", run, baseline),
+        "extra_avg_wait_s": diff("avg_wait_s", run, baseline),
+        "extra_riders_lost": diff("riders_unserved", run, baseline),
+        "matching_rate_drop": diff("matching_rate", baseline, run),
     }

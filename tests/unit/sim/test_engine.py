@@ -158,9 +158,12 @@ def test_price_of_sensing_is_the_difference_to_the_baseline() -> None:
     base = run_kpis(
         city, simulate(city, d, [], SimConfig(0, 1, 0, drift=False), LocalDispatcher(city), start_nodes=[4])
     )
-    p = price_of_sensing(run, base)
+    p = price_of_sensing(run.scalars(), base.scalars())
     assert p["extra_wait_s"] == pytest.approx(run.total_wait_s - base.total_wait_s)
-    assert p["extra_riders_lost"] == 0.0
+    assert p["extra_avg_wait_s"] == pytest.approx(run.avg_wait_s - base.avg_wait_s)
+    assert p["extra_riders_lost"] == 0.0 and p["matching_rate_drop"] == 0.0
+    nobody = {**base.scalars(), "avg_wait_s": None}  # as read back from JSON when nobody was matched
+    assert price_of_sensing(run.scalars(), nobody)["extra_avg_wait_s"] is None
 
 
 def test_same_seed_same_run_other_seed_other_starts() -> None:
