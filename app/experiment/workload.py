@@ -134,12 +134,13 @@ def tasks_for(spec: RunSpec, date: str, prefix: str = "") -> list[Any]:
     return poi_tasks(_candidates(spec.city), spec.n_tasks, start, city.horizon.length_s, rng, prefix)
 
 
-def run_spec(spec: RunSpec) -> tuple[City, RunTrace]:
-    """Simulate one spec in-process."""
+def run_spec(spec: RunSpec, demand: DemandSet | None = None) -> tuple[City, RunTrace]:
+    """Simulate one spec in-process (on ``demand`` instead of the spec's own, e.g. recorded requests)."""
     city, _ = load(spec.city)
     if city.params.active_sensing != spec.active:
         city = dataclasses.replace(city, params=dataclasses.replace(city.params, active_sensing=spec.active))
-    demand = demand_for(spec)
+    if demand is None:
+        demand = demand_for(spec)
     config = SimConfig(
         n_instrumented=spec.n1,
         n_ordinary=spec.n0,

@@ -24,11 +24,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol
 
-from app.experiment.workload import RunSpec, demand_for, load, tasks_for
+from app.experiment.workload import RunSpec, run_spec
 from services.sim.demand import DEMAND_VERSION, DemandSet
-from services.sim.engine import SIM_VERSION, SimConfig, simulate
+from services.sim.engine import SIM_VERSION
 from services.sim.kpi import run_kpis
-from services.sim.local import LocalDispatcher
 
 __all__ = [
     "CACHE_FORMAT",
@@ -120,17 +119,13 @@ def _finite_or_none(v: float) -> float | None:
 def run_day(job: DayJob) -> DayResult:
     """Simulate one whole day in this process (top level, so a process pool can call it)."""
     started = time.perf_counter()
-    spec = job.spec
-    city, _ = load(spec.city)
-    demand = job.demand if job.demand is not None else demand_for(spec)
-    config = SimConfig(n_instrumented=spec.n1, n_ordinary=spec.n0, n_tasks=spec.n_tasks, seed=spec.seed)
-    trace = simulate(city, demand, tasks_for(spec, demand.date), config, LocalDispatcher(city))
+    city, trace = run_spec(job.spec, job.demand)
     k = run_kpis(city, trace)
     return DayResult(
         key=job.key,
-        size=spec.n1,
-        date=demand.date,
-        n_requests=len(demand.requests),
+        size=job.spec.n1,
+        date=str(trace.demand["date"]),
+        n_requests=len(trace.riders) + trace.n_unposted,
         design_kpi=float(k.design_kpi),
         completion_rate=float(k.completion_rate),
         hour_design_kpi=tuple(float(h.design_kpi) for h in k.hours),
