@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test run demo replay experiment bench bench-epoch bench-sim bench-dro openapi lint
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-sim bench-dro openapi dashboard
 
 install: $(STAMP)
 
@@ -12,11 +12,26 @@ $(STAMP): pyproject.toml
 		py=$$(command -v python3.11 || command -v python3) && \
 		$$py -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' && \
 		$$py -m venv .venv; } || { echo "make: Python 3.11 is required" >&2; exit 1; }
-	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[dev]'
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[dev,research]'
 	@touch $(STAMP)
 
 test:
 	bash scripts/test.sh $(ARGS)
+
+# The gate CI runs before the full suite: formatter check, lint, strict types, then the quick tests
+# (everything not marked slow or redis; the full suite, Redis included, is `make test`).
+check: lint
+	$(PY) -m pytest -q -m "not slow and not redis"
+
+lint: $(STAMP)
+	$(PY) -m ruff format --check .
+	$(PY) -m ruff check .
+	$(PY) -m mypy services app research tests
+
+# Rewrite the code in the house format and apply ruff's safe fixes.
+format: $(STAMP)
+	$(PY) -m ruff format .
+	$(PY) -m ruff check --fix .
 
 run: $(STAMP)
 	$(PY) -m app run
@@ -29,7 +44,11 @@ replay: $(STAMP)
 
 # The paper's numerical test (resumable; writes docs/results/). ARGS="--seeds 3" etc.
 experiment: $(STAMP)
-	$(PY) -m app experiment $(ARGS)
+	$(PY) -m research experiment $(ARGS)
+
+# The paper's Table 2: fleet sizing on train/test days (resumable; writes docs/results/).
+fleet-experiment: $(STAMP)
+	$(PY) -m research fleet-experiment $(ARGS)
 
 # Every benchmark; each writes its own section of docs/PERFORMANCE.md.
 bench: bench-epoch bench-sim bench-dro
@@ -43,9 +62,9 @@ bench-sim: $(STAMP)
 bench-dro: $(STAMP)
 	$(PY) -m bench.bench_dro
 
+# Rebuild the dashboard's static files (app/static/dashboard/) from frontend/ with npm; commit the result.
+dashboard:
+	cd frontend && npm ci --no-audit --no-fund && npm run build
+
 openapi: $(STAMP)
 	$(PY) -m app openapi
-
-lint: $(STAMP)
-	$(PY) -m ruff check .
-	$(PY) -m mypy services app

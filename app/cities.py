@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Literal, TextIO
 
 from app.errors import UnknownCityError
+from app.settings import Settings
 from services.city import City
 from services.citydata import (
     CityDataError,
@@ -70,6 +71,12 @@ class CityRegistry:
         self.user_dir = Path(user_dir) if user_dir is not None else None
         self._cache: dict[str, City] = {}
         self._lock = threading.Lock()
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> CityRegistry:
+        """The one registry of a deployment: bundled cities (``SD_BUNDLED_CITIES_DIR``, default the
+        package's) and imported ones (``SD_CITIES_DIR``). The API, the worker and the CLIs all use it."""
+        return cls(settings.bundled_cities_dir or BUNDLED_DIR, settings.cities_dir)
 
     def _roots(self) -> list[Path]:
         # the user directory first: it shadows bundled cities

@@ -16,6 +16,7 @@ __all__ = [
     "NotFound",
     "UnknownCityError",
     "NoData",
+    "UnknownEpoch",
     "MethodNotAllowed",
     "Conflict",
     "EpochConflict",
@@ -122,6 +123,12 @@ class NoData(NotFound):
     """Nothing to report yet (e.g. coverage before any epoch)."""
 
     kind = "no_data"
+
+
+class UnknownEpoch(NotFound):
+    """No committed epoch of the city has that id (never posted, or expired after the retention)."""
+
+    kind = "unknown_epoch"
 
 
 class MethodNotAllowed(ServiceError):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 from collections.abc import AsyncIterator
@@ -11,16 +12,18 @@ from fastapi import FastAPI
 from fastapi.routing import APIRoute
 from starlette.types import ASGIApp
 
-from app.api import cities, dispatch, dro, fleet, ops
+from app.api import cities, dashboard, dispatch, dro, epochs, fleet, ops
 from app.api.handlers import error_response, install_error_handlers
 from app.api.limits import BodyLimit
+from app.cities import CityRegistry
 from app.errors import ServiceError
 from app.metrics import Metrics
 from app.ports import Store
+from app.schemas.dispatch import read_epoch, render_epoch
 from app.settings import Settings
-from app.usecases import CityCatalog, DecideFn, DispatchService, Limits
+from app.usecases import CityCatalog, DecideFn, DispatchService
 
-__all__ = ["create_app", "make_store", "make_registry", "API_VERSION"]
+__all__ = ["create_app", "make_store", "API_VERSION"]
 
 log = logging.getLogger(__name__)
 
@@ -47,17 +50,10 @@ def make_store(settings: Settings) -> Store:
     return MemoryStore()
 
 
-def make_registry(settings: Settings) -> CityCatalog:
-    """The city registry: bundled cities plus the user directory."""
-    from app.cities import BUNDLED_DIR, CityRegistry
-
-    return CityRegistry(settings.bundled_cities_dir or BUNDLED_DIR, settings.cities_dir)
-
-
-def _default_decide() -> DecideFn:
+def _default_decide(workers: int) -> DecideFn:
     from services.dispatch import decide
 
-    return decide
+    return functools.partial(decide, workers=workers)
 
 
 def create_app(
@@ -71,13 +67,14 @@ def create_app(
     settings = settings or Settings()
     owns_store = store is None
     the_store = store if store is not None else make_store(settings)
-    the_registry = registry if registry is not None else make_registry(settings)
+    the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
     service = DispatchService(
         the_registry,
         the_store,
-        decide or _default_decide(),
-        limits=Limits(settings.max_riders, settings.max_taxis, settings.max_tasks),
+        decide or _default_decide(settings.dispatch_workers),
+        render_epoch=render_epoch,
+        read_epoch=read_epoch,
         retention_s=settings.retention_s,
         commit_attempts=settings.commit_attempts,
     )
@@ -113,6 +110,9 @@ def create_app(
     app.include_router(dispatch.router)
     app.include_router(dro.router)
     app.include_router(fleet.router)
+    app.include_router(epochs.router)
+    app.include_router(dashboard.router)
+    dashboard.mount_assets(app)
     return app
 
 

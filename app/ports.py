@@ -46,7 +46,8 @@ class CityState:
     ``version`` counts committed epochs of the city; a commit names the version it was computed on.
     ``counts[k][cell]`` is Lambda (sparse: cells with a zero count are absent), for the intervals asked for.
     ``visited[taxi]`` lists the (interval, cell) pairs that taxi is already counted in, for the taxis and
-    intervals asked for. ``tasks`` are all tasks of the city.
+    intervals asked for. ``tasks`` are the city's open tasks (pending or assigned): a finished task
+    (completed or expired) is history, listed by ``list_tasks`` but never read by an epoch.
     """
 
     version: int

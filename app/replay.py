@@ -9,28 +9,22 @@ retry can never count an epoch twice (the service answers a repeated epoch with 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any, TextIO
 
 import httpx
 import numpy as np
 from numpy.typing import NDArray
 
-from app.schemas import format_time, parse_rfc3339
+from app.schemas.dispatch import decision_of
+from app.schemas.tasks import task_of
 from services.city import City
-from services.model import (
-    IntervalKey,
-    RiderId,
-    RiderMatch,
-    Snapshot,
-    Task,
-    TaskAssignment,
-    TaskId,
-    TaxiId,
-)
+from services.model import IntervalKey, RiderId, Snapshot, Task, TaskId
+from services.rfc3339 import format_time
 from services.sim.local import Outcome
 
-__all__ = ["ReplayError", "HttpDispatcher"]
+__all__ = ["ReplayError", "HttpDispatcher", "service_client"]
 
 _TASK_CHUNK = 500
 
@@ -57,6 +51,9 @@ class HttpDispatcher:
     name : the city's name on the service.
     city : the city itself (its network must be the one the service serves).
     retries : attempts per request on transport errors and 503s (with back-off).
+
+    After each epoch, ``last_response`` holds the service's response document and ``last_replayed`` whether
+    it was the stored answer to an identical earlier post.
     """
 
     def __init__(self, client: httpx.Client, name: str, city: City, *, retries: int = 5) -> None:
@@ -68,8 +65,13 @@ class HttpDispatcher:
         self._tz = city.horizon.timezone
         self._task_ids: list[TaskId] = []
         self.retried = 0  # requests that needed more than one attempt
+        self.last_response: dict[str, Any] | None = None
+        self.last_replayed = False
 
     def _send(self, method: str, url: str, what: str, **kwargs: Any) -> Any:
+        return self._request(method, url, what, **kwargs).json()
+
+    def _request(self, method: str, url: str, what: str, **kwargs: Any) -> httpx.Response:
         delay = 0.2
         for attempt in range(1, self.retries + 1):
             try:
@@ -83,7 +85,7 @@ class HttpDispatcher:
                         raise ReplayError(what, r)
                     if attempt > 1:
                         self.retried += 1
-                    return r.json()
+                    return r
                 if attempt == self.retries:
                     raise ReplayError(what, r)
             time.sleep(delay)
@@ -135,62 +137,19 @@ class HttpDispatcher:
                 for t in snapshot.taxis
             ],
         }
-        doc = self._send("POST", f"/v1/cities/{self.name}/epochs", f"epoch {snapshot.epoch_id}", json=body)
-        index = self.city.network.index_of
-        matches = tuple(
-            RiderMatch(
-                step=m["step"],
-                taxi_id=TaxiId(m["taxi_id"]),
-                rider_id=RiderId(m["rider_id"]),
-                pickup_m=float(m["pickup_m"]),
-                wait_s=float(m["wait_s"]),
-                trip_m=float(m["trip_m"]),
-                trip_time_s=float("nan"),  # not part of the response; the simulator times the path itself
-                sensing_gain=float(m["sensing_gain"]),
-                path=tuple(index(v) for v in m["path"]),
-                cells=tuple((int(c), int(r)) for c, r in m["cells"]),
-            )
-            for m in doc["rider_matches"]
-        )
-        routes = tuple(
-            TaskAssignment(
-                taxi_id=TaxiId(a["taxi_id"]),
-                task_id=TaskId(a["task_id"]),
-                path=tuple(index(v) for v in a["path"]),
-                cells=tuple((int(c), int(r)) for c, r in a["cells"]),
-                length_m=float(a["length_m"]),
-                travel_time_s=float(a["travel_time_s"]),
-                sensing_gain=float(a["sensing_gain"]),
-                efficiency=float(a["efficiency"]),
-                cost_cny=float(a["cost_cny"]),
-                kappa=float("nan"),  # not part of the response
-            )
-            for a in doc["task_assignments"]
-        )
+        r = self._request("POST", f"/v1/cities/{self.name}/epochs", f"epoch {snapshot.epoch_id}", json=body)
+        doc = r.json()
+        self.last_response, self.last_replayed = doc, r.headers.get("Idempotent-Replayed") == "true"
+        decision = decision_of(self.city, doc)
         expired = tuple(RiderId(r) for r in doc["expired_rider_ids"])
-        return Outcome(matches, routes, expired, float(doc["stats"].get("solve_ms", float("nan"))))
+        solve_ms = float(doc["stats"].get("solve_ms", float("nan")))
+        return Outcome(decision.rider_matches, decision.task_assignments, expired, solve_ms)
 
     def tasks(self) -> list[Task]:
         """The tasks this client registered, as the service holds them now."""
         doc = self._send("GET", f"/v1/cities/{self.name}/tasks", "list tasks")
         mine = set(self._task_ids)
-        out = []
-        for t in doc["tasks"]:
-            if t["id"] not in mine:
-                continue
-            done = t["completed_at"]
-            out.append(
-                Task(
-                    id=TaskId(t["id"]),
-                    node=self.city.network.index_of(t["node"]),
-                    scheduled_at_s=parse_rfc3339(t["scheduled_at"]).timestamp(),
-                    status=t["status"],
-                    completed_at_s=None if done is None else parse_rfc3339(done).timestamp(),
-                    taxi_id=None if t["taxi_id"] is None else TaxiId(t["taxi_id"]),
-                    mode=t["mode"],
-                )
-            )
-        return out
+        return [task_of(self.city, t) for t in doc["tasks"] if t["id"] in mine]
 
     def interval_counts(self, k: IntervalKey) -> NDArray[np.int64]:
         """Lambda over all cells of interval ``k``, from the coverage endpoint."""
@@ -202,3 +161,20 @@ class HttpDispatcher:
             col, row = c["cell"]
             arr[row * n_cols + col] = int(c["count"])
         return arr
+
+
+@contextmanager
+def service_client(url: str | None, token: str | None, log: TextIO) -> Iterator[httpx.Client]:
+    """A client of the service at ``url`` with bearer ``token``, or, with no ``url``, of one started in this
+    process on an in-memory store (announced on ``log``)."""
+    if url is not None:
+        headers = {"Authorization": f"Bearer {token}"}
+        with httpx.Client(base_url=url.rstrip("/"), headers=headers, timeout=300.0) as client:
+            yield client
+        return
+    from app.serve import serve_in_thread
+
+    with serve_in_thread() as (local_url, local_token):
+        print(f"started the service in-process at {local_url} (memory store)", file=log, flush=True)
+        with service_client(local_url, local_token, log) as client:
+            yield client

@@ -26,9 +26,7 @@ def serve_in_thread(store: Store | None = None, timeout_s: float = 60.0) -> Iter
     from app.settings import Settings
 
     token = "sd_" + secrets.token_urlsafe(24)
-    settings = Settings(
-        store="memory", tokens={token: ["read", "dispatch"]}, host="127.0.0.1", port=0
-    )
+    settings = Settings(store="memory", tokens={token: ["read", "dispatch"]}, host="127.0.0.1", port=0)
     app = create_app(settings, store=store if store is not None else MemoryStore())
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
     thread = threading.Thread(target=server.run, name="in-process-service", daemon=True)

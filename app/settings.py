@@ -8,6 +8,8 @@ from typing import Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from services.parallel import default_workers
+
 __all__ = ["Scope", "Settings", "SCOPES", "DivergenceName"]
 
 Scope = Literal["read", "dispatch", "admin"]
@@ -41,6 +43,12 @@ class Settings(BaseSettings):
     max_riders: int = Field(default=2000, ge=1, description="Most riders in one epoch.")
     max_taxis: int = Field(default=5000, ge=1, description="Most taxis in one epoch.")
     max_tasks: int = Field(default=1000, ge=1, description="Most tasks in one POST.")
+    dispatch_workers: int = Field(
+        default_factory=default_workers,
+        ge=1,
+        le=64,
+        description="Threads that share an epoch's independent searches (default: the CPUs, at most 4).",
+    )
     commit_attempts: int = Field(
         default=8, ge=1, le=100, description="Solve/commit tries on version conflicts."
     )
@@ -74,7 +82,22 @@ class Settings(BaseSettings):
     )
     worker_bins: int = Field(default=10, ge=2, le=1000, description="Bins w of the binned support.")
     worker_completion_target: float | None = Field(
-        default=0.95, ge=0.0, le=1.0, description="Worst-case POI completion rate to meet (null: off)."
+        default=None,
+        ge=0.0,
+        le=1.0,
+        description="Worst-case completion rate of reachable POI tasks every choice must meet (null: off).",
+    )
+    worker_subsidy_cny_per_vehicle_hour: float = Field(
+        default=0.0, ge=0.0, description="ζ: subsidy per instrumented vehicle-hour in the total cost."
+    )
+    worker_rolling_days: int = Field(
+        default=7, ge=2, le=366, description="DRO_RH: history days kept after conditioning on the day so far."
+    )
+    worker_reach_s: float = Field(
+        default=1200.0, ge=0.0, description="Tasks due this close to the horizon's end do not count."
+    )
+    worker_vary_tasks: bool = Field(
+        default=False, description="Redraw synthetic POI tasks every simulated day (default: one set)."
     )
     worker_jobs: int = Field(default=2, ge=1, le=256, description="Processes simulating (size, day) runs.")
     worker_n0: int = Field(default=60, ge=0, description="Ordinary (not instrumented) taxis in every run.")

@@ -1,14 +1,13 @@
-"""Use cases: turn validated requests into calls on the core and the store (exactly-once epochs)."""
+"""Use cases: the only door to the store. They take the core's types (a resolved epoch, tasks, an interval
+key) and return the core's results; the API turns requests into those types (``app.api.inputs``) and
+renders the results (``app.schemas``). The exactly-once epoch flow is ``DispatchService.submit_epoch``."""
 
 from __future__ import annotations
 
-import datetime as dt
-import hashlib
+import dataclasses
 import json
 import logging
 import math
-import re
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -21,59 +20,56 @@ from app.errors import (
     Busy,
     EpochConflict,
     FieldIssue,
-    InvalidInput,
     NoData,
     StaleEpoch,
     TaskConflict,
+    Unavailable,
+    UnknownEpoch,
 )
-from app.ports import CityState, EpochCommit, Store, StoredEpoch
-from app.schemas import (
-    CellCountOut,
-    CoverageOut,
-    EpochIn,
-    EpochOut,
-    GraphEdgeOut,
-    GraphNodeOut,
-    GraphOut,
-    LocationIn,
-    RiderMatchOut,
-    TaskAssignmentOut,
-    TaskIn,
-    TaskOut,
-    TasksPutOut,
-    format_time,
-    parse_rfc3339,
+from app.ports import (
+    CityState,
+    EnqueueResult,
+    EpochCommit,
+    FleetRecord,
+    PutTasksResult,
+    SolveRequest,
+    Store,
+    StoredEpoch,
 )
 from services.city import City
+from services.ledger import counts_view, dense_counts
 from services.model import (
     CountsView,
     Decision,
     IntervalKey,
-    Rider,
-    RiderId,
+    RiderMatch,
     Snapshot,
     Task,
-    TaskId,
-    Taxi,
+    TaskAssignment,
     TaxiId,
 )
-from services.network import SnapError
+from services.rfc3339 import format_time
 from services.sensing import coverage_rate, gamma
 
 __all__ = [
     "CityCatalog",
     "DecideFn",
-    "Limits",
+    "EpochRenderer",
+    "EpochCommand",
+    "EpochResult",
     "EpochOutcome",
+    "StoredDecision",
+    "EpochReader",
+    "EpochLog",
+    "EpochRoutes",
+    "Coverage",
     "DispatchService",
-    "body_hash",
     "LOOKAHEAD_INTERVALS",
 ]
 
 log = logging.getLogger(__name__)
 
 LOOKAHEAD_INTERVALS = 2  # intervals after the epoch's own that are loaded before solving
-_LABEL = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}$")
 
 DecideFn = Callable[[City, CountsView, Snapshot, Sequence[Task]], Decision]
 
@@ -88,12 +84,41 @@ class CityCatalog(Protocol):
 
 
 @dataclass(frozen=True, slots=True)
-class Limits:
-    """Per-request size limits (from settings)."""
+class EpochCommand:
+    """One posted epoch, validated and resolved to node indices at the edge (``app.api.inputs``).
 
-    max_riders: int = 2000
-    max_taxis: int = 5000
-    max_tasks: int = 1000
+    ``body_hash`` is the sha256 of the request's canonical JSON (``app.schemas.dispatch.body_hash``, computed
+    by the API from the validated request model). It is stored with the commit: a later post of the same
+    epoch id is a replay only if its hash is equal, so its definition never changes. ``time_text`` is the
+    epoch time as posted (RFC 3339 with the client's offset), echoed in the response and the recorded demand.
+    """
+
+    snapshot: Snapshot
+    body_hash: str
+    time_text: str
+
+
+@dataclass(frozen=True, slots=True)
+class EpochResult:
+    """A decided epoch, before its commit: what the response document shows (``app.schemas.dispatch``).
+
+    ``interval`` is the epoch's own sensing interval; ``gamma_before`` and ``gamma_after`` are Gamma over
+    that day's horizon intervals at the epoch's start and with its visits counted; ``attempts`` counts the
+    solves (a lost commit race solves again).
+    """
+
+    city: City
+    epoch: EpochCommand
+    decision: Decision
+    interval: IntervalKey
+    solve_ms: float
+    attempts: int
+    gamma_before: float
+    gamma_after: float
+
+
+EpochRenderer = Callable[[EpochResult], str]
+"""The response document of a decided epoch, committed with it and returned verbatim to replays."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,25 +132,55 @@ class EpochOutcome:
     attempts: int = 0
 
 
-def body_hash(body: EpochIn) -> str:
-    """sha256 of the canonical JSON of a validated epoch body."""
-    canonical = json.dumps(body.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(canonical.encode()).hexdigest()
+@dataclass(frozen=True, slots=True)
+class StoredDecision:
+    """A committed epoch's decision read back from its stored response document, in core types.
+
+    ``trip_time_s`` of a match is NaN in a document stored before responses carried it; the riders' and
+    routes' ``path`` are node indices again; ``kappa`` of an assignment is NaN (not in the document).
+    """
+
+    epoch_id: str
+    time_s: float
+    rider_matches: tuple[RiderMatch, ...]
+    task_assignments: tuple[TaskAssignment, ...]
+    tasks_completed: tuple[Task, ...]
 
 
-def _dense(city: City, sparse: dict[int, int]) -> NDArray[np.int64]:
-    arr = np.zeros(city.grid.n_cells, dtype=np.int64)
-    if sparse:
-        cells = np.fromiter(sparse.keys(), dtype=np.int64, count=len(sparse))
-        arr[cells] = np.fromiter(sparse.values(), dtype=np.int64, count=len(sparse))
-    return arr
+EpochReader = Callable[[City, str], StoredDecision]
+"""The decision inside a stored response document (the inverse of an ``EpochRenderer``)."""
 
 
-def _counts_view(city: City, state: CityState, intervals: Sequence[IntervalKey]) -> CountsView:
-    return CountsView(
-        counts={k: _dense(city, state.counts.get(k, {})) for k in intervals},
-        visited={taxi: frozenset(pairs) for taxi, pairs in state.visited.items()},
-    )
+@dataclass(frozen=True, slots=True)
+class EpochLog:
+    """How many epochs a city has committed, and the last one (``None`` before the first)."""
+
+    city: City
+    committed: int
+    last_epoch_id: str | None
+    last_epoch_time_s: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class EpochRoutes:
+    """What a committed epoch planned: its decision, and the tasks it touched as it left them (the POIs its
+    routes head for, assigned to their taxi and reached at the route's end; the tasks it completed)."""
+
+    city: City
+    decision: StoredDecision
+    tasks: tuple[Task, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Coverage:
+    """The grid counts of one sensing interval: ``counts`` is Lambda over every cell; ``gamma_so_far`` is
+    Gamma over that day's horizon intervals as counted so far."""
+
+    city: City
+    interval: IntervalKey
+    counts: NDArray[np.int64]
+    coverage_rate: float
+    gamma_so_far: float
 
 
 def _gamma_before_after(
@@ -141,7 +196,12 @@ def _gamma_before_after(
 
 
 class DispatchService:
-    """The use cases of the API: cities, tasks, epochs and coverage over one store."""
+    """The use cases of the API: cities, tasks, epochs and coverage over one store.
+
+    ``render_epoch`` writes the response document of a decided epoch (the API's, ``app.schemas.dispatch``):
+    it is committed with the epoch in one atomic step, so a replay is answered with the same bytes;
+    ``read_epoch`` reads a stored document back into core types.
+    """
 
     def __init__(
         self,
@@ -149,18 +209,18 @@ class DispatchService:
         store: Store,
         decide: DecideFn,
         *,
-        limits: Limits | None = None,
+        render_epoch: EpochRenderer,
+        read_epoch: EpochReader,
         retention_s: int = 8 * 86400,
         commit_attempts: int = 8,
     ) -> None:
         self.cities = cities
         self.store = store
         self.decide = decide
-        self.limits = limits or Limits()
+        self.render_epoch = render_epoch
+        self.read_epoch = read_epoch
         self.retention_s = retention_s
         self.commit_attempts = commit_attempts
-        self._graph_cache: dict[str, bytes] = {}
-        self._lock = threading.Lock()
 
     # ------------------------------------------------------------------ cities
 
@@ -172,122 +232,12 @@ class DispatchService:
         """Names of the served cities."""
         return sorted(self.cities.names())
 
-    def graph_json(self, name: str) -> bytes:
-        """The city's network as GraphOut JSON (cached: cities are immutable)."""
-        with self._lock:
-            cached = self._graph_cache.get(name)
-        if cached is not None:
-            return cached
-        city = self.city(name)
-        net, grid = city.network, city.grid
-        col = np.floor((net.x_m - grid.origin_x_m) / grid.cell_m).astype(np.int64)
-        row = np.floor((net.y_m - grid.origin_y_m) / grid.cell_m).astype(np.int64)
-        ids = net.node_ids
-        graph = GraphOut(
-            nodes=[
-                GraphNodeOut(id=int(i), lon=float(lo), lat=float(la), cell=(int(c), int(r)))
-                for i, lo, la, c, r in zip(
-                    ids.tolist(), net.lon.tolist(), net.lat.tolist(), col.tolist(), row.tolist(), strict=True
-                )
-            ],
-            edges=[
-                GraphEdgeOut(u=int(ids[u]), v=int(ids[v]), length_m=float(length), travel_time_s=float(t))
-                for u, v, length, t in zip(
-                    net.edge_u.tolist(),
-                    net.edge_v.tolist(),
-                    net.edge_length_m.tolist(),
-                    net.edge_time_s.tolist(),
-                    strict=True,
-                )
-            ],
-        )
-        data = graph.model_dump_json().encode()
-        with self._lock:
-            self._graph_cache[name] = data
-        return data
-
-    # ------------------------------------------------------------------ inputs
-
-    @staticmethod
-    def _resolve(city: City, loc: LocationIn, where: str) -> int:
-        """Node index of a location; 422 naming ``where`` when it is unknown or off the network."""
-        if loc.node is not None:
-            try:
-                return city.network.index_of(loc.node)
-            except SnapError:
-                raise InvalidInput.at(f"{where}.node", f"unknown node id {loc.node}") from None
-        assert loc.lon is not None and loc.lat is not None
-        try:
-            node, _ = city.network.snap(loc.lon, loc.lat, city.params.snap_limit_m)
-        except SnapError:
-            raise InvalidInput.at(
-                where,
-                f"({loc.lon}, {loc.lat}) is farther than {city.params.snap_limit_m:.0f} m from every node",
-            ) from None
-        return node
-
-    @staticmethod
-    def _unique(ids: Sequence[str], where: str) -> None:
-        """422 naming the first id that repeats an earlier one."""
-        seen: set[str] = set()
-        for i, ident in enumerate(ids):
-            if ident in seen:
-                raise InvalidInput.at(f"{where}[{i}].id", f"duplicate id {ident!r}")
-            seen.add(ident)
-
-    @staticmethod
-    def _at_most(n: int, limit: int, where: str) -> None:
-        if n > limit:
-            raise InvalidInput.at(where, f"at most {limit} items per request, got {n}")
-
-    def _snapshot(self, city: City, body: EpochIn) -> Snapshot:
-        """Validate an epoch body against the city and resolve it to node indices (no store access)."""
-        self._at_most(len(body.riders), self.limits.max_riders, "riders")
-        self._at_most(len(body.taxis), self.limits.max_taxis, "taxis")
-        self._unique([r.id for r in body.riders], "riders")
-        self._unique([t.id for t in body.taxis], "taxis")
-        time_s = body.time.timestamp()
-        riders: list[Rider] = []
-        for i, r in enumerate(body.riders):
-            requested_s = r.requested_at.timestamp()
-            if requested_s > time_s:
-                raise InvalidInput.at(f"riders[{i}].requested_at", "is later than the epoch time")
-            riders.append(
-                Rider(
-                    id=RiderId(r.id),
-                    origin=self._resolve(city, r.origin, f"riders[{i}].origin"),
-                    destination=self._resolve(city, r.destination, f"riders[{i}].destination"),
-                    requested_at_s=requested_s,
-                )
-            )
-        taxis = tuple(
-            Taxi(
-                id=TaxiId(t.id),
-                node=self._resolve(city, t.location, f"taxis[{i}].location"),
-                instrumented=t.instrumented,
-                vacant=t.status == "vacant",
-            )
-            for i, t in enumerate(body.taxis)
-        )
-        return Snapshot(epoch_id=body.epoch_id, time_s=time_s, riders=tuple(riders), taxis=taxis)
-
     # ------------------------------------------------------------------ tasks
 
-    def put_tasks(self, name: str, tasks: Sequence[TaskIn]) -> TasksPutOut:
-        """Register tasks, idempotent per id (409 naming conflicting ids; nothing written then)."""
-        city = self.city(name)
-        self._at_most(len(tasks), self.limits.max_tasks, "body")
-        self._unique([t.id for t in tasks], "")
-        core: list[Task] = []
-        for i, t in enumerate(tasks):
-            node = self._resolve(city, t.location, f"[{i}].location")
-            where = (
-                None if t.location.lon is None or t.location.lat is None else (t.location.lon, t.location.lat)
-            )
-            core.append(
-                Task(id=TaskId(t.id), node=node, scheduled_at_s=t.scheduled_at.timestamp(), location=where)
-            )
-        result = self.store.put_tasks(name, core)
+    def put_tasks(self, name: str, tasks: Sequence[Task]) -> PutTasksResult:
+        """Register tasks, idempotent per id (409 naming the conflicting ids' positions; nothing written)."""
+        self.city(name)
+        result = self.store.put_tasks(name, tasks)
         if result.conflicts:
             index = {t.id: i for i, t in enumerate(tasks)}
             raise TaskConflict(
@@ -297,15 +247,12 @@ class DispatchService:
                     for c in result.conflicts
                 ],
             )
-        return TasksPutOut(
-            created=[str(t) for t in result.created], unchanged=[str(t) for t in result.unchanged]
-        )
+        return result
 
-    def list_tasks(self, name: str) -> list[TaskOut]:
-        """All tasks of a city, in scheduled order."""
+    def list_tasks(self, name: str) -> tuple[City, list[Task]]:
+        """The city and its tasks (open ones, and finished ones within the retention), in scheduled order."""
         city = self.city(name)
-        tasks = sorted(self.store.list_tasks(name), key=lambda t: (t.scheduled_at_s, t.id))
-        return [TaskOut.of(city, t) for t in tasks]
+        return city, sorted(self.store.list_tasks(name), key=lambda t: (t.scheduled_at_s, t.id))
 
     # ------------------------------------------------------------------ epochs
 
@@ -328,14 +275,26 @@ class DispatchService:
             )
         return state
 
-    def submit_epoch(self, name: str, body: EpochIn) -> EpochOutcome:
+    def _expire(self, tasks: Sequence[Task], time_s: float) -> tuple[list[Task], list[Task]]:
+        """The open tasks an epoch at ``time_s`` considers, and those it expires: still pending although
+        scheduled longer ago than the retention (they leave the open set as ``expired``)."""
+        cutoff = time_s - self.retention_s
+        keep: list[Task] = []
+        expired: list[Task] = []
+        for t in tasks:
+            if t.status == "pending" and t.scheduled_at_s < cutoff:
+                expired.append(dataclasses.replace(t, status="expired"))
+            else:
+                keep.append(t)
+        return keep, expired
+
+    def submit_epoch(self, name: str, epoch: EpochCommand) -> EpochOutcome:
         """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs")."""
         city = self.city(name)
-        snapshot = self._snapshot(city, body)
-        digest = body_hash(body)
-        stored = self.store.get_epoch(name, body.epoch_id)
+        snapshot = epoch.snapshot
+        stored = self.store.get_epoch(name, snapshot.epoch_id)
         if stored is not None:
-            return self._replay(stored, digest)
+            return self._replay(stored, epoch.body_hash)
 
         k0 = city.horizon.interval_of(snapshot.time_s)
         day = city.horizon.day_intervals(k0)
@@ -346,155 +305,143 @@ class DispatchService:
             state = self._load(name, intervals, instrumented, snapshot.time_s)
             started = time.perf_counter()
             while True:
-                counts = _counts_view(city, state, sorted(intervals))
-                decision = self.decide(city, counts, snapshot, state.tasks)
+                counts = counts_view(state.counts, state.visited, city.grid.n_cells, sorted(intervals))
+                tasks, expired = self._expire(state.tasks, snapshot.time_s)
+                decision = self.decide(city, counts, snapshot, tasks)
                 missing = set(decision.intervals_touched) - intervals
                 if not missing:
                     break
                 intervals |= missing  # the solve reached intervals it read as zero: load them, solve again
                 state = self._load(name, intervals, instrumented, snapshot.time_s)
             solve_ms = (time.perf_counter() - started) * 1000.0
-            gammas = _gamma_before_after(city, counts, decision, day)
-            response = self._render(city, body, decision, k0, solve_ms, attempt, gammas)
-            result = self.store.commit_epoch(
+            before, after = _gamma_before_after(city, counts, decision, day)
+            result = EpochResult(city, epoch, decision, k0, solve_ms, attempt, before, after)
+            response = self.render_epoch(result)
+            commit = self.store.commit_epoch(
                 name,
                 EpochCommit(
-                    epoch_id=body.epoch_id,
-                    body_hash=digest,
+                    epoch_id=snapshot.epoch_id,
+                    body_hash=epoch.body_hash,
                     time_s=snapshot.time_s,
                     expected_version=state.version,
                     visits=decision.visits,
-                    task_updates=decision.task_updates,
+                    task_updates=(*decision.task_updates, *expired),
                     response_json=response,
                     retention_s=self.retention_s,
-                    demand_json=self._demand(city, body, snapshot),
+                    demand_json=_demand_json(city, epoch),
                 ),
             )
-            if result.status == "committed":
+            if commit.status == "committed":
                 steps = {1: 0, 2: 0}
                 for m in decision.rider_matches:
                     steps[m.step] += 1
                 return EpochOutcome(response, False, steps, len(decision.task_assignments), attempt)
-            if result.status == "duplicate":
-                if result.stored is None:
+            if commit.status == "duplicate":
+                if commit.stored is None:
                     raise RuntimeError("store reported a duplicate epoch without its record")
-                return self._replay(result.stored, digest)
-            if result.status == "stale":
+                return self._replay(commit.stored, epoch.body_hash)
+            if commit.status == "stale":
                 raise StaleEpoch(
                     "epoch time is older than the last committed epoch",
                     [FieldIssue("time", "older than the last committed epoch")],
                 )
             log.info(
-                "epoch %s of %s: version mismatch on attempt %d, solving again", body.epoch_id, name, attempt
+                "epoch %s of %s: version mismatch on attempt %d, solving again",
+                snapshot.epoch_id,
+                name,
+                attempt,
             )
         raise Busy(
             f"city {name!r} is busy: {self.commit_attempts} commit attempts lost to concurrent epochs; retry"
         )
 
-    @staticmethod
-    def _render(
-        city: City,
-        body: EpochIn,
-        decision: Decision,
-        k0: IntervalKey,
-        solve_ms: float,
-        attempt: int,
-        gammas: tuple[float, float],
-    ) -> str:
-        """The response document of a decided epoch (stored verbatim for replays)."""
-        stats: dict[str, float | int | str] = {}
-        for key, value in decision.stats.items():
-            v: Any = value
-            if isinstance(v, bool | np.bool_ | int | np.integer):
-                stats[key] = int(v)
-            elif isinstance(v, float | np.floating):
-                if math.isfinite(v):  # JSON has no NaN or infinity
-                    stats[key] = float(v)
-            elif isinstance(v, str):
-                stats[key] = v
-        stats.update(
-            {
-                "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
-                "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
-                "task_assignments": len(decision.task_assignments),
-                "tasks_completed": len(decision.tasks_completed),
-                "riders": len(body.riders),
-                "taxis": len(body.taxis),
-                "interval": city.horizon.label(k0),
-                "interval_key": int(k0),
-                "in_horizon": int(city.horizon.in_horizon(k0)),
-                "solve_ms": round(solve_ms, 3),
-                "attempts": attempt,
-                "visits": len(decision.visits),
-                "gamma": gammas[1],
-                "gamma_gain": gammas[1] - gammas[0],
-            }
-        )
-        out = EpochOut(
-            epoch_id=body.epoch_id,
-            time=body.time.isoformat(),
-            rider_matches=[RiderMatchOut.of(city, m) for m in decision.rider_matches],
-            task_assignments=[TaskAssignmentOut.of(city, a) for a in decision.task_assignments],
-            tasks_completed=[TaskOut.of(city, t) for t in decision.tasks_completed],
-            unmatched_rider_ids=[str(r) for r in decision.unmatched_rider_ids],
-            expired_rider_ids=[str(r) for r in decision.expired_rider_ids],
-            stats=stats,
-        )
-        return out.model_dump_json()
+    # ------------------------------------------------------------------ readiness
 
-    @staticmethod
-    def _demand(city: City, body: EpochIn, snapshot: Snapshot) -> str:
-        """The epoch's riders for the fleet-sizing worker (a waiting rider recurs: dedupe by id)."""
-        ids = city.network.node_ids
-        doc: dict[str, Any] = {
-            "epoch_id": body.epoch_id,
-            "time": body.time.isoformat(),
-            "time_s": snapshot.time_s,
-            "riders": [
-                {
-                    "id": str(r.id),
-                    "origin": int(ids[r.origin]),
-                    "destination": int(ids[r.destination]),
-                    "requested_at": format_time(r.requested_at_s, city.horizon.timezone),
-                    "requested_at_s": r.requested_at_s,
-                }
-                for r in snapshot.riders
-            ],
-        }
-        return json.dumps(doc, separators=(",", ":"))
+    def ready(self) -> list[str]:
+        """The served cities once the store answers and every city loads (``Unavailable``, a 503, else)."""
+        self.store.ping()
+        names = self.city_names()
+        if not names:
+            raise Unavailable("no cities are installed")
+        for name in names:
+            try:
+                self.city(name)
+            except Exception as exc:  # a broken city bundle makes the instance not ready, not crashed
+                raise Unavailable(f"city {name!r} failed to load: {exc}") from exc
+        return names
+
+    # ------------------------------------------------------------------ fleet sizing (read side)
+
+    def recommendation(self, name: str) -> tuple[City, FleetRecord]:
+        """The city and its current fleet recommendation (``NoData``, a 404, before the first solve)."""
+        city = self.city(name)
+        record = self.store.current_recommendation(name)
+        if record is None:
+            raise NoData(
+                f"no fleet recommendation for {name!r} yet: the worker (python -m app worker) publishes one "
+                "before every hour of the horizon; POST .../fleet/solve asks for one now"
+            )
+        return city, record
+
+    def recommendation_history(self, name: str, limit: int) -> tuple[City, list[FleetRecord]]:
+        """The city and up to ``limit`` of its solves, newest first."""
+        city = self.city(name)
+        return city, self.store.recommendation_history(name, limit)
+
+    def request_solve(
+        self, name: str, request_id: str, now_s: float, by: str | None
+    ) -> tuple[City, EnqueueResult]:
+        """Queue a solve of the coming hour for the worker (a pending request is joined, not duplicated)."""
+        city = self.city(name)
+        return city, self.store.enqueue_solve_request(name, SolveRequest(request_id, now_s, by))
+
+    # ------------------------------------------------------------------ committed epochs
+
+    def epoch_log(self, name: str) -> EpochLog:
+        """How many epochs the city has committed and which was the last."""
+        city = self.city(name)
+        state = self.store.load_state(name, [], [])
+        return EpochLog(city, state.version, state.last_epoch_id, state.last_epoch_time_s)
+
+    def stored_epoch(self, name: str, epoch_id: str) -> StoredEpoch:
+        """The stored record of a committed epoch (404 ``unknown_epoch`` when there is none)."""
+        self.city(name)
+        stored = self.store.get_epoch(name, epoch_id)
+        if stored is None:
+            raise UnknownEpoch(
+                f"no committed epoch {epoch_id!r} in {name!r} (never posted, or older than the retention)"
+            )
+        return stored
+
+    def epoch_routes(self, name: str, epoch_id: str) -> EpochRoutes:
+        """The paths a committed epoch planned and the tasks it touched, as it left them."""
+        city = self.city(name)
+        decision = self.read_epoch(city, self.stored_epoch(name, epoch_id).response_json)
+        known = {t.id: t for t in self.store.list_tasks(name)}
+        tasks: list[Task] = []
+        for a in decision.task_assignments:
+            # tasks never expire, so the task is there; were it not, its POI is the route's end and its
+            # scheduled time unknown (NaN, written as null) rather than dropped
+            task = known.get(a.task_id) or Task(a.task_id, a.path[-1], math.nan)
+            tasks.append(
+                dataclasses.replace(
+                    task,
+                    status="assigned",
+                    completed_at_s=decision.time_s + a.travel_time_s,
+                    taxi_id=a.taxi_id,
+                    mode="active",
+                )
+            )
+        tasks.extend(decision.tasks_completed)
+        return EpochRoutes(city, decision, tuple(tasks))
 
     # ------------------------------------------------------------------ coverage
 
-    @staticmethod
-    def parse_interval(city: City, text: str) -> IntervalKey:
-        """An interval from its label (``YYYY-MM-DDTHH:MM``, local start) or any RFC 3339 time inside it."""
-        hz = city.horizon
-        if _LABEL.match(text):
-            try:
-                local = dt.datetime.strptime(text, "%Y-%m-%dT%H:%M")
-            except ValueError:
-                raise InvalidInput.at("interval", "not a valid date and time") from None
-            start_s = hz.start.hour * 3600 + hz.start.minute * 60 + hz.start.second
-            local_s = (local - dt.datetime(1970, 1, 1)).total_seconds()
-            k = IntervalKey(math.floor((local_s - start_s) / hz.interval_s))
-            if hz.label(k) != text:
-                raise InvalidInput.at(
-                    "interval", f"{text} is not the start of an interval (e.g. {hz.label(k)})"
-                )
-            return k
-        try:
-            when = parse_rfc3339(text)
-        except ValueError as exc:
-            raise InvalidInput.at(
-                "interval", f"give a label YYYY-MM-DDTHH:MM or an RFC 3339 time with an offset ({exc})"
-            ) from None
-        return hz.interval_of(when.timestamp())
-
-    def coverage(self, name: str, interval: str | None) -> CoverageOut:
+    def coverage(self, name: str, interval: IntervalKey | None) -> Coverage:
         """Lambda per cell, coverage rate and Gamma so far for one interval (default: the last epoch's)."""
         city = self.city(name)
         if interval is not None:
-            k = self.parse_interval(city, interval)
+            k = interval
         else:
             state = self.store.load_state(name, [], [])
             if state.last_epoch_time_s is None:
@@ -502,17 +449,27 @@ class DispatchService:
             k = city.horizon.interval_of(state.last_epoch_time_s)
         day = city.horizon.day_intervals(k)
         wanted = sorted(set(day) | {k})
-        counts = {j: _dense(city, self.store.interval_counts(name, j)) for j in wanted}
-        arr = counts[k]
-        nz = np.flatnonzero(arr)
-        return CoverageOut(
-            city=name,
-            interval=city.horizon.label(k),
-            interval_key=int(k),
-            in_horizon=city.horizon.in_horizon(k),
-            cells=[CellCountOut(cell=city.grid.col_row(int(c)), count=int(arr[c])) for c in nz],
-            coverage_rate=coverage_rate(city, arr),
-            gamma_so_far=gamma(city, counts, day),
-            n_cells_covered=int(nz.size),
-            n_cells_touched=int(np.count_nonzero(city.cell_weight > 0)),
-        )
+        counts = {j: dense_counts(self.store.interval_counts(name, j), city.grid.n_cells) for j in wanted}
+        return Coverage(city, k, counts[k], coverage_rate(city, counts[k]), gamma(city, counts, day))
+
+
+def _demand_json(city: City, epoch: EpochCommand) -> str:
+    """The epoch's riders for the fleet-sizing worker (a waiting rider recurs: dedupe by id)."""
+    ids = city.network.node_ids
+    snapshot = epoch.snapshot
+    doc: dict[str, Any] = {
+        "epoch_id": snapshot.epoch_id,
+        "time": epoch.time_text,
+        "time_s": snapshot.time_s,
+        "riders": [
+            {
+                "id": str(r.id),
+                "origin": int(ids[r.origin]),
+                "destination": int(ids[r.destination]),
+                "requested_at": format_time(r.requested_at_s, city.horizon.timezone),
+                "requested_at_s": r.requested_at_s,
+            }
+            for r in snapshot.riders
+        ],
+    }
+    return json.dumps(doc, separators=(",", ":"))

@@ -8,7 +8,7 @@ Paper scale: Chengdu, 60 instrumented + 60 ordinary taxis, scenario 1 synthetic 
 85 POI tasks, one 4-hour horizon (72 epochs) per run. City scale: Manhattan, 2,000 taxis of which 600
 instrumented, the real NYC requests of 2014-12-21 08:00-12:00 (~620/h after snapping), 300 POI tasks.
 Simulated epochs per second = 72 / the run's wall time (decisions included: the simulator calls the core
-in-process). The experiment is `python -m app experiment` with its defaults into a fresh directory.
+in-process). The experiment is `python -m research experiment` with its defaults into a fresh directory.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.experiment.workload import RunSpec, load, run_spec
+from app.cities import CityRegistry
+from app.simulation import RunSpec, open_bundle, simulate_spec
 from bench.report import ROOT, stamp, write_section
 
 SCALES = {
@@ -42,11 +43,11 @@ def summary(values: list[float]) -> dict[str, float]:
 
 def throughput(scale: str) -> dict[str, object]:
     runs = SCALES[scale]
-    load(runs[0].city)  # city, kernels: loaded before timing
+    bundle = open_bundle(CityRegistry().bundle_dir(runs[0].city))  # city, kernels: loaded before timing
     walls, eps, solve = [], [], []
     for spec in runs:
         started = time.perf_counter()
-        _, trace = run_spec(spec)
+        _, trace = simulate_spec(spec, bundle)
         wall = time.perf_counter() - started
         walls.append(wall)
         eps.append(len(trace.epochs) / wall)
@@ -64,7 +65,7 @@ def experiment_wall(report_dir: Path | None) -> dict[str, object]:
         report = report_dir or Path(tmp) / "report"
         started = time.perf_counter()
         subprocess.run(
-            [sys.executable, "-m", "app", "experiment", "--out", f"{tmp}/runs", "--report-dir", str(report)],
+            [sys.executable, "-m", "research", "experiment", "--out", f"{tmp}/runs", "--report-dir", str(report)],
             check=True, cwd=ROOT,
         )  # fmt: skip
         wall = time.perf_counter() - started
@@ -110,7 +111,7 @@ def write(results: dict[str, object]) -> None:
                 "",
                 stamp("python -m bench.bench_sim"),
                 "",
-                "`python -m app experiment` with its defaults (3 scenarios x N1 10..60 x 10 seeds, each with and without",
+                "`python -m research experiment` with its defaults (3 scenarios x N1 10..60 x 10 seeds, each with and without",
                 f"active sensing and matched on wait alone: {exp['runs']} runs) into an empty directory, {exp['jobs']} worker",
                 f"processes: **{exp['wall_s']:.0f} s wall** ({exp['wall_s'] / 60:.1f} min; target 10 min: {verdict}); the runs",
                 f"themselves add up to {exp['run_s_sum']:.0f} s of process time.",
@@ -124,7 +125,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-city", action="store_true")
     ap.add_argument("--report-only", type=Path, metavar="JSON")
     ap.add_argument(
-        "--experiment-report-dir", type=Path, default=None,
+        "--experiment-report-dir",
+        type=Path,
+        default=None,
         help="keep the timed experiment's report here (e.g. docs/results) instead of discarding it",
     )
     args = ap.parse_args(argv)

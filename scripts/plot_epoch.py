@@ -23,6 +23,7 @@ from matplotlib.collections import LineCollection  # noqa: E402
 
 from services.citydata import load_city  # noqa: E402
 from services.dispatch import decide  # noqa: E402
+from services.graph import road_graph  # noqa: E402
 from services.model import (  # noqa: E402
     CountsView,
     IntervalKey,
@@ -34,7 +35,7 @@ from services.model import (  # noqa: E402
     Taxi,
     TaxiId,
 )
-from services.routing import graph_arrays  # noqa: E402
+from services.search import fastest_path, workspace  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -101,20 +102,10 @@ def main() -> int:
             ls="-" if m.step == 1 else "--",
             zorder=3,
         )
-    from services import kernels
-
-    ga = graph_arrays(city)
+    graph = road_graph(city)
+    ws = workspace(graph)
     for a in decision.task_assignments:
-        _d, pred, _ = kernels.dijkstra(
-            ga.indptr,
-            ga.head,
-            ga.time_s,
-            a.path[0],
-            np.inf,
-            np.array([a.path[-1]], dtype=np.int64),
-            ga.length_m,
-        )
-        fast = kernels.walk_edges(pred, ga.tail, a.path[-1])
+        fast = fastest_path(graph, ws, a.path[0], a.path[-1])
         fast_nodes = (a.path[0], *net.edge_v[fast].tolist())
         draw(fast_nodes, color="#d62728", lw=1.0, ls=":", zorder=4)
         draw(a.path, color="#d62728", lw=2.0, zorder=5)

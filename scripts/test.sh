@@ -2,6 +2,7 @@
 # The test command: make sure .venv exists with the package installed (editable, dev extras), then run
 # pytest with any arguments given. Exits with pytest's status; "no tests collected" (5) is a failure too.
 # Redis tests use REDIS_URL if set, else start a throwaway redis-server (tests/conftest.py); never skipped.
+# The browser test needs Debian's chromium: scripts/install_browser.sh installs it when it is missing.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -30,9 +31,11 @@ fi
 # (Re)install when never done here or when pyproject.toml changed since.
 if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ]; then
     echo "scripts/test.sh: installing the package into $VENV" >&2
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e '.[dev]'
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e '.[dev,research]'
     touch "$STAMP"
 fi
+# Debian's chromium for the dashboard's browser test (installed with apt-get when missing; never skipped).
+bash scripts/install_browser.sh
 
 set +e
 "$VENV/bin/python" -m pytest -q "$@"

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import datetime as dt
+import math
+import re
 from dataclasses import dataclass, field
 from zoneinfo import ZoneInfo
 
@@ -12,8 +14,11 @@ from numpy.typing import NDArray
 from services.grid import EdgeCells, Grid
 from services.model import IntervalKey
 from services.network import Network
+from services.rfc3339 import parse_rfc3339
 
 __all__ = ["Horizon", "DispatchParams", "City"]
+
+_LABEL = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}$")
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +86,51 @@ class Horizon:
         """Human label of interval ``k``: its local start, ``YYYY-MM-DDTHH:MM``."""
         return self.local_start(k).strftime("%Y-%m-%dT%H:%M")
 
+    def interval_start_s(self, k: int) -> float:
+        """POSIX time at which interval ``k`` starts: its local wall-clock start in the time zone."""
+        return self.local_start(k).replace(tzinfo=ZoneInfo(self.timezone)).timestamp()
+
+    def interval_of_label(self, label: str) -> IntervalKey:
+        """The interval whose label (:meth:`label`, its local start ``YYYY-MM-DDTHH:MM``) is ``label``.
+
+        Raises
+        ------
+        ValueError
+            If ``label`` is not a date and time, or not the start of an interval (the message names the
+            start of the interval it falls in).
+        """
+        try:
+            local = dt.datetime.strptime(label, "%Y-%m-%dT%H:%M")
+        except ValueError:
+            raise ValueError("not a valid date and time") from None
+        local_s = (local - dt.datetime(1970, 1, 1)).total_seconds()
+        k = IntervalKey(math.floor((local_s - self._start_offset_s()) / self.interval_s))
+        try:
+            start = self.label(k)
+        except OverflowError:  # the interval it falls in starts before year 1
+            raise ValueError(f"{label} is not the start of an interval") from None
+        if start != label:
+            raise ValueError(f"{label} is not the start of an interval (e.g. {start})")
+        return k
+
+    def parse_interval(self, text: str) -> IntervalKey:
+        """An interval from its label (``YYYY-MM-DDTHH:MM``, local start) or any RFC 3339 time inside it.
+
+        Raises
+        ------
+        ValueError
+            With a message for the caller: not a label of an interval start, not an RFC 3339 time.
+        """
+        if _LABEL.match(text):
+            return self.interval_of_label(text)
+        try:
+            when = parse_rfc3339(text)
+        except ValueError as exc:
+            raise ValueError(
+                f"give a label YYYY-MM-DDTHH:MM or an RFC 3339 time with an offset ({exc})"
+            ) from None
+        return self.interval_of(when.timestamp())
+
     def start_s(self, date: str | dt.date) -> float:
         """POSIX time of the horizon's start on local calendar day ``date`` (``YYYY-MM-DD``)."""
         day = dt.date.fromisoformat(date) if isinstance(date, str) else date
@@ -99,7 +149,7 @@ class Horizon:
 
 @dataclass(frozen=True, slots=True)
 class DispatchParams:
-    """Dispatch parameters of METHOD sections 3-7 (defaults are the paper's)."""
+    """Dispatch parameters of docs/METHOD.md sections 3-7 (defaults are the paper's)."""
 
     rho: float = 0.2
     radius_m: float = 2000.0
@@ -140,6 +190,11 @@ class City:
     cell_weight: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     interval_weight: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     source: str = ""  # attribution / provenance line
+
+    @property
+    def n_cells_touched(self) -> int:
+        """Cells the network touches (``s_g > 0``): the denominator of the coverage rate."""
+        return int(np.count_nonzero(self.cell_weight > 0))
 
     def mu(self, k: int) -> float:
         """mu_t of interval ``k`` (0 outside the operating horizon)."""

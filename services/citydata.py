@@ -16,7 +16,7 @@ Bundle format (one directory per city)
     "built_with": {"script", "input", "sha256"}, "files": {role: file name in the bundle}}``.
 
 The city built from a bundle weighs every cell the network touches equally (``s_g = 1/|touched|``, 0
-elsewhere) and every interval of the horizon equally (``mu_t = 1/n_intervals``), METHOD section 3.
+elsewhere) and every interval of the horizon equally (``mu_t = 1/n_intervals``), docs/METHOD.md section 3.
 """
 
 from __future__ import annotations
@@ -492,8 +492,8 @@ def read_csv_network(
 def read_node_link(path: Path | str, default_speed_kmh: float = 35.0) -> ImportResult:
     """Read a networkx node-link JSON network (nodes ``id, x=lon, y=lat``; links ``source, target, length``).
 
-    Speeds or travel times in the file are ignored: every edge runs at ``default_speed_kmh`` (METHOD
-    section 10 uses a constant 35 km/h). Parallel links keep the shortest.
+    Speeds or travel times in the file are ignored: every edge runs at ``default_speed_kmh``
+    (docs/METHOD.md section 10 uses a constant 35 km/h). Parallel links keep the shortest.
 
     Raises
     ------

@@ -1,39 +1,25 @@
-"""Shortest paths on a network whose chains of degree-2 nodes are contracted into super-edges.
+"""A network's chains of degree-2 nodes contracted into super-edges (built once per city by ``graph``).
 
 OSM networks are mostly shape points: nodes with one way in and one way out. Searching only the *kept*
 nodes (junctions, dead ends, one node of any cycle made of shape points alone) settles a fraction of the
-nodes; the interior nodes of a chain are read off its ends afterwards. Every super-edge keeps its original
-edges in travel order and its cost is folded edge by edge from the tail's distance, so distances, paths,
-times and cell crossings are those of the original network (bit-identical distances; identical paths
-unless two paths tie exactly).
+nodes; the interior nodes of a chain are read off its ends afterwards (``services.search``). Every
+super-edge keeps its original edges in travel order, so costs, paths, times and cell crossings are those
+of the original network.
 
 A node ``v`` is a chain *interior* if it has exactly one in-edge and one out-edge, from and to different
 neighbours (one-way chain), or exactly two neighbours ``a != b`` with edges ``a->v, v->b, b->v, v->a``
 (two-way chain). Every other node is kept. A maximal run of interiors between kept nodes becomes one
 super-edge per direction; a two-way chain's two super-edges are each other's ``rev``.
-
-:func:`dijkstra` is the entry point: it has the arguments and results of :func:`services.kernels.dijkstra`
-(plus the nodes whose values are wanted) and uses the contracted graph when :data:`ENABLED` is set.
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services import kernels
-
-if TYPE_CHECKING:
-    from services.routing import GraphArrays
-
-__all__ = ["ENABLED", "Contraction", "contract", "forward", "reverse", "dijkstra"]
-
-ENABLED = True
-"""Search the contracted graph (True) or the original one with ``kernels.dijkstra`` (the reference)."""
+__all__ = ["Contraction", "contract"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -91,24 +77,6 @@ class Contraction:
     def n_super_edges(self) -> int:
         """Edges of the contracted graph."""
         return int(self.se_tail.shape[0])
-
-    @property
-    def arrays(self) -> tuple[NDArray[Any], ...]:
-        """The graph's arrays in the order ``kernels.dijkstra_contracted`` and ``plan_kappas`` take them."""
-        return (
-            self.indptr,
-            self.se_head,
-            self.se_tail,
-            self.se_rev,
-            self.se_ptr,
-            self.se_edges,
-            self.se_node,
-            self.kept,
-            self.kept_of,
-            self.dead_end,
-            self.pos_se,
-            self.pos_off,
-        )
 
 
 def _interiors(
@@ -235,106 +203,3 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
         pos_se=pos_se,
         pos_off=pos_off,
     )
-
-
-@functools.lru_cache(maxsize=16)
-def forward(ga: GraphArrays) -> Contraction:
-    """The contraction of a city's forward CSR (``ga.indptr``, ``ga.head``), built once."""
-    return contract(ga.indptr, ga.head)
-
-
-@functools.lru_cache(maxsize=16)
-def reverse(ga: GraphArrays) -> Contraction:
-    """The contraction of a city's reverse CSR (``ga.rev_indptr``, ``ga.rev_head``), built once."""
-    return contract(ga.rev_indptr, ga.rev_head)
-
-
-def search(
-    c: Contraction,
-    cost: NDArray[np.float64],
-    source: int,
-    limit: float,
-    targets: NDArray[np.int64],
-    aux: NDArray[np.float64],
-    queries: NDArray[np.int64] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
-    """``kernels.dijkstra`` on the contracted graph ``c`` (see ``kernels.dijkstra_contracted``).
-
-    Parameters
-    ----------
-    c : Contraction
-        The contracted graph of the CSR that ``cost`` and ``aux`` (per original edge) belong to.
-    cost, aux : (m,) float64
-        Edge costs (non-negative) and the weights summed along each tree path.
-    source : int
-        Root node.
-    limit : float
-        Nodes farther than ``limit`` are not settled.
-    targets : (k,) int64
-        Stop once these are settled (all nodes when empty).
-    queries : (q,) int64, optional
-        Nodes whose values (and tree paths) are wanted; ``targets`` when omitted.
-
-    Returns
-    -------
-    dist, pred_edge, aux_sum
-        As ``kernels.dijkstra``, written for the source, the settled kept nodes, the queries and the nodes
-        on their tree paths.
-    """
-    q = targets if queries is None else np.asarray(queries, dtype=np.int64)
-    result: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]] = kernels.dijkstra_contracted(
-        *c.arrays,
-        cost,
-        aux,
-        int(source),
-        float(limit),
-        np.asarray(targets, dtype=np.int64),
-        q,
-    )
-    return result
-
-
-def dijkstra(
-    ga: GraphArrays,
-    cost: NDArray[np.float64],
-    source: int,
-    limit: float,
-    targets: NDArray[np.int64],
-    aux: NDArray[np.float64],
-    *,
-    reverse_graph: bool = False,
-    queries: NDArray[np.int64] | None = None,
-    contracted: bool | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
-    """One shortest-path search on a city's forward (or reverse) CSR, contracted when :data:`ENABLED`.
-
-    Parameters
-    ----------
-    ga : GraphArrays
-        The city's arrays; ``cost`` and ``aux`` are indexed like ``ga.head`` (``ga.rev_head`` when
-        ``reverse_graph``), and ``pred_edge`` holds edge ids of that CSR.
-    cost, source, limit, targets, aux
-        As ``kernels.dijkstra``.
-    reverse_graph : bool
-        Search the reverse CSR (an in-tree toward ``source``).
-    queries : (q,) int64, optional
-        Nodes whose values are read afterwards (``targets`` when omitted). The contracted search writes
-        values only for these, the source, the kept nodes it settles and the nodes on their tree paths;
-        the plain search writes every settled node.
-    contracted : bool, optional
-        Override :data:`ENABLED` for this call.
-
-    Returns
-    -------
-    dist, pred_edge, aux_sum
-        As ``kernels.dijkstra``.
-    """
-    use = ENABLED if contracted is None else contracted
-    if use:
-        c = reverse(ga) if reverse_graph else forward(ga)
-        return search(c, cost, source, limit, targets, aux, queries)
-    indptr, head = (ga.rev_indptr, ga.rev_head) if reverse_graph else (ga.indptr, ga.head)
-    result: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]] = kernels.dijkstra(
-        indptr, head, cost, int(source), float(limit), np.asarray(targets, dtype=np.int64), aux
-    )
-    return result

@@ -1,27 +1,43 @@
-"""One decision epoch: the three-step priority matching and Algorithm 2 (METHOD sections 4-6).
+"""One decision epoch: the three-step priority matching and Algorithm 2 (docs/METHOD.md sections 4-6).
 
 ``decide`` is the single pure entry point: (city, counts, snapshot, tasks) -> Decision.
 
-1. Step 1 (Eq. 4-7): vacant instrumented taxis x waiting riders within the pickup radius; weight = the
-   marginal sensing gain of the service leg (pickup -> dropoff) for that taxi, departing when it reaches the
-   rider; maximize total gain, then minimize total wait.
+1. Step 1 (Eq. 4-7): vacant instrumented taxis x waiting riders within the pickup radius; a pair's weight is
+   the marginal sensing gain of the service leg (pickup -> dropoff) for that taxi, leaving when it reaches
+   the rider; pairs with a positive gain only; maximize the total gain, then minimize the total wait.
 2. Step 2 (Eq. 8-11): vacant ordinary taxis x the remaining riders; maximize matches, then minimize wait.
 3. Step 3 (Eq. 13-16): vacant instrumented taxis still free x open POIs (grouped by node); maximize
-   matches, then total phi of the enhanced A* routes; then Algorithm 2 improves the routes.
+   matches, then the total phi of the enhanced A* routes (Algorithm 1); then Algorithm 2.
+
+Every assignment is exact (``services.assignment``): gains in fixed point whose sums are exact, waits in
+whole microseconds (the searches' own cost), phi to 2**-40 of the largest. Every path is the canonical
+shortest path of its cost (``services.graph``).
 """
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services import contraction, kernels
+from services import search
+from services.algorithm1 import Route, plan_routes, route_pair
+from services.algorithm2 import improve_routes
+from services.assignment import lexicographic_assignment
 from services.city import City
-from services.matching import EXACT_LIMIT, lexicographic_weights, max_weight_matching, quantize
+from services.gains import (
+    Counted,
+    Gains,
+    counted_csr,
+    counted_rows,
+    eval_pairs,
+    fixed_point_unit,
+    gain_table,
+    path_facts,
+)
+from services.graph import RoadGraph, road_graph
+from services.legs import Leg, pickups, trips
 from services.model import (
     CountsView,
     Decision,
@@ -34,298 +50,141 @@ from services.model import (
     TaskAssignment,
     TaskId,
     Taxi,
+    TaxiId,
     Visit,
 )
-from services.routing import (
-    CountedIn,
-    GainTable,
-    Route,
-    RouteSet,
-    gain_table,
-    graph_arrays,
-    improve_routes,
-    parallel_map,
-    path_nodes,
-    plan_routes,
-    timed_pairs,
-)
+from services.pads import Pads, pads_for
+from services.parallel import parallel_map
 from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
 
-__all__ = ["decide", "warm_up", "INITIAL_SLOTS"]
+__all__ = ["decide", "warm_up", "path_nodes", "INITIAL_SLOTS", "PHI_BITS"]
 
 INITIAL_SLOTS = 3
 """Intervals (from the epoch's own) whose gains are tabulated first; more are added if a path needs them."""
 
-_WAIT_UNIT_S = 1e-3  # waits are compared to the millisecond
+PHI_BITS = 40
+"""Step 3 compares phi in units of 2**-40 of the largest."""
 
 
-@dataclass(frozen=True, slots=True)
-class _Leg:
-    edges: NDArray[np.int64]
-    length_m: float
-    time_s: float
-
-
-def _g_route(city: City, edges: NDArray[np.int64]) -> tuple[tuple[int, int], ...]:
-    """Ordered distinct cells crossed by the edges (first-entry order)."""
+def path_nodes(graph: RoadGraph, start: int, edges: NDArray[np.int64]) -> tuple[int, ...]:
+    """Node sequence of a path given its start node and edges."""
     if len(edges) == 0:
-        return ()
-    ga = graph_arrays(city)
-    cells = kernels.distinct_cells(edges, ga.ec_ptr, ga.ec_cell, city.grid.n_cells)
-    return tuple(city.grid.col_row(c) for c in cells.tolist())
-
-
-@dataclass(frozen=True, slots=True)
-class _Pickups:
-    """Candidate pairs within the radius, as parallel arrays ordered by (rider, taxi): taxi index, rider
-    index, pickup length and wait; and per rider the in-tree toward its origin (reverse-graph predecessor
-    edges) from which a pickup leg is read off when the pair is matched."""
-
-    taxi: NDArray[np.int64]
-    rider: NDArray[np.int64]
-    length_m: NDArray[np.float64]
-    wait_s: NDArray[np.float64]
-    pred_rev: list[NDArray[np.int64]]
-    taxi_nodes: NDArray[np.int64]
-    keys: NDArray[np.int64]  # rider * number of taxis + taxi: ascending
-
-    def find(self, i: int, j: int) -> int:
-        """Position of the pair (taxi ``i``, rider ``j``) in the arrays."""
-        key = j * len(self.taxi_nodes) + i
-        k = int(np.searchsorted(self.keys, key))
-        if k >= len(self.keys) or self.keys[k] != key:
-            raise KeyError((i, j))
-        return k
-
-    def leg(self, city: City, i: int, j: int) -> _Leg:
-        ga = graph_arrays(city)
-        pred = self.pred_rev[j]
-        succ = np.where(pred >= 0, ga.rev_edge[np.maximum(pred, 0)], -1)
-        edges = kernels.walk_succ(succ, ga.head, int(self.taxi_nodes[i]))
-        k = self.find(i, j)
-        return _Leg(edges, float(self.length_m[k]), float(self.wait_s[k]))
-
-
-def _pickup_legs(city: City, riders: Sequence[Rider], taxis: Sequence[Taxi]) -> _Pickups:
-    """Fastest pickup paths of every taxi within the matching radius of every rider (one in-tree each)."""
-    ga = graph_arrays(city)
-    radius = city.params.radius_m
-    limit_s = radius / ga.min_speed_mps * (1 + 1e-9)
-    taxi_nodes = np.array([t.node for t in taxis], dtype=np.int64)
-    none = np.zeros(0, dtype=np.int64)
-
-    def search(
-        rider: Rider,
-    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-        dist, pred_rev, length = contraction.dijkstra(
-            ga,
-            ga.rev_time_s,
-            rider.origin,
-            limit_s,
-            none,
-            ga.rev_length_m,
-            reverse_graph=True,
-            queries=taxi_nodes,
-        )
-        lt = length[taxi_nodes]
-        wt = dist[taxi_nodes]
-        ok = np.flatnonzero(np.isfinite(wt) & (lt <= radius + 1e-6))
-        return pred_rev, ok, lt[ok], wt[ok]
-
-    searched = parallel_map(search, riders)
-    preds = [x[0] for x in searched]
-    found = [x[1:] for x in searched] if len(taxi_nodes) else []
-    counts = [len(ok) for ok, _, _ in found]
-    if sum(counts):
-        taxi = np.concatenate([ok for ok, _, _ in found]).astype(np.int64)
-        rider_idx = np.repeat(np.arange(len(found), dtype=np.int64), counts)
-        lengths = np.concatenate([x for _, x, _ in found])
-        waits = np.concatenate([x for _, _, x in found])
-    else:
-        taxi = rider_idx = np.zeros(0, dtype=np.int64)
-        lengths = waits = np.zeros(0)
-    return _Pickups(taxi, rider_idx, lengths, waits, preds, taxi_nodes, rider_idx * len(taxi_nodes) + taxi)
-
-
-def _service_leg(city: City, rider: Rider) -> _Leg:
-    ga = graph_arrays(city)
-    _dist, pred, _ = contraction.dijkstra(
-        ga, ga.time_s, rider.origin, np.inf, np.array([rider.destination], dtype=np.int64), ga.length_m
-    )
-    if rider.destination != rider.origin and pred[rider.destination] < 0:
-        raise ValueError(f"rider {rider.id}: destination unreachable from origin")
-    edges = kernels.walk_edges(pred, ga.tail, rider.destination)
-    return _Leg(edges, float(ga.length_m[edges].sum()), float(ga.time_s[edges].sum()))
-
-
-def _eval_leg(
-    city: City,
-    table: GainTable,
-    gain: NDArray[np.float64],
-    gain_q: NDArray[np.int64],
-    leg: _Leg,
-    depart_s: float,
-) -> tuple[float, int, int]:
-    ga = graph_arrays(city)
-    stamp, sid = table.stamps(1)
-    g, gq, _t, _terms, ms = kernels.eval_path(
-        leg.edges,
-        depart_s,
-        ga.time_s,
-        *ga.cells,
-        *table.clock,
-        gain,
-        gain_q,
-        stamp,
-        sid,
-    )
-    return float(g), int(gq), int(ms)
+        return (int(start),)
+    return (int(graph.edges.tail[edges[0]]), *graph.edges.head[edges].tolist())
 
 
 def _step1(
     city: City,
+    graph: RoadGraph,
     counts: CountsView,
     now: float,
     k0: int,
-    riders: Sequence[Rider],
-    taxis: Sequence[Taxi],
-    pickups: _Pickups,
-    service: Sequence[_Leg],
+    counted: Counted,
+    pick_taxi: NDArray[np.int64],
+    pick_rider: NDArray[np.int64],
+    pick_wait_s: NDArray[np.float64],
+    pick_wait_us: NDArray[np.int64],
+    service: Sequence[Leg],
     n_slots: int,
-    counted: CountedIn,
 ) -> tuple[list[tuple[int, int, float]], int, dict[str, float | int]]:
-    """Matched (taxi index, rider index, gain) of Step 1 and the slots needed."""
-    instr = pickups.taxi < len(taxis)
-    if not instr.any():
-        return [], n_slots, {"step1_candidates": 0}
-    ga = graph_arrays(city)
-    pair_taxi = pickups.taxi[instr]
-    pair_leg = pickups.rider[instr]
-    wait = pickups.wait_s[instr]
-    wait_q = quantize(wait, _WAIT_UNIT_S)
+    """Step 1: (taxi index, rider index, gain) of the matched pairs, the slots needed, diagnostics."""
+    stats: dict[str, float | int] = {"step1_candidates": len(pick_taxi)}
+    if len(pick_taxi) == 0:
+        return [], n_slots, stats
+    ed = graph.edges
     leg_ptr = np.zeros(len(service) + 1, dtype=np.int64)
     leg_ptr[1:] = np.cumsum([len(leg.edges) for leg in service])
-    leg_edges = (
-        np.concatenate([leg.edges for leg in service]).astype(np.int64) if service else np.zeros(0, np.int64)
-    )
-    crossings = max(int((ga.ec_ptr[leg.edges + 1] - ga.ec_ptr[leg.edges]).sum()) for leg in service)
-    n_match = min(len(taxis), len(riders))
-    k_sec = int(wait_q.max()) * n_match + 1
-    cap = EXACT_LIMIT // (4 * n_match * k_sec)
-    used = np.unique(pair_taxi)
-    taxis_used = used.tolist()
-    pair_table = np.searchsorted(used, pair_taxi).astype(np.int64)
+    leg_edges = np.concatenate([leg.edges for leg in service]).astype(np.int64) if service else leg_ptr[:0]
+    crossings = max(int((ed.ec_ptr[leg.edges + 1] - ed.ec_ptr[leg.edges]).sum()) for leg in service)
     while True:
-        table = gain_table(city, counts.counts, k0, n_slots, now)
-        term_max = float(table.base.max(initial=0.0))
-        table.unit = max(term_max * max(crossings, 1) / max(cap, 1), 1e-300)
-        per_taxi = [table.zeroed(counted(taxis[i].id)) for i in taxis_used]
-        gains = np.stack([g for g, _ in per_taxi])
-        gains_q = np.stack([q for _, q in per_taxi])
-        stamp, first = table.stamps(len(pair_taxi))
-        g, gq, max_slot = kernels.eval_pairs(
-            pair_table,
-            pair_leg,
-            now + wait,
-            leg_ptr,
-            leg_edges,
-            ga.time_s,
-            *ga.cells,
-            *table.clock,
-            gains,
-            gains_q,
-            stamp,
-            first,
+        top = gain_table(city, counts.counts, k0, n_slots, now)
+        unit = fixed_point_unit(float(top.term.max(initial=0.0)), crossings)
+        gn = gain_table(city, counts.counts, k0, n_slots, now, unit=unit)
+        g, gq, max_slot = eval_pairs(
+            ed, gn, counted, pick_taxi, pick_rider, now + pick_wait_s, leg_ptr, leg_edges
         )
         if max_slot < n_slots:
             break
         n_slots = int(max_slot) + 1
-    feasible = np.zeros((len(taxis), len(riders)), dtype=bool)
-    prim = np.zeros(feasible.shape, dtype=np.int64)
-    sec = np.zeros(feasible.shape, dtype=np.int64)
-    feasible[pair_taxi, pair_leg] = True
-    prim[pair_taxi, pair_leg] = gq
-    sec[pair_taxi, pair_leg] = wait_q
-    sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
-    n = len(pickups.taxi_nodes)
-    at = np.searchsorted(
-        pair_leg * n + pair_taxi, sol.cols * n + sol.rows
-    )  # pairs are ordered by (rider, taxi)
-    out = [(int(i), int(j), float(g[k])) for i, j, k in zip(sol.rows, sol.cols, at, strict=True)]
-    return out, n_slots, {"step1_candidates": len(pair_taxi), "step1_gain_unit": table.unit}
-
-
-def _step2(riders_left: Sequence[int], taxis: Sequence[int], pickups: _Pickups) -> list[tuple[int, int]]:
-    """Step 2 over global taxi/rider indices: maximize matches, then minimize total wait."""
-    feasible = np.zeros((len(taxis), len(riders_left)), dtype=bool)
-    sec = np.zeros(feasible.shape, dtype=np.int64)
-    row = np.full(len(pickups.taxi_nodes), -1, dtype=np.int64)
-    row[np.asarray(taxis, dtype=np.int64)] = np.arange(len(taxis))
-    col = np.full(len(pickups.pred_rev), -1, dtype=np.int64)
-    col[np.asarray(riders_left, dtype=np.int64)] = np.arange(len(riders_left))
-    r, c = row[pickups.taxi], col[pickups.rider]
-    ok = (r >= 0) & (c >= 0)
-    feasible[r[ok], c[ok]] = True
-    sec[r[ok], c[ok]] = quantize(pickups.wait_s[ok], _WAIT_UNIT_S)
-    prim = feasible.astype(np.int64)
-    sol = max_weight_matching(lexicographic_weights(feasible, prim, sec, secondary_sense="min"))
-    return [(taxis[int(a)], riders_left[int(b)]) for a, b in zip(sol.rows, sol.cols, strict=True)]
+    ok = np.flatnonzero(gq > 0)  # a pair is a candidate for gain when its exact gain is positive
+    sol = lexicographic_assignment(
+        pick_taxi[ok], pick_rider[ok], gq[ok], pick_wait_us[ok], secondary_sense="min"
+    )
+    stats.update({"step1_positive_pairs": len(ok), "step1_gain_unit": gn.unit})
+    chosen = ok[sol.pair]
+    out = [(int(pick_taxi[k]), int(pick_rider[k]), float(g[k])) for k in chosen]
+    return out, n_slots, stats
 
 
 def _step3(
     city: City,
+    graph: RoadGraph,
     counts: CountsView,
     now: float,
     k0: int,
-    taxis: Sequence[Taxi],
+    free: Sequence[Taxi],
+    counted: Counted,
     targets: NDArray[np.int64],
     n_slots: int,
-    counted: CountedIn,
-) -> tuple[list[tuple[int, Route, NDArray[np.int64] | None]], int]:
-    """Step 3: (taxi index, route, the kappa = 0 path to the same POI) for the matched taxi-POI pairs,
-    before Algorithm 2."""
-    if len(taxis) == 0 or len(targets) == 0:
-        return [], n_slots
-    pairs = [counted(taxi.id) for taxi in taxis]
-
-    def plan(table: GainTable, a: int) -> tuple[RouteSet, int]:
-        return plan_routes(city, table, taxis[a].id, taxis[a].node, None, targets, now, counted=pairs[a])
-
+    workers: int,
+    pads: Pads,
+) -> tuple[list[tuple[int, Route, NDArray[np.int64]]], Gains, int]:
+    """Step 3 before Algorithm 2: (free-taxi index, route, fastest path to the same POI) per matched pair
+    (``counted``: the free taxis' counted pairs, in their order)."""
+    sources = np.array([t.node for t in free], dtype=np.int64)
     while True:
-        table = gain_table(city, counts.counts, k0, n_slots, now)
-        planned = parallel_map(functools.partial(plan, table), range(len(taxis)))
-        sets: list[RouteSet] = [rs for rs, _ in planned]
-        max_slot = max(ms for _, ms in planned)
-        if max_slot < n_slots:
+        gn = gain_table(city, counts.counts, k0, n_slots, now)
+        plans = plan_routes(graph, gn, counted, sources, targets, now, city.params.kappas, workers, pads)
+        if plans.max_slot < n_slots:
             break
-        n_slots = max_slot + 1
-    phi = np.stack([rs.efficiency for rs in sets])
-    phi_max = float(phi.max(initial=0.0))
-    unit = phi_max / 2**24 if phi_max > 0 else 1.0
-    feasible = np.ones(phi.shape, dtype=bool)
-    sol = max_weight_matching(
-        lexicographic_weights(feasible, feasible.astype(np.int64), quantize(phi, unit), secondary_sense="max")
+        n_slots = plans.max_slot + 1
+    phi = plans.phi
+    top = float(phi.max(initial=0.0))
+    phi_q = (
+        np.rint(phi / (top / 2.0**PHI_BITS)).astype(np.int64) if top > 0 else np.zeros(phi.shape, np.int64)
     )
-    return [
-        (int(i), sets[int(i)].route(int(j)), sets[int(i)].path(int(j), 0.0))
-        for i, j in zip(sol.rows, sol.cols, strict=True)
-    ], n_slots
+    rows, cols = np.nonzero(np.ones(phi.shape, dtype=bool))  # every taxi reaches every POI
+    sol = lexicographic_assignment(
+        rows, cols, np.ones(len(rows), dtype=np.int64), phi_q[rows, cols], secondary_sense="max"
+    )
+    pairs = list(zip(sol.rows.tolist(), sol.cols.tolist(), strict=True))
+
+    def routes(chunk: Sequence[tuple[int, int]]) -> list[tuple[int, Route, NDArray[np.int64]]]:
+        out = []
+        with pads.take() as pad:
+            for i, j in chunk:
+                kappa = float(plans.kappas[plans.kappa_index[i, j]])
+                src, tgt = int(sources[i]), int(targets[j])
+                edges, fastest = route_pair(graph, gn, counted, i, src, tgt, kappa, pad)
+                gain, time_s, length_m = (
+                    float(plans.gain[i, j]),
+                    float(plans.time_s[i, j]),
+                    float(plans.length_m[i, j]),
+                )
+                out.append((i, Route(src, tgt, kappa, edges, gain, time_s, length_m, 0), fastest))
+        return out
+
+    out = parallel_map(routes, pairs, workers)
+    return out, gn, n_slots
 
 
-def _touching(city: City, paths: Sequence[PlannedPath], nodes: NDArray[np.bool_]) -> list[PlannedPath]:
+def _touching(graph: RoadGraph, paths: Sequence[PlannedPath], nodes: NDArray[np.bool_]) -> list[PlannedPath]:
     """The paths that pass through at least one of ``nodes`` (in order): the only ones ``tasks.reaches`` can
     find a pending task on, so it is given only these."""
-    head = city.network.edge_v
+    head = graph.edges.head
     return [p for p in paths if nodes[p.start] or bool(nodes[head[p.edges]].any())]
 
 
-def _visits(city: City, counts: CountsView, taxi: Taxi, edges: NDArray[np.int64], now: float) -> list[Visit]:
-    seen = counts.visited.get(taxi.id, frozenset())
-    return [Visit(taxi.id, k, c) for k, c in timed_pairs(city, edges, now) if (k, c) not in seen]
-
-
-def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[Task]) -> Decision:
-    """Solve one epoch (METHOD sections 4-6). Pure: reads nothing but its arguments, changes nothing.
+def decide(
+    city: City,
+    counts: CountsView,
+    snapshot: Snapshot,
+    tasks: Sequence[Task],
+    *,
+    workers: int = 1,
+    phase: Callable[[str], None] | None = None,
+) -> Decision:
+    """Solve one epoch (docs/METHOD.md sections 4-6). Pure: reads nothing but its arguments, changes nothing.
 
     Parameters
     ----------
@@ -333,7 +192,10 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     counts : Lambda per interval and the (interval, cell) pairs each taxi is already counted in, as of the
         start of the epoch.
     snapshot : waiting riders and taxi states, resolved to node indices.
-    tasks : every monitoring task of the city (any status).
+    tasks : the city's open monitoring tasks (pending or assigned; others are ignored).
+    workers : threads for the independent searches (the decision does not depend on it).
+    phase : called with a phase's name as each phase ends ("pickups", "trips", "step1", "step2",
+        "step3", "algorithm2", "tasks"): a benchmark's stopwatch; the core reads no clock itself.
 
     Returns
     -------
@@ -341,6 +203,8 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     task updates, the visits to count on commit, and per-step diagnostics in ``stats``.
     """
     p = city.params
+    graph = road_graph(city)
+    lap = phase or (lambda _name: None)
     now = snapshot.time_s
     k0 = int(city.horizon.interval_of(now))
     expired = tuple(r.id for r in snapshot.riders if now - r.requested_at_s > p.patience_s)
@@ -350,69 +214,89 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     instr = [t for t in vacant if t.instrumented]
     ordinary = [t for t in vacant if not t.instrumented]
     taxis = instr + ordinary  # instrumented first: indices < len(instr) are instrumented
-
-    pickups = _pickup_legs(city, riders, taxis)
-    service = parallel_map(functools.partial(_service_leg, city), riders)
+    net = city.network
+    pads = pads_for(graph)
+    xy = np.column_stack((net.x_m, net.y_m))
+    pk = pickups(
+        graph,
+        xy,
+        np.array([r.origin for r in riders], dtype=np.int64),
+        np.array([t.node for t in taxis], dtype=np.int64),
+        p.radius_m,
+        workers,
+        pads,
+    )
+    lap("pickups")
+    has_pair = np.zeros(len(riders), dtype=bool)
+    has_pair[pk.rider] = True
+    legs = trips(
+        graph, [(riders[j].origin, riders[j].destination) for j in np.flatnonzero(has_pair)], workers, pads
+    )
+    service: list[Leg] = [Leg(np.zeros(0, dtype=np.int64), 0.0, 0.0)] * len(riders)
+    for j, leg in zip(np.flatnonzero(has_pair).tolist(), legs, strict=True):
+        service[j] = leg
+    lap("trips")
     n_slots = INITIAL_SLOTS
 
     # Step 1
-    counted = CountedIn(counts.visited, k0)
-    s1, n_slots, s1_stats = _step1(city, counts, now, k0, riders, instr, pickups, service, n_slots, counted)
-    matches: list[RiderMatch] = []
-    planned: list[PlannedPath] = []
-    visits: list[Visit] = []
-    busy_taxis: set[int] = set()
-    taken: set[int] = set()
-    for i, j, gain in s1:
-        leg, svc = pickups.leg(city, i, j), service[j]
-        edges = np.concatenate((leg.edges, svc.edges)).astype(np.int64)
-        taxi, rider = taxis[i], riders[j]
-        matches.append(
-            RiderMatch(
-                1,
-                taxi.id,
-                rider.id,
-                leg.length_m,
-                leg.time_s,
-                svc.length_m,
-                svc.time_s,
-                gain,
-                path_nodes(city, taxi.node, edges),
-                _g_route(city, edges),
-            )
-        )
-        planned.append(PlannedPath(taxi.id, taxi.node, edges, now))
-        visits.extend(_visits(city, counts, taxi, edges, now))
-        busy_taxis.add(i)
-        taken.add(j)
+    is_instr = pk.taxi < len(instr)
+    counted_instr = counted_csr(counts.visited, [t.id for t in instr], k0)  # row i: instr[i]
+    s1, n_slots, s1_stats = _step1(
+        city,
+        graph,
+        counts,
+        now,
+        k0,
+        counted_instr,
+        pk.taxi[is_instr],
+        pk.rider[is_instr],
+        pk.wait_s[is_instr],
+        pk.wait_us[is_instr],
+        service,
+        n_slots,
+    )
+    taken = {j for _, j, _ in s1}
+    lap("step1")
 
-    # Step 2
-    left = [j for j in range(len(riders)) if j not in taken]
-    ord_idx = list(range(len(instr), len(taxis)))
-    for i, j in _step2(left, ord_idx, pickups):
-        leg, svc = pickups.leg(city, i, j), service[j]
-        edges = np.concatenate((leg.edges, svc.edges)).astype(np.int64)
-        matches.append(
-            RiderMatch(
-                2,
-                taxis[i].id,
-                riders[j].id,
-                leg.length_m,
-                leg.time_s,
-                svc.length_m,
-                svc.time_s,
-                0.0,
-                path_nodes(city, taxis[i].node, edges),
-                _g_route(city, edges),
-            )
-        )
-        taken.add(j)
+    # Step 2: ordinary taxis x the riders left; maximize matches, then minimize wait
+    left = np.array([j not in taken for j in range(len(riders))], dtype=bool)
+    ok = (pk.taxi >= len(instr)) & left[pk.rider] if len(pk.rider) else np.zeros(0, dtype=bool)
+    sol2 = lexicographic_assignment(
+        pk.taxi[ok],
+        pk.rider[ok],
+        np.ones(int(ok.sum()), dtype=np.int64),
+        pk.wait_us[ok],
+        secondary_sense="min",
+    )
+    s2 = [(int(i), int(j), 0.0) for i, j in zip(sol2.rows.tolist(), sol2.cols.tolist(), strict=True)]
+    taken.update(j for _, j, _ in s2)
     unmatched = tuple(riders[j].id for j in range(len(riders)) if j not in taken)
+    # the matched riders' paths: pickup leg (searched again for the matched pairs only) + trip
+    both = s1 + s2
+    pair_keys = pk.rider * len(taxis) + pk.taxi  # ascending: the pairs are ordered by rider, then taxi
+    at = np.searchsorted(pair_keys, np.array([j * len(taxis) + i for i, j, _ in both], dtype=np.int64))
+    with pads.take() as pad:
+        legs_in = search.fastest_paths(
+            graph,
+            pad.forward,
+            np.array([taxis[i].node for i, _, _ in both], dtype=np.int64),
+            np.array([riders[j].origin for _, j, _ in both], dtype=np.int64),
+        )
+    rider_paths = [
+        np.concatenate((leg, service[j].edges)).astype(np.int64)
+        for leg, (_, j, _) in zip(legs_in, both, strict=True)
+    ]
+    planned = [
+        PlannedPath(taxis[i].id, taxis[i].node, edges, now)
+        for (i, _, _), edges in zip(s1, rider_paths[: len(s1)], strict=True)
+    ]
+    busy_taxis = {i for i, _, _ in s1}
+    lap("step2")
 
     # Step 3: open tasks not already reached by a Step 1 path, grouped by POI node
-    task_nodes = np.zeros(city.network.n_nodes, dtype=bool)
+    task_nodes = np.zeros(net.n_nodes, dtype=bool)
     task_nodes[[t.node for t in tasks if t.status == "pending"]] = True
-    passive1 = reaches(city, _touching(city, planned, task_nodes), tasks)
+    passive1 = reaches(city, _touching(graph, planned, task_nodes), tasks)
     open_tasks = sorted(
         (t for t in tasks if t.is_open(now) and t.id not in passive1), key=lambda t: (t.scheduled_at_s, t.id)
     )
@@ -420,44 +304,103 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
     for t in open_tasks:
         by_node.setdefault(t.node, t.id)
     targets = np.fromiter(by_node, dtype=np.int64, count=len(by_node))
-    free = [t for i, t in enumerate(instr) if i not in busy_taxis]
-    assignments: list[TaskAssignment] = []
+    free_rows = [i for i in range(len(instr)) if i not in busy_taxis]
+    free = [instr[i] for i in free_rows]
+    matched: list[Taxi] = []
+    routes: list[Route] = []
     history: list[float] = []
     passes = 0
     if p.active_sensing and free and len(targets):
-        s3, n_slots = _step3(city, counts, now, k0, free, targets, n_slots, counted)
-        routes, history, passes = improve_routes(
-            city, counts, [r for _, r, _ in s3], now, n_slots, fastest=[f for _, _, f in s3], counted=counted
+        counted_free = counted_rows(counted_instr, free_rows)
+        s3, gn, n_slots = _step3(
+            city, graph, counts, now, k0, free, counted_free, targets, n_slots, workers, pads
         )
-        base = gain_table(city, counts.counts, k0, n_slots, now)
-        for (i, _, _), route in zip(s3, routes, strict=True):
-            taxi = free[i]
-            g, _gq, _ms = _eval_leg(
-                city,
-                base,
-                *base.zeroed(counted(taxi.id)),
-                _Leg(route.edges, route.length_m, route.time_s),
-                now,
-            )
-            task_id = by_node[route.target]
-            assignments.append(
-                TaskAssignment(
-                    taxi.id,
-                    task_id,
-                    path_nodes(city, taxi.node, route.edges),
-                    _g_route(city, route.edges),
-                    route.length_m,
-                    route.time_s,
-                    g,
-                    g / route.time_s if route.time_s > 0 else 0.0,
-                    p.unit_cost_cny_per_km * route.length_m / 1000.0,
-                    route.kappa,
-                )
-            )
-            planned.append(PlannedPath(taxi.id, taxi.node, route.edges, now, target_task=task_id))
-            visits.extend(_visits(city, counts, taxi, route.edges, now))
+        lap("step3")
+        matched = [free[i] for i, _, _ in s3]
+        counted = counted_rows(counted_free, [i for i, _, _ in s3])
+        routes, history, passes = improve_routes(
+            city,
+            graph,
+            counts,
+            [t.id for t in matched],
+            counted,
+            [r for _, r, _ in s3],
+            [f for _, _, f in s3],
+            now,
+            k0,
+            n_slots,
+            workers,
+            pads,
+        )
+        lap("algorithm2")
 
-    found = reaches(city, _touching(city, planned, task_nodes), tasks)
+    # every planned path's G-route and timed G-route, in one compiled call
+    all_paths = [*rider_paths, *(r.edges for r in routes)]
+    ptr = np.zeros(len(all_paths) + 1, dtype=np.int64)
+    ptr[1:] = np.cumsum([len(e) for e in all_paths])
+    flat = np.concatenate(all_paths).astype(np.int64) if all_paths else np.zeros(0, dtype=np.int64)
+    cell_ptr, cells, pair_ptr, pair_k, pair_c = path_facts(
+        graph.edges,
+        ptr,
+        flat,
+        now,
+        city.horizon.shift_s(now),
+        float(city.horizon.interval_s),
+        city.grid.n_cells,
+    )
+    n_cols = city.grid.n_cols
+
+    def cells_of(q: int) -> tuple[tuple[int, int], ...]:
+        return tuple((c % n_cols, c // n_cols) for c in cells[cell_ptr[q] : cell_ptr[q + 1]].tolist())
+
+    def visits_of(q: int, taxi: Taxi) -> list[Visit]:
+        seen = counts.visited.get(taxi.id, frozenset())
+        ks = pair_k[pair_ptr[q] : pair_ptr[q + 1]].tolist()
+        cs = pair_c[pair_ptr[q] : pair_ptr[q + 1]].tolist()
+        return [Visit(taxi.id, IntervalKey(k), c) for k, c in zip(ks, cs, strict=True) if (k, c) not in seen]
+
+    matches: list[RiderMatch] = []
+    visits: list[Visit] = []
+    for q, (i, j, gain) in enumerate(both):
+        k = int(at[q])
+        taxi, svc = taxis[i], service[j]
+        matches.append(
+            RiderMatch(
+                1 if q < len(s1) else 2,
+                taxi.id,
+                riders[j].id,
+                float(pk.length_m[k]),
+                float(pk.wait_s[k]),
+                svc.length_m,
+                svc.time_s,
+                gain,
+                path_nodes(graph, taxi.node, rider_paths[q]),
+                cells_of(q),
+            )
+        )
+        if q < len(s1):
+            visits.extend(visits_of(q, taxi))
+    assignments: list[TaskAssignment] = []
+    for q, (taxi, route) in enumerate(zip(matched, routes, strict=True), start=len(rider_paths)):
+        task_id = by_node[route.target]
+        assignments.append(
+            TaskAssignment(
+                taxi.id,
+                task_id,
+                path_nodes(graph, taxi.node, route.edges),
+                cells_of(q),
+                route.length_m,
+                route.time_s,
+                route.gain,
+                route.efficiency,
+                p.unit_cost_cny_per_km * route.length_m / 1000.0,
+                route.kappa,
+            )
+        )
+        planned.append(PlannedPath(taxi.id, taxi.node, route.edges, now, target_task=task_id))
+        visits.extend(visits_of(q, taxi))
+
+    found = reaches(city, _touching(graph, planned, task_nodes), tasks)
     updates = {t.id: t for t in due_completions(tasks, now)}
     updates.update({t.id: t for t in apply_reaches(tasks, found, now)})
     task_updates = tuple(updates.values())
@@ -470,7 +413,7 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
         "vacant_instrumented": len(instr),
         "vacant_ordinary": len(ordinary),
         "step1_matches": len(s1),
-        "step2_matches": len(matches) - len(s1),
+        "step2_matches": len(s2),
         "step3_assignments": len(assignments),
         "step1_sensing_gain": float(sum(g for _, _, g in s1)),
         "total_wait_s": float(sum(m.wait_s for m in matches)),
@@ -482,6 +425,7 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
         "monitoring_cost_cny": float(sum(a.cost_cny for a in assignments)),
         **s1_stats,
     }
+    lap("tasks")
     return Decision(
         epoch_id=snapshot.epoch_id,
         time_s=now,
@@ -499,8 +443,6 @@ def decide(city: City, counts: CountsView, snapshot: Snapshot, tasks: Sequence[T
 
 def warm_up(city: City) -> None:
     """Solve a tiny epoch on ``city`` so the compiled kernels are loaded before the first real request."""
-    from services.model import TaskId, TaxiId
-
     n = city.network.n_nodes
     a, b = 0, n - 1
     t = 86400.0 * 20000 + 12 * 3600.0

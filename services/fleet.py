@@ -1,27 +1,37 @@
-"""Distributionally robust fleet sizing: Deterministic, DRO and DRO_RH (METHOD section 8, paper Section 3.3).
+"""Distributionally robust fleet sizing: Deterministic, DRO and DRO_RH (docs/METHOD.md sections 7-8, paper
+Section 3.3).
 
-Input: for every candidate fleet size ``x`` (instrumented taxis, ``N1``) an array of ``M`` KPI samples,
-``samples[x][j]`` the KPI of the run with fleet ``x`` on demand sample ``j`` -- the daily design KPI for
-Deterministic and DRO, the hour-``h`` design KPI for DRO_RH (one mapping per hour). Nothing is simulated
-here; :mod:`app.worker` and the experiment produce the samples.
+Input: for every candidate fleet size ``x`` (instrumented taxis, ``N1``) what its simulations gave on ``M``
+demand days -- per day and hour the Step 3 monitoring cost and the reachable POI tasks due and completed
+(:class:`DayOutcomes`) -- and the request volume of every day and hour. Nothing is simulated here;
+:mod:`app.worker` and the experiment produce the outcomes.
 
-* **Deterministic**: ``argmin_x`` of the sample mean.
-* **DRO** (predetermined, Eq. (18)): ``argmin_x`` of the worst-case expectation over the φ-divergence ball
-  around the empirical distribution of ``samples[x]``; one size for the whole horizon.
-* **DRO_RH** (rolling horizon): per hour ``h``, ``argmin_x`` of the worst case of that hour's samples.
-* **Beyond the paper**: :func:`cheapest_meeting_target`, the smallest fleet whose worst-case expected POI
-  completion rate still meets a target. Completion is a "higher is better" KPI, so its worst case is the
-  *infimum* over the ball, ``inf E_p[f] = -sup E_p[-f]``.
+**The objective is the platform's total cost per hour** (Eq. (17) with the Eq. (29) subsidy term)::
 
-Ties (values equal within a relative ``1e-9``) are broken toward the **smaller** fleet: fewer instrumented
-vehicles cost less to equip and subsidize, and a KPI that cannot tell two sizes apart gives no reason to pay
-for the larger one. Every result reports the tied sizes and says ``status="tie"`` when it happened.
+    KPI_total(x, Q) = 1.5 CNY/km x Step 3 km per hour + ζ x
 
-The worst-case expectation is the DRO engine's (:func:`services.dro.worst_case`): support, radius
-``ρ = φ''(1) / (2M) · χ²_{m-1, 1-α}`` and the exact solve follow the :class:`Ambiguity` passed in.
+with ζ the subsidy per instrumented vehicle-hour (:class:`CostModel`). The per-vehicle design KPI the paper's
+Table 2 prints, ``KPI_total / x``, is reported beside it but never sized on: its ``1/x`` divisor alone makes
+the largest candidate win.
 
-:func:`realized_fixed` and :func:`realized_rolling` evaluate a choice on held-out test days (the last column
-of the paper's Table 2).
+* **Deterministic**: ``argmin_x`` of the sample mean of the daily total cost per hour.
+* **DRO** (predetermined, Eq. (18)): ``argmin_x`` of its worst-case expectation over the φ-divergence ball;
+  one size for the whole horizon.
+* **DRO_RH** (rolling horizon): before hour ``h`` of day ``d``, the history is conditioned on what day ``d``
+  has shown so far (:func:`similar_days`: the ``keep`` days whose request volumes in the hours already past
+  are closest to day ``d``'s), and ``x_h = argmin_x`` of the worst case of hour ``h``'s total cost on those
+  days. A later hour's choice therefore changes as the day unfolds.
+* **Optional completion target**: only sizes whose completion rate on the reachable tasks (worst case, the
+  infimum over the ball, for DRO and DRO_RH; the mean for Deterministic) meets the target are eligible.
+  When none does the method takes the size with the best completion and says ``target_met=False``.
+
+Ties (values equal within a relative ``1e-9``) are broken toward the **smaller** fleet and reported
+(``status="tie"``). The worst-case expectation is :func:`services.dro.worst_case` with the
+:class:`Ambiguity` given; every table row carries the paper's box LP (Eq. (28)) beside the exact value.
+
+Because ζ x is a constant for a given ``x``, the worst case of the total is the worst case of the Step 3
+cost plus ζ x for every divergence (the ball is over distributions, and a constant shifts every
+expectation alike); the samples carry the subsidy all the same, so they are the decision's own numbers.
 """
 
 from __future__ import annotations
@@ -43,33 +53,33 @@ __all__ = [
     "Sense",
     "FleetMethod",
     "ChoiceStatus",
-    "TargetStatus",
     "Ambiguity",
+    "CostModel",
+    "DayOutcomes",
     "SizeRow",
     "SizeTable",
+    "CandidateRow",
+    "CandidateTable",
     "Choice",
-    "RollingChoice",
-    "TargetChoice",
+    "RollingHour",
     "FleetPlan",
-    "Realized",
     "size_table",
-    "deterministic",
-    "dro",
-    "dro_rh",
-    "cheapest_meeting_target",
+    "total_cost_samples",
+    "completion_samples",
+    "candidate_table",
+    "choose",
+    "similar_days",
+    "rolling_hour",
     "plan_fleet",
-    "realized_fixed",
-    "realized_rolling",
 ]
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 Sense = Literal["min", "max"]
-"""``"min"``: lower is better (cost, the design KPI); ``"max"``: higher is better (completion rate)."""
-FleetMethod = Literal["deterministic", "dro", "dro_rh"]
+"""``"min"``: lower is better (cost); ``"max"``: higher is better (completion rate)."""
+FleetMethod = Literal["deterministic", "dro", "dro_rh", "box_lp"]
 ChoiceStatus = Literal["unique", "tie"]
 """``unique``: one size attains the optimum; ``tie``: several do (within ``TIE_RTOL``), the smallest won."""
-TargetStatus = Literal["met", "unmet"]
-"""``met``: some size meets the target (the smallest such is chosen); ``unmet``: none does."""
 
 TIE_RTOL = 1e-9
 
@@ -87,7 +97,7 @@ class FleetInputError(ValueError):
 class Ambiguity:
     """The ambiguity set: φ-divergence, significance level α and the support of the empirical distribution.
 
-    Defaults are METHOD section 8's: Kullback-Leibler, α = 0.05, ``w = 10`` equal-width bins.
+    Defaults are docs/METHOD.md section 8's: Kullback-Leibler, α = 0.05, ``w = 10`` equal-width bins.
     """
 
     divergence: str = "kl"
@@ -113,12 +123,71 @@ class Ambiguity:
 
 
 @dataclass(frozen=True, slots=True)
-class SizeRow:
-    """One candidate size: sample mean, worst-case expectation, their difference, the radius and cells.
+class CostModel:
+    """The platform's cost per hour: Step 3 cost (already in CNY) plus ζ per instrumented vehicle-hour.
 
-    ``premium = worst_case - mean``: what robustness adds (positive for ``sense="min"``; for ``"max"`` the
-    worst case is the infimum and the premium is negative or zero). ``status`` is the engine's
-    (``optimal``, ``saturated`` or ``degenerate``).
+    ``interval_hours`` is the length of one sensing interval (the samples are per interval).
+    """
+
+    subsidy_cny_per_vehicle_hour: float = 0.0
+    interval_hours: float = 1.0
+
+    def __post_init__(self) -> None:
+        z, tau = self.subsidy_cny_per_vehicle_hour, self.interval_hours
+        if not (isinstance(z, int | float) and math.isfinite(z) and z >= 0):
+            raise FleetInputError("subsidy_cny_per_vehicle_hour", f"must be finite and >= 0, got {z!r}")
+        if not (isinstance(tau, int | float) and math.isfinite(tau) and tau > 0):
+            raise FleetInputError("interval_hours", f"must be positive, got {tau!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class DayOutcomes:
+    """What the runs of one candidate size gave on ``M`` demand days of ``H`` intervals each.
+
+    ``cost_cny[j, h]``: Step 3 monitoring cost in interval ``h`` of day ``j``; ``tasks_due[j, h]``: the POI
+    tasks scheduled in interval ``h`` that can still be reached within the horizon; ``tasks_done[j, h]``:
+    how many of those were completed within it.
+    """
+
+    cost_cny: FloatArray
+    tasks_due: IntArray
+    tasks_done: IntArray
+
+    @classmethod
+    def of(cls, cost_cny: ArrayLike, tasks_due: ArrayLike, tasks_done: ArrayLike) -> DayOutcomes:
+        """Checked arrays: finite non-negative costs, ``0 <= done <= due``, all of one ``(M, H)`` shape."""
+        c = np.asarray(cost_cny, dtype=np.float64)
+        due = np.asarray(tasks_due, dtype=np.int64)
+        done = np.asarray(tasks_done, dtype=np.int64)
+        if c.ndim != 2 or c.shape[0] < 1 or c.shape[1] < 1:
+            raise FleetInputError("samples", f"cost needs a (days, hours) array, got shape {c.shape}")
+        if due.shape != c.shape or done.shape != c.shape:
+            raise FleetInputError(
+                "samples", f"tasks_due {due.shape} and tasks_done {done.shape} must match cost {c.shape}"
+            )
+        if not np.all(np.isfinite(c)) or np.any(c < 0):
+            raise FleetInputError("samples", "costs must be finite and non-negative")
+        if np.any(done < 0) or np.any(done > due):
+            raise FleetInputError("samples", "need 0 <= tasks_done <= tasks_due")
+        return cls(c, due, done)
+
+    @property
+    def n_days(self) -> int:
+        """``M``."""
+        return int(self.cost_cny.shape[0])
+
+    @property
+    def n_hours(self) -> int:
+        """``H``, the intervals of the horizon."""
+        return int(self.cost_cny.shape[1])
+
+
+@dataclass(frozen=True, slots=True)
+class SizeRow:
+    """One candidate size of one KPI: sample mean, worst-case expectation, their difference, radius, cells.
+
+    ``premium = worst_case - mean`` (negative or zero for ``sense="max"``, where the worst case is the
+    infimum). ``status`` is the engine's (``optimal``, ``saturated`` or ``degenerate``).
     """
 
     size: int
@@ -153,69 +222,87 @@ class SizeTable:
 
 
 @dataclass(frozen=True, slots=True)
+class CandidateRow:
+    """One candidate size for one decision: total cost per hour (mean, exact worst case, box LP worst case),
+    the per-vehicle design KPI (the same divided by ``size``) and the completion rate on reachable tasks
+    (mean and worst case, ``None`` without tasks)."""
+
+    size: int
+    cost: SizeRow  # total cost per hour, CNY
+    box_lp_worst_case: float
+    design_kpi_mean: float
+    design_kpi_worst_case: float
+    completion: SizeRow | None  # sense "max": worst_case is the infimum
+
+
+@dataclass(frozen=True, slots=True)
+class CandidateTable:
+    """Rows of every candidate size (ascending) and the samples behind them.
+
+    ``cost_samples[x]`` are the total costs per hour the worst cases were computed from;
+    ``completion_samples[x]`` the completion rates (``None`` without tasks). ``days`` are the indices of
+    the history days used (all of them, or the DRO_RH selection).
+    """
+
+    rows: tuple[CandidateRow, ...]
+    days: tuple[int, ...]
+    cost_samples: Mapping[int, FloatArray]
+    completion_samples: Mapping[int, FloatArray] | None
+
+    @property
+    def sizes(self) -> tuple[int, ...]:
+        """The candidate sizes, ascending."""
+        return tuple(r.size for r in self.rows)
+
+    def row(self, size: int) -> CandidateRow:
+        """The row of ``size`` (``KeyError`` if it is not a candidate)."""
+        for r in self.rows:
+            if r.size == size:
+                return r
+        raise KeyError(size)
+
+
+@dataclass(frozen=True, slots=True)
 class Choice:
-    """A chosen size: the method, the size, its objective (sample mean or worst case), the tied sizes."""
+    """A chosen size: the method, the size, its objective (mean, worst case or box LP value of the total cost
+    per hour), the tied sizes and, with a completion target, whether the size meets it."""
 
     method: FleetMethod
     size: int
     objective: float
-    tied: tuple[int, ...]  # every size within TIE_RTOL of the optimum, ascending; ``size`` is the first
+    tied: tuple[int, ...]  # every size within TIE_RTOL of the optimum among the eligible, ascending
     status: ChoiceStatus
+    target_met: bool | None = None  # None: no target
 
 
 @dataclass(frozen=True, slots=True)
-class RollingChoice:
-    """DRO_RH: one choice and one table per hour of the horizon."""
+class RollingHour:
+    """DRO_RH for interval ``hour``: how many observed hours it conditioned on, the table (with the days
+    kept) and the choice."""
 
-    choices: tuple[Choice, ...]
-    tables: tuple[SizeTable, ...]
-
-    @property
-    def sizes(self) -> tuple[int, ...]:
-        """The chosen size of every hour."""
-        return tuple(c.size for c in self.choices)
-
-    @property
-    def status(self) -> ChoiceStatus:
-        """``tie`` when any hour's choice was a tie."""
-        return "tie" if any(c.status == "tie" for c in self.choices) else "unique"
-
-
-@dataclass(frozen=True, slots=True)
-class TargetChoice:
-    """The smallest size whose worst-case expected KPI (sense ``max``) meets ``target``, or none.
-
-    ``best_size`` is the size with the highest worst case (ties: the smaller), reported either way so an
-    unmet target says how far off the best fleet is.
-    """
-
-    target: float
-    size: int | None
-    status: TargetStatus
-    best_size: int
-    best_worst_case: float
-    table: SizeTable
+    hour: int
+    observed_hours: int
+    table: CandidateTable
+    choice: Choice
 
 
 @dataclass(frozen=True, slots=True)
 class FleetPlan:
-    """Everything one solve decides: the daily table with Deterministic and DRO, DRO_RH per hour and,
-    when asked for, the completion-target choice."""
+    """Everything one solve decides: the daily table with Deterministic, DRO and the box LP's choice, and
+    DRO_RH for every hour of the horizon (conditioned on the hours observed so far)."""
 
-    daily: SizeTable
+    daily: CandidateTable
     deterministic: Choice
     dro: Choice
-    rolling: RollingChoice
-    completion: TargetChoice | None
+    box_lp: Choice
+    rolling: tuple[RollingHour, ...]
+    costs: CostModel
+    target: float | None
 
-
-@dataclass(frozen=True, slots=True)
-class Realized:
-    """A choice's design KPI on test days: the mean over days and each day's value."""
-
-    value: float
-    per_day: tuple[float, ...]
-    sizes: tuple[int, ...]  # the size of every hour (one entry for a fixed size)
+    @property
+    def rolling_sizes(self) -> tuple[int, ...]:
+        """DRO_RH's size for every hour."""
+        return tuple(r.choice.size for r in self.rolling)
 
 
 # ---------------------------------------------------------------------------------------------- inputs
@@ -250,7 +337,37 @@ def _sorted_samples(samples: Mapping[int, ArrayLike], minimum: int) -> list[tupl
     return out
 
 
-# ------------------------------------------------------------------------------------------------ core
+def _check_target(target: float | None) -> float | None:
+    if target is None:
+        return None
+    t = float(target)
+    if not (math.isfinite(t) and 0.0 <= t <= 1.0):
+        raise FleetInputError("target", f"must be a completion rate in [0, 1], got {target!r}")
+    return t
+
+
+def _check_outcomes(outcomes: Mapping[int, DayOutcomes]) -> list[tuple[int, DayOutcomes]]:
+    if not outcomes:
+        raise FleetInputError("samples", "no candidate sizes")
+    out = sorted(((_check_size(x), o) for x, o in outcomes.items()), key=lambda item: item[0])
+    shapes = {o.cost_cny.shape for _, o in out}
+    if len(shapes) != 1:
+        raise FleetInputError("samples", f"sizes have different (days, hours) shapes: {sorted(shapes)}")
+    return out
+
+
+# ------------------------------------------------------------------------------------------- tables
+
+
+def _row(x: int, f: FloatArray, amb: Ambiguity, sign: float, method: str = "exact") -> SizeRow:
+    try:
+        wc = worst_case(
+            sign * f, amb.divergence, alpha=amb.alpha, support=amb.support, bins=amb.bins, method=method
+        )
+    except DroInputError as exc:
+        raise FleetInputError(exc.parameter, f"size {x}: {exc.message}") from None
+    value, mean = sign * float(wc.value), float(np.mean(f))
+    return SizeRow(x, int(f.size), mean, value, value - mean, float(wc.rho), int(wc.m), str(wc.status))
 
 
 def size_table(
@@ -277,26 +394,70 @@ def size_table(
     if sense not in ("min", "max"):
         raise FleetInputError("sense", f"must be 'min' or 'max', got {sense!r}")
     sign = 1.0 if sense == "min" else -1.0
-    rows = []
-    for x, f in _sorted_samples(samples, 2):
-        try:
-            wc = worst_case(sign * f, amb.divergence, alpha=amb.alpha, support=amb.support, bins=amb.bins)
-        except DroInputError as exc:
-            raise FleetInputError(exc.parameter, f"size {x}: {exc.message}") from None
-        value, mean = sign * float(wc.value), float(np.mean(f))
-        rows.append(
-            SizeRow(
-                size=x,
-                n_samples=int(f.size),
-                mean=mean,
-                worst_case=value,
-                premium=value - mean,
-                rho=float(wc.rho),
-                m=int(wc.m),
-                status=str(wc.status),
-            )
-        )
-    return SizeTable(tuple(rows), amb, sense)
+    rows = tuple(_row(x, f, amb, sign) for x, f in _sorted_samples(samples, 2))
+    return SizeTable(rows, amb, sense)
+
+
+def total_cost_samples(
+    outcomes: DayOutcomes, size: int, costs: CostModel, hour: int | None = None
+) -> FloatArray:
+    """The platform's total cost per hour on every day (docs/METHOD.md section 7):
+    ``Σ_h cost_{j,h} / (H τ) + ζ x`` for the whole horizon (``hour=None``), ``cost_{j,h} / τ + ζ x`` for
+    one interval."""
+    tau, zeta = costs.interval_hours, costs.subsidy_cny_per_vehicle_hour
+    c = outcomes.cost_cny
+    per_hour = c.sum(axis=1) / (c.shape[1] * tau) if hour is None else c[:, hour] / tau
+    return np.asarray(per_hour + zeta * size, dtype=np.float64)
+
+
+def completion_samples(outcomes: DayOutcomes, hour: int | None = None) -> FloatArray | None:
+    """Per day, the share of reachable tasks completed within the horizon (of the whole horizon, or of the
+    tasks due in one interval); ``None`` when no day has a task due. A day with nothing due counts 1: it
+    missed nothing."""
+    due = outcomes.tasks_due.sum(axis=1) if hour is None else outcomes.tasks_due[:, hour]
+    done = outcomes.tasks_done.sum(axis=1) if hour is None else outcomes.tasks_done[:, hour]
+    if not np.any(due > 0):
+        return None
+    return np.where(due > 0, done / np.maximum(due, 1), 1.0).astype(np.float64)
+
+
+def candidate_table(
+    outcomes: Mapping[int, DayOutcomes],
+    ambiguity: Ambiguity | None = None,
+    costs: CostModel | None = None,
+    *,
+    hour: int | None = None,
+    days: Sequence[int] | None = None,
+) -> CandidateTable:
+    """Every candidate's total cost per hour (mean, exact and box LP worst cases), design KPI and completion,
+    for the whole horizon (``hour=None``) or one interval, on all days or on ``days`` (indices)."""
+    amb, cm = ambiguity or Ambiguity(), costs or CostModel()
+    items = _check_outcomes(outcomes)
+    n_days = items[0][1].n_days
+    keep = tuple(range(n_days)) if days is None else tuple(sorted({int(d) for d in days}))
+    if len(keep) < 2 or keep[0] < 0 or keep[-1] >= n_days:
+        raise FleetInputError("days", f"need at least 2 day indices in [0, {n_days}), got {keep}")
+    if hour is not None and not 0 <= hour < items[0][1].n_hours:
+        raise FleetInputError("hour", f"must lie in [0, {items[0][1].n_hours}), got {hour}")
+    idx = np.asarray(keep, dtype=np.int64)
+    rows, cost_s, comp_s = [], {}, {}
+    for x, o in items:
+        f = total_cost_samples(o, x, cm, hour)[idx]
+        c_all = completion_samples(o, hour)
+        cost_row = _row(x, f, amb, 1.0)
+        box = _row(x, f, amb, 1.0, "box_lp").worst_case if amb.support == "binned" else math.nan
+        comp_row = None
+        if c_all is not None:
+            c = c_all[idx]
+            comp_s[x] = c
+            comp_row = _row(x, c, amb, -1.0)
+        cost_s[x] = f
+        rows.append(CandidateRow(x, cost_row, box, cost_row.mean / x, cost_row.worst_case / x, comp_row))
+    has_tasks = all(r.completion is not None for r in rows)
+    return CandidateTable(tuple(rows), keep, cost_s, comp_s if has_tasks else None)
+
+
+# ------------------------------------------------------------------------------------------- choices
 
 
 def _tied(values: Sequence[float]) -> list[int]:
@@ -305,141 +466,150 @@ def _tied(values: Sequence[float]) -> list[int]:
     return [i for i, v in enumerate(values) if v == best or math.isclose(v, best, rel_tol=TIE_RTOL)]
 
 
-def _choose(table: SizeTable, method: FleetMethod, key: str) -> Choice:
-    sign = 1.0 if table.sense == "min" else -1.0
-    values = [sign * float(getattr(r, key)) for r in table.rows]
+def choose(table: CandidateTable, method: FleetMethod, target: float | None = None) -> Choice:
+    """The size ``method`` picks from ``table`` (ties: the smallest).
+
+    Deterministic minimizes the mean total cost, DRO and DRO_RH the exact worst case, ``box_lp`` the
+    paper's Eq. (28) value. With a completion ``target`` only sizes whose completion (the mean for
+    Deterministic, the worst case otherwise) reaches it are eligible; if none does, the size with the best
+    such completion is taken (ties: the cheaper objective, then the smaller) and ``target_met`` is False.
+    """
+    t = _check_target(target)
+
+    def objective(r: CandidateRow) -> float:
+        if method == "deterministic":
+            return r.cost.mean
+        if method == "box_lp":
+            return r.box_lp_worst_case
+        return r.cost.worst_case
+
+    def completion(r: CandidateRow) -> float:
+        assert r.completion is not None
+        return r.completion.mean if method == "deterministic" else r.completion.worst_case
+
+    rows = list(table.rows)
+    met: bool | None = None
+    if t is not None and all(r.completion is not None for r in rows):
+        eligible = [r for r in rows if completion(r) >= t]
+        met = bool(eligible)
+        if not eligible:
+            best = max(completion(r) for r in rows)
+            rows = [
+                r
+                for r in rows
+                if completion(r) == best or math.isclose(completion(r), best, rel_tol=TIE_RTOL)
+            ]
+        else:
+            rows = eligible
+    values = [objective(r) for r in rows]
     tied = _tied(values)
-    first = table.rows[tied[0]]
+    first = rows[tied[0]]
     return Choice(
         method=method,
         size=first.size,
-        objective=float(getattr(first, key)),
-        tied=tuple(table.rows[i].size for i in tied),
+        objective=objective(first),
+        tied=tuple(rows[i].size for i in tied),
         status="tie" if len(tied) > 1 else "unique",
+        target_met=met,
     )
 
 
-def deterministic(table: SizeTable) -> Choice:
-    """The size with the best sample mean (ties: the smallest)."""
-    return _choose(table, "deterministic", "mean")
+# ----------------------------------------------------------------------------------- rolling horizon
 
 
-def dro(table: SizeTable) -> Choice:
-    """The size with the best worst-case expectation (ties: the smallest)."""
-    return _choose(table, "dro", "worst_case")
+def similar_days(volumes: ArrayLike, observed: ArrayLike, keep: int) -> tuple[int, ...]:
+    """The ``keep`` history days most like the day so far (ascending indices).
 
-
-def dro_rh(tables: Sequence[SizeTable]) -> RollingChoice:
-    """DRO_RH: per hour, the size with the best worst case of that hour's samples (ties: the smallest)."""
-    if not tables:
-        raise FleetInputError("samples", "no hours")
-    choices = tuple(Choice("dro_rh", c.size, c.objective, c.tied, c.status) for c in (dro(t) for t in tables))
-    return RollingChoice(choices, tuple(tables))
-
-
-def cheapest_meeting_target(
-    samples: Mapping[int, ArrayLike], target: float, ambiguity: Ambiguity | None = None
-) -> TargetChoice:
-    """The smallest size whose worst-case expected value (the infimum over the ball) is at least ``target``.
-
-    Meant for the POI completion rate: a fleet whose completion could fall below the target under a
-    plausible demand distribution is not recommended, however cheap it is. ``status="unmet"`` and
-    ``size=None`` when no candidate meets the target.
+    ``volumes[j, h]``: requests of history day ``j`` in interval ``h``; ``observed``: the requests of the
+    current day in its first ``k`` intervals (the hours already past). Distance of day ``j``:
+    ``sqrt(mean_{h<k} (log(1 + observed_h) - log(1 + volumes[j, h]))^2)``, the root-mean-square relative
+    difference of the hourly volumes; ties go to the lower index. With nothing observed (``k = 0``) every
+    day is kept: there is nothing to condition on yet.
     """
-    t = float(target)
-    if not math.isfinite(t):
-        raise FleetInputError("target", f"must be finite, got {target!r}")
-    table = size_table(samples, ambiguity, sense="max")
-    meets = [r for r in table.rows if r.worst_case >= t]
-    best = _choose(table, "dro", "worst_case")
-    return TargetChoice(
-        target=t,
-        size=meets[0].size if meets else None,
-        status="met" if meets else "unmet",
-        best_size=best.size,
-        best_worst_case=best.objective,
-        table=table,
-    )
+    v = np.asarray(volumes, dtype=np.float64)
+    obs = np.asarray(observed, dtype=np.float64).reshape(-1)
+    if v.ndim != 2 or v.shape[0] < 1:
+        raise FleetInputError("volumes", f"need a (days, hours) array, got shape {v.shape}")
+    if obs.size > v.shape[1] or not np.all(np.isfinite(obs)) or np.any(obs < 0):
+        raise FleetInputError(
+            "observed", f"need at most {v.shape[1]} non-negative volumes, got {obs.tolist()}"
+        )
+    if not np.all(np.isfinite(v)) or np.any(v < 0):
+        raise FleetInputError("volumes", "volumes must be finite and non-negative")
+    if isinstance(keep, bool) or not isinstance(keep, int) or keep < 2:
+        raise FleetInputError("keep", f"must be an integer >= 2, got {keep!r}")
+    n = v.shape[0]
+    if obs.size == 0 or keep >= n:
+        return tuple(range(n))
+    d = np.sqrt(np.mean((np.log1p(obs)[None, :] - np.log1p(v[:, : obs.size])) ** 2, axis=1))
+    order = sorted(range(n), key=lambda j: (float(d[j]), j))
+    return tuple(sorted(order[:keep]))
+
+
+def rolling_hour(
+    outcomes: Mapping[int, DayOutcomes],
+    volumes: ArrayLike,
+    observed: ArrayLike,
+    hour: int,
+    *,
+    keep: int,
+    ambiguity: Ambiguity | None = None,
+    costs: CostModel | None = None,
+    target: float | None = None,
+) -> RollingHour:
+    """DRO_RH's decision for interval ``hour`` given the current day's volumes of its first intervals:
+    conditions on the observed intervals before ``hour`` (:func:`similar_days`) and minimizes the worst
+    case of that interval's total cost on the kept days."""
+    obs = np.asarray(observed, dtype=np.float64).reshape(-1)
+    k = min(int(hour), int(obs.size))
+    days = similar_days(volumes, obs[:k], keep)
+    table = candidate_table(outcomes, ambiguity, costs, hour=hour, days=days)
+    return RollingHour(hour, k, table, choose(table, "dro_rh", target))
 
 
 def plan_fleet(
-    daily: Mapping[int, ArrayLike],
-    hourly: Sequence[Mapping[int, ArrayLike]],
+    outcomes: Mapping[int, DayOutcomes],
+    volumes: ArrayLike,
     ambiguity: Ambiguity | None = None,
+    costs: CostModel | None = None,
     *,
-    completion: Mapping[int, ArrayLike] | None = None,
+    observed: ArrayLike = (),
+    keep: int = 7,
     target: float | None = None,
 ) -> FleetPlan:
-    """One solve: Deterministic and DRO on the daily KPI, DRO_RH on every hour's KPI, and the completion
-    target when both ``completion`` samples and ``target`` are given."""
-    amb = ambiguity or Ambiguity()
-    table = size_table(daily, amb)
-    rolling = dro_rh([size_table(h, amb) for h in hourly])
-    if (completion is None) != (target is None):
-        raise FleetInputError("target", "give both completion samples and a target, or neither")
-    goal = None
-    if completion is not None and target is not None:
-        goal = cheapest_meeting_target(completion, target, amb)
-    return FleetPlan(table, deterministic(table), dro(table), rolling, goal)
+    """One solve: Deterministic, DRO and the box LP on the daily total cost per hour, DRO_RH on every
+    interval conditioned on the ``observed`` volumes of the current day (its first intervals).
 
-
-# ------------------------------------------------------------------------------------- test-day KPIs
-
-
-def realized_fixed(test_daily: Mapping[int, ArrayLike], size: int) -> Realized:
-    """The design KPI of a fixed size on test days: the mean over days of the daily KPI of the run with
-    that size (``test_daily[x][d]``)."""
-    x = _check_size(size, "size")
-    if x not in test_daily:
-        raise FleetInputError("size", f"no test runs for size {x}")
-    f = _as_samples(x, test_daily[x], 1)
-    return Realized(float(np.mean(f)), tuple(float(v) for v in f), (x,))
-
-
-def realized_rolling(
-    test_hour_cost: Mapping[int, ArrayLike],
-    sizes_by_hour: Sequence[int],
-    *,
-    interval_hours: float = 1.0,
-    subsidy_cny_per_vehicle_hour: float = 0.0,
-) -> Realized:
-    """The design KPI of hour-by-hour sizes ``x_h`` on test days (METHOD section 7 summed over hours):
-
-    ``KPI_d = (Σ_h cost_{d,h}(x_h) + ζ Σ_h x_h τ) / (Σ_h x_h τ)``, averaged over the test days ``d``,
-
-    ``cost_{d,h}(x) = test_hour_cost[x][d, h]`` the hour-``h`` monitoring cost of day ``d``'s run with fleet
-    ``x``, ``τ`` the interval length in hours and ζ the subsidy.
-
-    Notes
-    -----
-    An approximation: every run was simulated with one fleet size all day, so ``cost_h(x_h)`` is the cost
-    of hour ``h`` *in a day run entirely with* ``x_h``. A fleet that really changes size at the hour starts
-    the hour with the previous hour's taxi positions and Lambda counts, which the runs do not reproduce.
-    With ``x_h = x`` for every hour it is exactly the daily design KPI of the run with ``x``.
+    Parameters
+    ----------
+    outcomes
+        ``outcomes[x]``: the runs of size ``x`` on the ``M`` history days.
+    volumes
+        ``(M, H)`` requests of every history day and interval (the conditioning features).
+    observed
+        Requests of the current day in its first ``k < H`` intervals (empty before the day starts).
+    keep
+        Days DRO_RH keeps after conditioning (all when ``keep >= M``).
+    target
+        Optional completion-rate target on the reachable tasks.
     """
-    hours = [_check_size(x, "sizes_by_hour") for x in sizes_by_hour]
-    if not hours:
-        raise FleetInputError("sizes_by_hour", "no hours")
-    tau = float(interval_hours)
-    if not (math.isfinite(tau) and tau > 0):
-        raise FleetInputError("interval_hours", f"must be positive, got {interval_hours!r}")
-    costs: dict[int, FloatArray] = {}
-    for x in sorted(set(hours)):
-        if x not in test_hour_cost:
-            raise FleetInputError("sizes_by_hour", f"no test runs for size {x}")
-        c = np.asarray(test_hour_cost[x], dtype=np.float64)
-        if c.ndim != 2 or c.shape[0] < 1 or c.shape[1] != len(hours) or not np.all(np.isfinite(c)):
-            raise FleetInputError(
-                "test_hour_cost",
-                f"size {x}: need a finite (days, {len(hours)}) array, got shape {c.shape}",
-            )
-        costs[x] = c
-    n_days = {c.shape[0] for c in costs.values()}
-    if len(n_days) != 1:
-        raise FleetInputError(
-            "test_hour_cost", f"sizes have different numbers of test days: {sorted(n_days)}"
-        )
-    vehicle_hours = tau * float(sum(hours))
-    total = sum(costs[x][:, h] for h, x in enumerate(hours))
-    per_day = (np.asarray(total) + subsidy_cny_per_vehicle_hour * vehicle_hours) / vehicle_hours
-    return Realized(float(np.mean(per_day)), tuple(float(v) for v in per_day), tuple(hours))
+    amb, cm = ambiguity or Ambiguity(), costs or CostModel()
+    t = _check_target(target)
+    items = _check_outcomes(outcomes)
+    v = np.asarray(volumes, dtype=np.float64)
+    if v.shape != items[0][1].cost_cny.shape:
+        raise FleetInputError("volumes", f"need shape {items[0][1].cost_cny.shape}, got {v.shape}")
+    daily = candidate_table(outcomes, amb, cm)
+    rolling = tuple(
+        rolling_hour(outcomes, v, observed, h, keep=keep, ambiguity=amb, costs=cm, target=t)
+        for h in range(items[0][1].n_hours)
+    )
+    return FleetPlan(
+        daily=daily,
+        deterministic=choose(daily, "deterministic", t),
+        dro=choose(daily, "dro", t),
+        box_lp=choose(daily, "box_lp", t),
+        rolling=rolling,
+        costs=cm,
+        target=t,
+    )

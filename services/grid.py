@@ -1,4 +1,4 @@
-"""The 1 km sensing grid G and the cells each edge crosses (METHOD section 2).
+"""The 1 km sensing grid G and the cells each edge crosses (docs/METHOD.md section 2).
 
 Implementation owner: the cities work (see docs/DESIGN.md). Field names here are the contract.
 
@@ -32,6 +32,7 @@ __all__ = [
     "EdgeCells",
     "build_grid",
     "cells_of_points",
+    "node_col_row",
     "segment_cells",
     "build_edge_cells",
     "touched_cells",
@@ -134,6 +135,23 @@ def cells_of_points(grid: Grid, x: ArrayLike, y: ArrayLike) -> NDArray[np.int64]
         i = int(np.flatnonzero(outside.ravel())[0])
         raise ValueError(f"point ({xa.ravel()[i]:.1f}, {ya.ravel()[i]:.1f}) lies outside the grid")
     return row * grid.n_cols + col
+
+
+def node_col_row(grid: Grid, network: Network) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Column and row of every node's cell by the point rule (the module docstring), in node order.
+
+    Parameters
+    ----------
+    grid : Grid
+        A grid covering the network (``build_grid``), so every column and row is inside it.
+    network : Network
+
+    Returns
+    -------
+    col, row : int64 (n_nodes,)
+        The cell of node ``i`` is ``row[i] * grid.n_cols + col[i]``.
+    """
+    return _col_row(grid, network.x_m, network.y_m)
 
 
 def _crossings(

@@ -22,6 +22,7 @@ __all__ = [
     "Taxi",
     "Task",
     "TaskStatus",
+    "DONE",
     "CompletionMode",
     "Snapshot",
     "CountsView",
@@ -36,7 +37,9 @@ TaskId = NewType("TaskId", str)
 IntervalKey = NewType("IntervalKey", int)
 """Global sensing-interval number: floor((local time - horizon start) / interval length); ``city.Horizon``."""
 
-TaskStatus = Literal["pending", "assigned", "completed"]
+TaskStatus = Literal["pending", "assigned", "completed", "expired"]
+DONE: frozenset[str] = frozenset({"completed", "expired"})
+"""Statuses that end a task: it leaves the set an epoch reads (the stores keep it as history)."""
 CompletionMode = Literal["passive", "active"]
 
 
@@ -67,10 +70,11 @@ class Taxi:
 
 @dataclass(frozen=True, slots=True)
 class Task:
-    """A monitoring task: POI node and scheduled time, plus its lifecycle (METHOD section 6).
+    """A monitoring task: POI node and scheduled time, plus its lifecycle (docs/METHOD.md section 6).
 
     ``assigned``: an instrumented taxi's committed path reaches ``node`` at ``completed_at_s`` (in the
     future of the committing epoch). ``completed``: that time has passed (as of a committed epoch).
+    ``expired``: still pending when its scheduled time fell out of the service's retention window.
     """
 
     id: TaskId

@@ -4,7 +4,7 @@ Implementation owner: the cities work (see docs/DESIGN.md). Field names here are
 
 Build a network with :func:`build_network` (external ids in, indices out) and keep its largest strongly
 connected component with :func:`largest_strongly_connected`. Positions given as lon/lat snap to the nearest
-node in the projected plane (METHOD section 2): :meth:`Network.snap`, :meth:`Network.snap_many`.
+node in the projected plane (docs/METHOD.md section 2): :meth:`Network.snap`, :meth:`Network.snap_many`.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ __all__ = [
     "SnapError",
     "build_network",
     "largest_strongly_connected",
+    "lonlat_of",
     "utm_crs",
 ]
 
@@ -39,16 +40,41 @@ class SnapError(ValueError):
 _local = threading.local()
 
 
-def _transformer(crs: str) -> Transformer:
-    cache: dict[str, Transformer] | None = getattr(_local, "transformers", None)
+def _transformer(crs: str, inverse: bool = False) -> Transformer:
+    """WGS84 -> ``crs`` (or ``crs`` -> WGS84 when ``inverse``), lon/lat order, one per thread."""
+    cache: dict[tuple[str, bool], Transformer] | None = getattr(_local, "transformers", None)
     if cache is None:
         cache = {}
         _local.transformers = cache
-    tr = cache.get(crs)
+    tr = cache.get((crs, inverse))
     if tr is None:
-        tr = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-        cache[crs] = tr
+        src, dst = (crs, "EPSG:4326") if inverse else ("EPSG:4326", crs)
+        tr = Transformer.from_crs(src, dst, always_xy=True)
+        cache[(crs, inverse)] = tr
     return tr
+
+
+def lonlat_of(crs: str, x_m: ArrayLike, y_m: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """WGS84 lon/lat of points given in projected metres of ``crs`` (the inverse of ``Network.project``).
+
+    Parameters
+    ----------
+    crs : str
+        The projection, e.g. a network's or grid's ``crs``.
+    x_m, y_m : float arrays of one shape
+
+    Returns
+    -------
+    lon, lat : float64 arrays of that shape
+    """
+    x = np.asarray(x_m, dtype=np.float64)
+    y = np.asarray(y_m, dtype=np.float64)
+    if x.shape != y.shape:
+        raise ValueError("x_m and y_m must have the same shape")
+    lon, lat = _transformer(crs, inverse=True).transform(x, y)
+    return np.asarray(lon, dtype=np.float64).reshape(x.shape), np.asarray(lat, dtype=np.float64).reshape(
+        x.shape
+    )
 
 
 def utm_crs(lon: float, lat: float) -> str:
@@ -163,7 +189,7 @@ class Network:
         return tree
 
     def snap(self, lon: float, lat: float, limit_m: float) -> tuple[int, float]:
-        """The node nearest to a lon/lat in the projected plane (METHOD section 2).
+        """The node nearest to a lon/lat in the projected plane (docs/METHOD.md section 2).
 
         Parameters
         ----------
@@ -304,7 +330,7 @@ def build_network(
     """Build a :class:`Network` from external node ids and directed edges between them.
 
     Self-loops are dropped; of parallel edges the shortest is kept (its speed with it); edges are sorted
-    by (u, v). Travel time is ``length_m / (speed_kmh / 3.6)`` (METHOD section 2).
+    by (u, v). Travel time is ``length_m / (speed_kmh / 3.6)`` (docs/METHOD.md section 2).
 
     Parameters
     ----------
@@ -319,7 +345,7 @@ def build_network(
     speed_kmh : float (m,), optional
         Per-edge speeds; NaN entries take ``default_speed_kmh``.
     default_speed_kmh : float
-        Speed of edges without one (35 km/h, METHOD section 10).
+        Speed of edges without one (35 km/h, docs/METHOD.md section 10).
     crs : str, optional
         Projected CRS; by default the UTM zone of the nodes' mean lon/lat.
 

@@ -1,4 +1,4 @@
-"""Sensing utility: Theta, the marginal gain of a path, timed G-routes and Gamma (METHOD section 3).
+"""Sensing utility: Theta, the marginal gain of a path, timed G-routes and Gamma (docs/METHOD.md section 3).
 
 A path is evaluated against the counts at the start of the epoch: a (cell, interval) pair adds
 ``mu_t * s_g * ((L + 1)**rho - L**rho)`` the first time the path enters it, unless the taxi is already
@@ -38,7 +38,7 @@ def theta_gain(
     """Theta(Lambda + n) - Theta(Lambda): what ``n`` more distinct vehicles add to a (cell, interval).
 
     With ``n = 1`` and the weights mu_t s_g this is the summand of Eq. (3); every gain in the core is
-    computed from it (the compiled kernels read it from ``routing.GainTable``).
+    computed from it (the compiled kernels read it from ``gains.Gains``).
     """
     lam = np.asarray(count, dtype=np.float64)
     out: NDArray[np.float64] = np.power(lam + added, rho) - np.power(lam, rho)

@@ -1,4 +1,4 @@
-"""Monitoring-task lifecycle (METHOD section 6): which planned paths reach which POIs, and when.
+"""Monitoring-task lifecycle (docs/METHOD.md section 6): which planned paths reach which POIs, and when.
 
 A pending task is taken by the first instrumented taxi whose committed path reaches its node at or after
 its scheduled time: ``assigned`` until that moment, ``completed`` once an epoch at or after it commits.
@@ -56,9 +56,11 @@ def reaches(city: City, paths: Iterable[PlannedPath], tasks: Sequence[Task]) -> 
     best: dict[TaskId, Reach] = {}
     if not pending:
         return best
+    at_task = np.zeros(city.network.n_nodes, dtype=bool)
+    at_task[np.fromiter(pending, dtype=np.int64)] = True
     for path in paths:
         nodes, times = node_arrivals(city, path)
-        for i in np.flatnonzero(np.isin(nodes, np.fromiter(pending, dtype=np.int64))):
+        for i in np.flatnonzero(at_task[nodes]):
             for task in pending[int(nodes[i])]:
                 at = float(times[i])
                 if at < task.scheduled_at_s:

@@ -35,7 +35,7 @@ def make_city(
     rows: dict[tuple[int, int], float] = {}
     for e in edges:
         u, v = index[e[0]], index[e[1]]
-        length = float(e[2]) if len(e) > 2 else float(np.hypot(x[v] - x[u], y[v] - y[u]))  # type: ignore[misc]
+        length = float(e[2]) if len(e) > 2 else float(np.hypot(x[v] - x[u], y[v] - y[u]))
         pairs = [(u, v), (v, u)] if both_ways else [(u, v)]
         for a, b in pairs:
             rows[(a, b)] = min(length, rows.get((a, b), np.inf))

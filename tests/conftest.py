@@ -152,8 +152,14 @@ def make_redis_store(redis_url: str) -> Iterator[Callable[[], RedisStore]]:
         delete_prefix(redis_url, prefix)
 
 
+_E2E = Path(__file__).resolve().parent / "e2e"
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark every test that uses the Redis server with ``redis`` (select with ``-m redis``)."""
+    """Mark every test that uses the Redis server ``redis`` and every end-to-end test ``slow`` (whole
+    simulated days, processes, servers); ``make check`` runs the rest as its quick tests."""
     for item in items:
         if "redis_url" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.redis)
+        if _E2E in Path(str(item.path)).parents:
+            item.add_marker(pytest.mark.slow)

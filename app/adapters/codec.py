@@ -6,7 +6,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import secrets
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,7 +19,6 @@ __all__ = [
     "same_registration",
     "classify_tasks",
     "TaskClassification",
-    "lookup_in",
     "utc_day",
     "format_time",
     "fleet_record_to_json",
@@ -106,11 +105,6 @@ def classify_tasks(lookup: Callable[[TaskId], Task | None], tasks: Sequence[Task
     if conflicts:
         return TaskClassification(PutTasksResult(conflicts=conflicts))
     return TaskClassification(PutTasksResult(created=created, unchanged=unchanged), pending)
-
-
-def lookup_in(mapping: Mapping[TaskId, Task]) -> Callable[[TaskId], Task | None]:
-    """A ``classify_tasks`` lookup over a mapping."""
-    return mapping.get
 
 
 def utc_day(time_s: float) -> str:

@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
-from app.adapters.codec import check_fleet_record, classify_tasks, lookup_in, new_lock_token, utc_day
+from app.adapters.codec import check_fleet_record, classify_tasks, new_lock_token, utc_day
 from app.ports import (
     CityState,
     CommitResult,
@@ -21,7 +21,8 @@ from app.ports import (
     SolveRequest,
     StoredEpoch,
 )
-from services.model import IntervalKey, Task, TaskId, TaxiId
+from services.ledger import Ledger, apply_decision
+from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
 
 __all__ = ["MemoryStore"]
 
@@ -35,14 +36,20 @@ class _City:
     last_epoch_id: str | None = None
     last_time_s: float | None = None
     epochs: dict[str, StoredEpoch] = field(default_factory=dict)
-    counts: dict[IntervalKey, dict[int, int]] = field(default_factory=dict)
-    visits: dict[tuple[IntervalKey, TaxiId], set[int]] = field(default_factory=dict)
-    tasks: dict[TaskId, Task] = field(default_factory=dict)
+    ledger: Ledger = field(default_factory=Ledger)  # counts, visits and tasks (services.ledger)
     demand: dict[str, list[str]] = field(default_factory=dict)
     fleet_current: FleetRecord | None = None
     fleet_history: list[FleetRecord] = field(default_factory=list)  # newest first
     locks: dict[str, tuple[str, float]] = field(default_factory=dict)  # name -> (token, expires at)
     solve_queue: list[SolveRequest] = field(default_factory=list)
+    done_at: dict[TaskId, float] = field(default_factory=dict)  # epoch time a task finished at
+
+
+def _prune_done(c: _City, before_s: float) -> None:
+    """Drop the finished tasks that finished before ``before_s`` (epoch time), as the Redis store does."""
+    for task_id in [t for t, at in c.done_at.items() if at < before_s]:
+        del c.done_at[task_id]
+        c.ledger.done.pop(task_id, None)
 
 
 def _visit_key(interval: IntervalKey, taxi: TaxiId) -> str:
@@ -82,10 +89,10 @@ class MemoryStore:
         if city is None:
             return
         if kind == "count":
-            city.counts.pop(IntervalKey(int(name)), None)
+            city.ledger.counts.pop(IntervalKey(int(name)), None)
         elif kind == "visit":
             k, taxi = name.split(":", 1)
-            city.visits.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
+            city.ledger.visits.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
         elif kind == "epoch":
             city.epochs.pop(name, None)
         else:
@@ -121,15 +128,15 @@ class MemoryStore:
             for taxi in dict.fromkeys(taxi_ids):
                 pairs: set[tuple[IntervalKey, int]] = set()
                 for k in ks:
-                    pairs.update((k, cell) for cell in c.visits.get((k, taxi), ()))
+                    pairs.update((k, cell) for cell in c.ledger.visits.get((k, taxi), ()))
                 visited[taxi] = pairs
             return CityState(
                 version=c.version,
                 last_epoch_id=c.last_epoch_id,
                 last_epoch_time_s=c.last_time_s,
-                counts={k: dict(c.counts.get(k, {})) for k in ks},
+                counts={k: dict(c.ledger.counts.get(k, {})) for k in ks},
                 visited=visited,
-                tasks=[c.tasks[t] for t in sorted(c.tasks)],
+                tasks=[c.ledger.tasks[t] for t in sorted(c.ledger.tasks)],
             )
 
     def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
@@ -144,17 +151,15 @@ class MemoryStore:
             if c.last_time_s is not None and commit.time_s < c.last_time_s:
                 return CommitResult("stale")
             ttl = int(commit.retention_s)
-            for visit in commit.visits:
-                k, taxi, cell = IntervalKey(int(visit.interval)), visit.taxi_id, int(visit.cell)
-                cells = c.visits.setdefault((k, taxi), set())
-                if cell not in cells:
-                    cells.add(cell)
-                    counts = c.counts.setdefault(k, {})
-                    counts[cell] = counts.get(cell, 0) + 1
+            apply_decision(c.ledger, commit.visits, commit.task_updates)
+            for t in commit.task_updates:
+                if t.status in DONE:
+                    c.done_at[t.id] = float(commit.time_s)
+            _prune_done(c, float(commit.time_s) - ttl)
+            for visit in commit.visits:  # like Redis: every key a visit names lives on from this commit
+                k = IntervalKey(int(visit.interval))
                 self._touch((city, "count", str(int(k))), ttl)
-                self._touch((city, "visit", _visit_key(k, taxi)), ttl)
-            for task in commit.task_updates:
-                c.tasks[task.id] = task
+                self._touch((city, "visit", _visit_key(k, visit.taxi_id)), ttl)
             c.epochs[commit.epoch_id] = StoredEpoch(
                 commit.epoch_id, commit.body_hash, float(commit.time_s), commit.response_json
             )
@@ -169,28 +174,29 @@ class MemoryStore:
             return CommitResult("committed", new_version=c.version)
 
     def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
-        """Register tasks, idempotent per id; on any conflict nothing is written."""
+        """Register tasks, idempotent per id (finished ones included); on any conflict nothing is written."""
         with self._lock:
             c = self._city(city, create=True)
-            outcome = classify_tasks(lookup_in(c.tasks), tasks)
-            c.tasks.update(outcome.to_write)
+            outcome = classify_tasks(c.ledger.task, tasks)
+            c.ledger.tasks.update(outcome.to_write)
             return outcome.result
 
     def list_tasks(self, city: str) -> list[Task]:
-        """All tasks of the city, by id."""
+        """The city's open tasks and its finished ones still within the retention, by id."""
         with self._lock:
             c = self._city(city)
-            return [c.tasks[t] for t in sorted(c.tasks)]
+            both = {**c.ledger.done, **c.ledger.tasks}
+            return [both[t] for t in sorted(both)]
 
     def interval_counts(self, city: str, interval: IntervalKey) -> dict[int, int]:
         """Lambda by cell for one interval (cells with zero count absent)."""
         with self._lock:
-            return dict(self._city(city).counts.get(interval, {}))
+            return dict(self._city(city).ledger.counts.get(interval, {}))
 
     def list_intervals(self, city: str) -> list[IntervalKey]:
         """Intervals with at least one count, ascending."""
         with self._lock:
-            return sorted(k for k, counts in self._city(city).counts.items() if counts)
+            return sorted(k for k, counts in self._city(city).ledger.counts.items() if counts)
 
     def recorded_demand(self, city: str, day: str) -> list[str]:
         """Demand recorded on one UTC day (``YYYYMMDD``), in commit order."""

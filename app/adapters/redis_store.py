@@ -39,7 +39,7 @@ from app.ports import (
     StoredEpoch,
     StoreUnavailable,
 )
-from services.model import IntervalKey, Task, TaskId, TaxiId
+from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
 
 __all__ = [
     "RedisStore",
@@ -51,14 +51,19 @@ __all__ = [
 
 COMMIT_EPOCH_LUA = """
 -- Commit one dispatch epoch atomically (docs/DESIGN.md, "Exactly-once epochs").
--- KEYS[1] meta hash, KEYS[2] epoch record hash, KEYS[3] intervals zset, KEYS[4] tasks hash,
--- KEYS[5] demand list of the epoch's UTC day, KEYS[6..] count and visit keys named by index in visits.
--- ARGV[1] JSON {epoch_id, hash, time, expected_version, ttl, response,
+-- KEYS[1] meta hash, KEYS[2] epoch record hash, KEYS[3] intervals zset, KEYS[4] open tasks hash,
+-- KEYS[5] demand list of the epoch's UTC day, KEYS[6] finished tasks hash, KEYS[7] finished tasks by
+-- epoch time (zset), KEYS[8..] count and visit keys named by index in visits.
+-- ARGV[1] JSON {epoch_id, hash, time, expected_version, ttl, response, done_before,
 --               visits: [[count_key_index, visit_key_index, cell, interval], ...],
---               tasks: [[task_id, task_json], ...], demand (absent when nothing is recorded)}.
+--               tasks: [[task_id, task_json, '1' if it finishes the task else '0'], ...],
+--               demand (absent when nothing is recorded)}.
+-- A finished task moves from the open hash to the finished ones; finished tasks that finished before
+-- done_before (epoch time) are dropped.
 -- Cells, intervals, times and the TTL arrive as strings: no number round-trips through a Lua double.
 -- Returns {'duplicate', hash, time, response} | {'version_mismatch'} | {'stale'} | {'committed', version}.
 local meta, epoch, intervals, tasks, demand = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
+local done, done_at = KEYS[6], KEYS[7]
 local c = cjson.decode(ARGV[1])
 
 local stored = redis.call('HMGET', epoch, 'hash', 'time', 'response')
@@ -88,7 +93,20 @@ for key, _ in pairs(touched) do
   redis.call('EXPIRE', key, c.ttl)
 end
 for _, t in ipairs(c.tasks) do
-  redis.call('HSET', tasks, t[1], t[2])
+  if t[3] == '1' then
+    redis.call('HDEL', tasks, t[1])
+    redis.call('HSET', done, t[1], t[2])
+    redis.call('ZADD', done_at, c.time, t[1])
+  else
+    redis.call('HSET', tasks, t[1], t[2])
+  end
+end
+local old = redis.call('ZRANGEBYSCORE', done_at, '-inf', '(' .. c.done_before)
+for i = 1, #old, 1000 do
+  redis.call('HDEL', done, unpack(old, i, math.min(i + 999, #old)))
+end
+if #old > 0 then
+  redis.call('ZREMRANGEBYSCORE', done_at, '-inf', '(' .. c.done_before)
 end
 redis.call('HSET', epoch, 'hash', c.hash, 'time', c.time, 'response', c.response)
 redis.call('EXPIRE', epoch, c.ttl)
@@ -245,6 +263,8 @@ class RedisStore:
             self._key(city, "intervals"),
             self._key(city, "tasks"),
             self._key(city, "demand", utc_day(commit.time_s)),
+            self._key(city, "tasks", "done"),
+            self._key(city, "tasks", "done_at"),
         ]
         index: dict[str, int] = {}
 
@@ -271,7 +291,10 @@ class RedisStore:
             "ttl": str(int(commit.retention_s)),
             "response": commit.response_json,
             "visits": visits,
-            "tasks": [[str(t.id), task_to_json(t)] for t in commit.task_updates],
+            "done_before": format_time(commit.time_s - commit.retention_s),
+            "tasks": [
+                [str(t.id), task_to_json(t), "1" if t.status in DONE else "0"] for t in commit.task_updates
+            ],
         }
         if commit.demand_json is not None:
             doc["demand"] = commit.demand_json
@@ -289,16 +312,20 @@ class RedisStore:
         raise RuntimeError(f"unexpected reply from the commit script: {reply!r}")
 
     def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
-        """Register tasks, idempotent per id; on any conflict nothing is written (WATCH/MULTI, retried)."""
+        """Register tasks, idempotent per id (finished ones included); on any conflict nothing is written
+        (WATCH/MULTI, retried)."""
         key = self._key(city, "tasks")
+        done = self._key(city, "tasks", "done")
         ids = list(dict.fromkeys(str(t.id) for t in tasks))
         if not ids:
             return PutTasksResult()
         with self._guard("registering tasks"), self._client.pipeline(transaction=True) as pipe:
             while True:
                 try:
-                    pipe.watch(key)  # type: ignore[no-untyped-call]
+                    pipe.watch(key, done)  # type: ignore[no-untyped-call]
                     raw = cast(list[str | None], pipe.hmget(key, ids))
+                    old = cast(list[str | None], pipe.hmget(done, ids))
+                    raw = [r if r is not None else o for r, o in zip(raw, old, strict=True)]
                     existing = {TaskId(i): task_from_json(r) for i, r in zip(ids, raw, strict=True) if r}
                     outcome = classify_tasks(existing.get, tasks)
                     if not outcome.to_write:
@@ -312,10 +339,13 @@ class RedisStore:
                     continue  # a commit or another registration changed the tasks: compare again
 
     def list_tasks(self, city: str) -> list[Task]:
-        """All tasks of the city, by id."""
+        """The city's open tasks and its finished ones still within the retention, by id."""
         with self._guard("listing tasks"):
-            raw = cast(dict[str, str], self._client.hgetall(self._key(city, "tasks")))
-        return _decode_tasks(raw)
+            pipe = self._client.pipeline(transaction=True)
+            pipe.hgetall(self._key(city, "tasks", "done"))
+            pipe.hgetall(self._key(city, "tasks"))
+            done, open_ = pipe.execute()
+        return _decode_tasks({**done, **open_})
 
     def interval_counts(self, city: str, interval: IntervalKey) -> dict[int, int]:
         """Lambda by cell for one interval (cells with zero count absent)."""

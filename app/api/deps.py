@@ -10,6 +10,7 @@ from typing import Annotated
 from fastapi import Depends, Path, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from app.api.inputs import Limits
 from app.errors import Forbidden, Unauthorized
 from app.metrics import Metrics
 from app.settings import Scope, Settings
@@ -20,6 +21,7 @@ __all__ = [
     "ServiceDep",
     "MetricsDep",
     "SettingsDep",
+    "LimitsDep",
     "ReadAccess",
     "DispatchAccess",
     "CityName",
@@ -47,6 +49,14 @@ def get_settings(request: Request) -> Settings:
 ServiceDep = Annotated[DispatchService, Depends(get_service)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
+
+
+def get_limits(settings: SettingsDep) -> Limits:
+    """Items per request, from the settings."""
+    return Limits.from_settings(settings)
+
+
+LimitsDep = Annotated[Limits, Depends(get_limits)]
 
 _bearer = HTTPBearer(
     auto_error=False,

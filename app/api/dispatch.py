@@ -7,11 +7,13 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body, Response
 
-from app.api.deps import CityName, DispatchAccess, MetricsDep, ServiceDep
+from app.api.deps import CityName, DispatchAccess, LimitsDep, MetricsDep, ServiceDep
+from app.api.inputs import epoch_command, tasks_of
 from app.api.responses import WRITE_ERRORS
 from app.errors import ServiceError
 from app.ports import StoreUnavailable
-from app.schemas import EpochIn, EpochOut, TaskIn, TasksPutOut
+from app.schemas.dispatch import EpochIn, EpochOut
+from app.schemas.tasks import TaskIn, TasksPutOut
 
 __all__ = ["router"]
 
@@ -24,9 +26,10 @@ def post_tasks(
     tasks: Annotated[list[TaskIn], Body(description="Tasks to register; idempotent per id.")],
     _: DispatchAccess,
     service: ServiceDep,
+    limits: LimitsDep,
 ) -> TasksPutOut:
     """Register tasks: an id already stored with the same content is unchanged, with other content 409."""
-    return service.put_tasks(city, tasks)
+    return TasksPutOut.of(service.put_tasks(city, tasks_of(service.city(city), tasks, limits)))
 
 
 @router.post(
@@ -51,11 +54,12 @@ def post_epoch(
     _: DispatchAccess,
     service: ServiceDep,
     metrics: MetricsDep,
+    limits: LimitsDep,
 ) -> Response:
     """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
     started = time.perf_counter()
     try:
-        outcome = service.submit_epoch(city, epoch)
+        outcome = service.submit_epoch(city, epoch_command(service.city(city), epoch, limits))
     except ServiceError as err:
         metrics.epochs.labels(outcome=err.kind).inc()
         raise

@@ -12,10 +12,10 @@ from pydantic import ValidationError
 
 from app.api.deps import CityName, Principal, ReadAccess, ServiceDep, _require
 from app.api.responses import READ_ERRORS, errors
-from app.errors import InternalError, NoData
-from app.ports import FleetRecord, SolveRequest
-from app.schemas import format_time
-from app.schemas_fleet import FleetHistoryEntryOut, FleetHistoryOut, FleetRecommendationOut, SolveRequestOut
+from app.errors import InternalError
+from app.ports import FleetRecord
+from app.schemas.fleet import FleetHistoryEntryOut, FleetHistoryOut, FleetRecommendationOut, SolveRequestOut
+from services.rfc3339 import format_time
 
 __all__ = ["router", "AdminAccess"]
 
@@ -44,14 +44,8 @@ def get_recommendation(city: CityName, _: ReadAccess, service: ServiceDep) -> Fl
     """The worker's latest published recommendation: the chosen size per method (Deterministic, DRO, DRO_RH
     for the coming hour, the completion target), the per-size tables (mean, worst case, premium, rho, m),
     divergence, alpha, the data window, computed_at and version. 404 `no_data` before the first solve."""
-    tz = service.city(city).horizon.timezone
-    record = service.store.current_recommendation(city)
-    if record is None:
-        raise NoData(
-            f"no fleet recommendation for {city!r} yet: the worker (python -m app worker) publishes one "
-            "before every hour of the horizon; POST .../fleet/solve asks for one now"
-        )
-    return _recommendation(record, tz)
+    served, record = service.recommendation(city)
+    return _recommendation(record, served.horizon.timezone)
 
 
 @router.get(
@@ -68,9 +62,10 @@ def list_recommendations(
 ) -> FleetHistoryOut:
     """Solves of the city, newest first: published ones with their recommendation, failed ones with the
     reason (a failed solve keeps the previous recommendation current)."""
-    hz = service.city(city).horizon
+    served, records = service.recommendation_history(city, limit)
+    hz = served.horizon
     entries = []
-    for record in service.store.recommendation_history(city, limit):
+    for record in records:
         entries.append(
             FleetHistoryEntryOut(
                 status=record.status,
@@ -96,9 +91,8 @@ def post_solve(city: CityName, principal: AdminAccess, service: ServiceDep) -> S
     """Queue a solve of the coming hour for the worker, which polls its queue every few seconds (202 with the
     request id; the solve shows up in the history with that id). A request already pending is not
     duplicated: this one joins it (`already_queued`, same id)."""
-    tz = service.city(city).horizon.timezone
-    request = SolveRequest(uuid.uuid4().hex, time.time(), principal.name)
-    result = service.store.enqueue_solve_request(city, request)
+    served, result = service.request_solve(city, uuid.uuid4().hex, time.time(), principal.name)
+    tz = served.horizon.timezone
     return SolveRequestOut(
         request_id=result.request.request_id,
         city=city,

@@ -6,9 +6,8 @@ from fastapi import APIRouter, Response
 
 from app.api.deps import MetricsDep, ServiceDep, SettingsDep
 from app.api.responses import errors
-from app.errors import Unavailable
 from app.metrics import CONTENT_TYPE
-from app.schemas import HealthOut, ReadyOut
+from app.schemas.ops import HealthOut, ReadyOut
 
 __all__ = ["router"]
 
@@ -26,16 +25,7 @@ def healthz() -> HealthOut:
 )
 def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
     """Readiness: the store answers a ping and every city loads (503 otherwise)."""
-    service.store.ping()
-    names = service.city_names()
-    if not names:
-        raise Unavailable("no cities are installed")
-    for name in names:
-        try:
-            service.city(name)
-        except Exception as exc:  # a broken city bundle makes the instance not ready, not crashed
-            raise Unavailable(f"city {name!r} failed to load: {exc}") from exc
-    return ReadyOut(status="ready", store=settings.store, cities=names)
+    return ReadyOut(status="ready", store=settings.store, cities=service.ready())
 
 
 @router.get(

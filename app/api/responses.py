@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.schemas import ErrorOut
+from app.schemas.common import ErrorOut
 
 __all__ = ["errors", "READ_ERRORS", "WRITE_ERRORS"]
 
@@ -12,7 +12,7 @@ _DESCRIPTIONS = {
     400: "The body is not valid JSON (`bad_json`).",
     401: "Missing or unknown bearer token (`unauthorized`).",
     403: "The token lacks the required scope (`forbidden`).",
-    404: "Unknown city (`unknown_city`), route, or nothing to report yet (`no_data`).",
+    404: "Unknown city (`unknown_city`) or epoch (`unknown_epoch`), route, or nothing yet (`no_data`).",
     409: "Conflict: `epoch_conflict`, `stale_epoch` or `task_conflict`.",
     413: "The body exceeds the configured size (`payload_too_large`).",
     415: "The body is not sent as `application/json` (`unsupported_media_type`).",

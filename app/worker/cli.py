@@ -12,8 +12,10 @@ from typing import Any, get_args
 
 from pydantic import ValidationError
 
+from app.cities import CityRegistry
+from app.schemas.fleet import render_recommendation
 from app.settings import DivergenceName, Settings
-from app.worker.runs import PoolRunner, RunCache
+from app.simulation import RunCache, Runner, make_executor
 from app.worker.service import FleetWorker, WorkerMetrics
 from app.worker.sizing import FleetSizing, SizingConfig
 
@@ -60,8 +62,12 @@ def parser() -> argparse.ArgumentParser:
         "--target",
         type=_target,
         default=argparse.SUPPRESS,
-        help="worst-case POI completion rate to meet, or 'off' (default 0.95)",
+        help="worst-case completion rate of reachable POI tasks each choice must meet, or 'off' (default)",
     )
+    p.add_argument(
+        "--subsidy", type=float, default=None, help="ζ, CNY per instrumented vehicle-hour (default 0)"
+    )
+    p.add_argument("--rolling-days", type=int, default=None, help="DRO_RH: days kept after conditioning (7)")
     p.add_argument("--tasks", type=int, default=None, help="POI tasks per run (default 85)")
     p.add_argument("--n0", type=int, default=None, help="ordinary taxis per run (default 60)")
     p.add_argument("--rate", type=float, default=None, help="synthetic requests per hour (default: city's)")
@@ -78,6 +84,8 @@ _FIELDS = {
     "alpha": "worker_alpha",
     "jobs": "worker_jobs",
     "target": "worker_completion_target",
+    "subsidy": "worker_subsidy_cny_per_vehicle_hour",
+    "rolling_days": "worker_rolling_days",
     "tasks": "worker_tasks",
     "n0": "worker_n0",
     "rate": "worker_rate_per_hour",
@@ -95,12 +103,6 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     return Settings(**given)
 
 
-def _bundled_cities() -> list[str]:
-    from app.cities import BUNDLED_DIR, CityRegistry
-
-    return sorted(CityRegistry(BUNDLED_DIR).names())
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the worker; exit code 0, or 1 when ``--once`` did not publish, 2 for bad options."""
     args = parser().parse_args(list(sys.argv[1:] if argv is None else argv))
@@ -112,11 +114,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
-    known = _bundled_cities()
+    registry = CityRegistry.from_settings(settings)
+    known = registry.names()
     cities = settings.worker_cities or known
     unknown = sorted(set(cities) - set(known))
     if unknown:
-        print(f"python -m app worker: unknown cities {unknown}; bundled: {known}", file=sys.stderr)
+        print(f"python -m app worker: unknown cities {unknown}; served: {known}", file=sys.stderr)
         return 2
     kept_days = settings.retention_s // 86400
     if kept_days < settings.worker_days:
@@ -132,13 +135,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     from app.main import make_store
 
     store = make_store(settings)
-    runner = PoolRunner(RunCache(settings.var_dir / "fleet-runs"), settings.worker_jobs)
+    runner = Runner(RunCache(settings.var_dir / "fleet-runs"), make_executor(settings.worker_jobs))
     metrics = WorkerMetrics()
     if settings.worker_metrics_port is not None and not args.once:
         from prometheus_client import start_http_server
 
         start_http_server(settings.worker_metrics_port, registry=metrics.registry)
-    sizing = FleetSizing(store, runner, SizingConfig.from_settings(settings))
+    sizing = FleetSizing(
+        store, runner, SizingConfig.from_settings(settings), render=render_recommendation, cities=registry
+    )
     worker = FleetWorker(
         sizing, cities, lead_s=settings.worker_lead_s, poll_s=settings.worker_poll_s, metrics=metrics
     )

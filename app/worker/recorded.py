@@ -1,7 +1,7 @@
 """Recorded demand → demand sets: the requests the service saw on one local day, as the simulator takes them.
 
 Every committed epoch's riders are recorded in the store (``EpochCommit.demand_json``, keyed by UTC day, see
-``app.usecases.DispatchService._demand``). A rider who waits recurs in every epoch until matched or gone, so
+``app.usecases._demand_json``). A rider who waits recurs in every epoch until matched or gone, so
 riders are deduplicated by id, keeping the first request time seen; node ids become network indices.
 """
 

@@ -2,17 +2,10 @@
 
 from __future__ import annotations
 
-from zoneinfo import ZoneInfo
-
 from services.city import Horizon
 from services.model import IntervalKey
 
-__all__ = ["interval_start_s", "coming_interval", "due_interval"]
-
-
-def interval_start_s(horizon: Horizon, k: int) -> float:
-    """POSIX time at which interval ``k`` starts (its local wall-clock start in the city's time zone)."""
-    return horizon.local_start(k).replace(tzinfo=ZoneInfo(horizon.timezone)).timestamp()
+__all__ = ["coming_interval", "due_interval"]
 
 
 def coming_interval(horizon: Horizon, now_s: float) -> IntervalKey:
@@ -34,4 +27,4 @@ def due_interval(horizon: Horizon, now_s: float, lead_s: float) -> IntervalKey |
     before the next day's first interval.
     """
     k = coming_interval(horizon, now_s)
-    return k if interval_start_s(horizon, k) - now_s <= lead_s else None
+    return k if horizon.interval_start_s(k) - now_s <= lead_s else None

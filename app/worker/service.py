@@ -92,13 +92,13 @@ class FleetWorker:
     def requested(self, city: str) -> SolveOutcome | None:
         """Claim the city's pending request, if any, and solve the coming hour for it. When another worker
         holds that hour's lock the request goes back on the queue for the next poll."""
-        request = self.sizing.store.claim_solve_request(city)
+        request = self.sizing.claim_request(city)
         if request is None:
             return None
         target = coming_interval(self.horizon(city), self.clock())
         outcome = self.sizing.solve(city, target, request=request)
         if outcome.status == "busy":
-            self.sizing.store.enqueue_solve_request(city, request)
+            self.sizing.requeue(city, request)
         return self._done(outcome)
 
     def scheduled(self, city: str) -> SolveOutcome | None:

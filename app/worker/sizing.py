@@ -2,7 +2,10 @@
 
 One solve: pick the demand history (the last M local days the service recorded demand on, or a seeded
 synthetic history when it has fewer), simulate every (size, day) as a whole day (cached), form the KPI
-samples, call :func:`services.fleet.plan_fleet`, and publish the document with the next version. Every
+samples of the platform's total cost per hour (DRO_RH conditioned on the hours the day has shown), call
+:func:`services.fleet.plan_fleet`, and publish the recommendation with the next version (the
+document is rendered by the injected ``render``, ``app.schemas.fleet.render_recommendation`` in the worker).
+Every
 failure -- a run that raised, bad samples, a lost version race -- keeps the current recommendation and is
 recorded in the history with its reason.
 """
@@ -15,44 +18,40 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
-from app.experiment.workload import RunSpec, load
+from app.cities import CityRegistry
 from app.ports import FleetRecord, SolveRequest, Store
-from app.schemas import format_time
-from app.schemas_fleet import (
-    ChoiceOut,
-    ChosenOut,
-    CompletionTargetOut,
-    DataWindowOut,
-    HourChoiceOut,
-    RecommendationBody,
-    SimulationOut,
-    SolveStatsOut,
-    rows_out,
-)
 from app.settings import Settings
-from app.worker.recorded import recorded_days
-from app.worker.runs import DayJob, DayResult, DayRunner
-from app.worker.schedule import interval_start_s
+from app.simulation import RunJob, Runner, RunResult, RunSpec, TaskTemplate
+from app.simulation.outcomes import day_outcomes, hourly_volumes
+from app.worker.recorded import demand_from_records, local_day_records, recorded_days
 from services.city import City
-from services.fleet import Ambiguity, Choice, FleetPlan, plan_fleet
+from services.fleet import Ambiguity, CostModel, FleetPlan, plan_fleet
 from services.model import IntervalKey
 from services.sim.demand import DemandSet
 
 __all__ = [
-    "KPI_NAME",
+    "OBJECTIVE",
+    "TaskSet",
+    "Observed",
+    "observed_today",
     "SizingConfig",
     "HistoryDay",
     "HistoryWindow",
+    "SolveStats",
+    "Recommendation",
+    "RecommendationRenderer",
     "SolveOutcome",
     "SolveFailed",
     "FleetSizing",
     "lock_name",
-    "recommendation_body",
 ]
 
 log = logging.getLogger(__name__)
 
-KPI_NAME = "design KPI: monitoring cost per instrumented vehicle-hour, CNY (METHOD section 7)"
+OBJECTIVE = (
+    "total platform cost per hour, CNY: 1.5 CNY/km x Step 3 km per hour + subsidy x N1 "
+    "(docs/METHOD.md section 7); the per-vehicle design KPI is reported, not minimized"
+)
 _MAX_REASON = 2000
 
 
@@ -63,7 +62,11 @@ class SizingConfig:
     sizes: tuple[int, ...] = (10, 20, 30, 40, 50, 60)
     days: int = 10
     ambiguity: Ambiguity = Ambiguity()
-    completion_target: float | None = 0.95
+    completion_target: float | None = None
+    subsidy_cny_per_vehicle_hour: float = 0.0
+    rolling_days: int = 7
+    reach_s: float = 1200.0
+    vary_tasks: bool = False
     n0: int = 60
     n_tasks: int = 85
     rate_per_hour: float | None = None
@@ -86,6 +89,10 @@ class SizingConfig:
             days=s.worker_days,
             ambiguity=Ambiguity(s.worker_divergence, s.worker_alpha, s.worker_support, s.worker_bins),
             completion_target=s.worker_completion_target,
+            subsidy_cny_per_vehicle_hour=s.worker_subsidy_cny_per_vehicle_hour,
+            rolling_days=s.worker_rolling_days,
+            reach_s=s.worker_reach_s,
+            vary_tasks=s.worker_vary_tasks,
             n0=s.worker_n0,
             n_tasks=s.worker_tasks,
             rate_per_hour=s.worker_rate_per_hour,
@@ -139,73 +146,84 @@ def lock_name(interval: int) -> str:
     return f"fleet-solve:{int(interval)}"
 
 
-def recommendation_body(
-    city: City,
-    target: IntervalKey,
-    plan: FleetPlan,
-    config: SizingConfig,
-    window: HistoryWindow,
-    requests_per_day: list[int],
-    stats: SolveStatsOut,
-    *,
-    trigger: Literal["schedule", "request"],
-    request_id: str | None,
-) -> RecommendationBody:
-    """The published document of a plan for hour ``target`` (the API adds version and computed_at)."""
-    cfg, hz = config, city.horizon
+@dataclass(frozen=True, slots=True)
+class TaskSet:
+    """The POI tasks every simulated day of a solve carries: the platform's registered tasks of the day
+    solved for (as templates), or the seeded synthetic draw (one set, or one per day with ``vary_tasks``)."""
+
+    source: Literal["registered", "synthetic", "synthetic_per_day"]
+    templates: tuple[TaskTemplate, ...] | None
+
+
+@dataclass(frozen=True, slots=True)
+class Observed:
+    """The day solved for so far: its date and the recorded requests of its whole hours already past."""
+
+    date: str
+    requests_per_hour: tuple[int, ...]
+
+
+def observed_today(store: Store, city: City, target: IntervalKey, now_s: float) -> Observed:
+    """Recorded requests per hour of the target's local day, for the horizon hours that ended by ``now_s``
+    (never the target hour or later)."""
+    hz = city.horizon
+    day = hz.local_start(target).date()
     position = hz.position(target)
-    first = target - position
-
-    def hour(h: int, choice: Choice) -> HourChoiceOut:
-        base = ChoiceOut.of(choice).model_dump()
-        return HourChoiceOut(**base, interval=hz.label(first + h), position=h)
-
-    by_hour = [hour(h, c) for h, c in enumerate(plan.rolling.choices)]
-    goal = plan.completion
-    return RecommendationBody(
-        city=city.name,
-        interval=hz.label(target),
-        interval_start=format_time(interval_start_s(hz, target), hz.timezone),
-        position=position,
-        trigger=trigger,
-        request_id=request_id,
-        kpi=KPI_NAME,
-        chosen=ChosenOut(
-            deterministic=plan.deterministic.size,
-            dro=plan.dro.size,
-            dro_rh=plan.rolling.choices[position].size,
-            completion_target=None if goal is None else goal.size,
-        ),
-        deterministic=ChoiceOut.of(plan.deterministic),
-        dro=ChoiceOut.of(plan.dro),
-        dro_rh=by_hour[position],
-        dro_rh_by_hour=by_hour,
-        hour_table=rows_out(plan.rolling.tables[position]),
-        daily_table=rows_out(plan.daily),
-        completion_target=None if goal is None else CompletionTargetOut.of(goal),
-        divergence=cfg.ambiguity.divergence,
-        alpha=cfg.ambiguity.alpha,
-        support=cfg.ambiguity.support,
-        bins=cfg.ambiguity.bins,
-        sizes=list(cfg.sizes),
-        data_window=DataWindowOut(
-            source=window.source,
-            days=[d.label for d in window.days],
-            n_days=len(window.days),
-            requests_per_day=requests_per_day,
-            recorded_days_available=window.recorded_available,
-            seed=cfg.seed if window.source == "synthetic" else None,
-            note=window.note,
-        ),
-        simulation=SimulationOut(
-            n0=cfg.n0, n_tasks=cfg.n_tasks, rate_per_hour=cfg.rate_per_hour, seed=cfg.seed
-        ),
-        solve=stats,
-    )
+    start = hz.start_s(day)
+    past = min(position, max(0, int((now_s - start) // hz.interval_s)))
+    if past == 0:
+        return Observed(day.isoformat(), ())
+    records = local_day_records(store, city, day)
+    if not records:  # the service saw no epoch today: nothing observed (not a day of zero demand)
+        return Observed(day.isoformat(), ())
+    counts = [0] * past
+    if records:
+        for r in demand_from_records(city, day, records).requests:
+            i = int((r.time_s - start) // hz.interval_s)
+            if 0 <= i < past:
+                counts[i] += 1
+    return Observed(day.isoformat(), tuple(counts))
 
 
-def _load_city(name: str) -> City:
-    return load(name)[0]
+@dataclass(frozen=True, slots=True)
+class SolveStats:
+    """What a solve cost: runs simulated (``cached_runs`` of them cached), wall time, parallel jobs."""
+
+    runs: int
+    cached_runs: int
+    wall_s: float
+    jobs: int
+
+
+@dataclass(frozen=True, slots=True)
+class Recommendation:
+    """A solve's result for hour ``target`` of ``city``: the plan and what it was computed from.
+
+    ``objective`` names what the methods minimize; ``requests_per_day`` counts the requests of each history
+    day; ``observed`` is what the target's day showed before the solve; ``tasks`` the tasks every day carried.
+    """
+
+    city: City
+    target: IntervalKey
+    plan: FleetPlan
+    config: SizingConfig
+    window: HistoryWindow
+    requests_per_day: tuple[int, ...]
+    stats: SolveStats
+    trigger: Literal["schedule", "request"]
+    request_id: str | None
+    observed: Observed
+    tasks: TaskSet
+    objective: str = OBJECTIVE
+
+    @property
+    def position(self) -> int:
+        """Hour of the horizon solved for, 0-based."""
+        return self.city.horizon.position(self.target)
+
+
+RecommendationRenderer = Callable[[Recommendation], str]
+"""The published document of a recommendation (the API serves it with its version and publication time)."""
 
 
 class FleetSizing:
@@ -214,17 +232,32 @@ class FleetSizing:
     def __init__(
         self,
         store: Store,
-        runner: DayRunner,
+        runner: Runner,
         config: SizingConfig,
         *,
+        render: RecommendationRenderer,
+        cities: CityRegistry | None = None,
         clock: Callable[[], float] = time.time,
-        load_city: Callable[[str], City] = _load_city,
     ) -> None:
+        """``cities`` defaults to the bundled cities (``CityRegistry.from_settings`` in a deployment)."""
         self.store = store
         self.runner = runner
         self.config = config
+        self.render = render
+        self.cities = cities if cities is not None else CityRegistry()
         self.clock = clock
-        self.load_city = load_city
+
+    def load_city(self, name: str) -> City:
+        """The city (``UnknownCity`` when the registry does not serve it)."""
+        return self.cities.get(name)
+
+    def claim_request(self, city: str) -> SolveRequest | None:
+        """Take the city's pending admin request off the queue, if any."""
+        return self.store.claim_solve_request(city)
+
+    def requeue(self, city: str, request: SolveRequest) -> None:
+        """Put a claimed request back for the next poll (another worker holds the hour's lock)."""
+        self.store.enqueue_solve_request(city, request)
 
     # ------------------------------------------------------------------ inputs
 
@@ -249,10 +282,28 @@ class FleetSizing:
             f"generator (seed {cfg.seed})",
         )
 
-    def jobs(self, city: City, window: HistoryWindow) -> dict[tuple[int, int], DayJob]:
-        """One whole-day job per (size, day index)."""
+    def task_set(self, city: City, target: IntervalKey) -> TaskSet:
+        """The platform's registered tasks scheduled within the horizon of the target's day, as templates;
+        without any, the seeded synthetic draw."""
+        hz = city.horizon
+        start = hz.start_s(hz.local_start(target).date())
+        templates = tuple(
+            TaskTemplate(str(t.id), int(t.node), float(t.scheduled_at_s - start))
+            for t in sorted(self.store.list_tasks(city.name), key=lambda t: (t.scheduled_at_s, str(t.id)))
+            if 0.0 <= t.scheduled_at_s - start < hz.length_s
+        )
+        if templates:
+            return TaskSet("registered", templates)
+        return TaskSet("synthetic_per_day" if self.config.vary_tasks else "synthetic", None)
+
+    def jobs(
+        self, city: City, window: HistoryWindow, tasks: TaskSet | None = None
+    ) -> dict[tuple[int, int], RunJob]:
+        """One whole-day job per (size, day index), every day with the same tasks (unless they vary)."""
         cfg = self.config
-        out: dict[tuple[int, int], DayJob] = {}
+        ts = tasks or TaskSet("synthetic_per_day" if cfg.vary_tasks else "synthetic", None)
+        bundle = self.cities.bundle_dir(city.name)
+        out: dict[tuple[int, int], RunJob] = {}
         for x in cfg.sizes:
             for i, day in enumerate(window.days):
                 spec = RunSpec(
@@ -261,10 +312,11 @@ class FleetSizing:
                     n0=cfg.n0,
                     seed=cfg.seed,
                     day=day.spec_day,
-                    n_tasks=cfg.n_tasks,
+                    n_tasks=cfg.n_tasks if ts.templates is None else len(ts.templates),
                     rate_per_hour=cfg.rate_per_hour if day.demand is None else None,
+                    tasks_day=0 if ts.source == "synthetic" else None,
                 )
-                out[(x, i)] = DayJob(spec, day.demand)
+                out[(x, i)] = RunJob(spec, bundle, day.demand, ts.templates)
         return out
 
     # ------------------------------------------------------------------ the solve
@@ -276,40 +328,37 @@ class FleetSizing:
         *,
         trigger: Literal["schedule", "request"],
         request_id: str | None,
-    ) -> RecommendationBody:
-        """Simulate, decide and build the document; ``SolveFailed`` with the reason when it cannot."""
+    ) -> Recommendation:
+        """Simulate and decide; ``SolveFailed`` with the reason when it cannot."""
         cfg = self.config
         window = self.window(city, target)
-        jobs = self.jobs(city, window)
+        tasks = self.task_set(city, target)
+        observed = observed_today(self.store, city, target, self.clock())
+        jobs = self.jobs(city, window, tasks)
         batch = self.runner.run(list(jobs.values()))
         if batch.failures:
             shown = "; ".join(f"{k}: {v}" for k, v in sorted(batch.failures.items())[:3])
             raise SolveFailed(f"{len(batch.failures)} of {len(jobs)} runs failed (partial solve): {shown}")
-        res: dict[tuple[int, int], DayResult] = {key: batch.results[job.key] for key, job in jobs.items()}
-        n_days, hz = len(window.days), city.horizon
-        daily = {x: [res[(x, i)].design_kpi for i in range(n_days)] for x in cfg.sizes}
-        hourly = [
-            {x: [res[(x, i)].hour_design_kpi[h] for i in range(n_days)] for x in cfg.sizes}
-            for h in range(hz.n_intervals)
-        ]
-        target_on = cfg.completion_target is not None and cfg.n_tasks > 0
-        completion = {x: [res[(x, i)].completion_rate for i in range(n_days)] for x in cfg.sizes}
+        res: dict[tuple[int, int], RunResult] = {key: batch.results[job.key] for key, job in jobs.items()}
+        n_days = len(window.days)
+        runs = {x: [res[(x, i)] for i in range(n_days)] for x in cfg.sizes}
         try:
+            outcomes = {x: day_outcomes(r, city.horizon, cfg.reach_s) for x, r in runs.items()}
             plan = plan_fleet(
-                daily,
-                hourly,
+                outcomes,
+                hourly_volumes(runs[cfg.sizes[0]]),
                 cfg.ambiguity,
-                completion=completion if target_on else None,
-                target=cfg.completion_target if target_on else None,
+                CostModel(cfg.subsidy_cny_per_vehicle_hour, city.horizon.interval_s / 3600.0),
+                observed=observed.requests_per_hour,
+                keep=cfg.rolling_days,
+                target=cfg.completion_target,
             )
         except ValueError as exc:
             raise SolveFailed(f"fleet sizing rejected the samples: {exc}") from exc
-        sizes_requests = [res[(cfg.sizes[0], i)].n_requests for i in range(n_days)]
-        stats = SolveStatsOut(
-            runs=len(batch.results), cached_runs=batch.cached, wall_s=batch.wall_s, jobs=self.runner.jobs
-        )
-        return recommendation_body(
-            city, target, plan, cfg, window, sizes_requests, stats, trigger=trigger, request_id=request_id
+        requests = tuple(r.n_requests for r in runs[cfg.sizes[0]])
+        stats = SolveStats(len(batch.results), batch.cached, batch.wall_s, self.runner.workers)
+        return Recommendation(
+            city, target, plan, cfg, window, requests, stats, trigger, request_id, observed, tasks
         )
 
     def solve(
@@ -330,7 +379,8 @@ class FleetSizing:
             trigger: Literal["schedule", "request"] = "schedule" if request is None else "request"
             try:
                 city = self.load_city(city_name)
-                body = self.compute(city, target, trigger=trigger, request_id=request_id)
+                rec = self.compute(city, target, trigger=trigger, request_id=request_id)
+                body_json = self.render(rec)
             except Exception as exc:  # noqa: BLE001 - any failure keeps the last good recommendation
                 if not isinstance(exc, SolveFailed):
                     log.exception("fleet solve of %s for interval %d raised", city_name, target)
@@ -341,7 +391,7 @@ class FleetSizing:
                 self.clock(),
                 int(target),
                 version=expected + 1,
-                body_json=body.model_dump_json(),
+                body_json=body_json,
                 request_id=request_id,
             )
             result = self.store.publish_recommendation(city_name, record, self.config.history_limit)
@@ -352,11 +402,11 @@ class FleetSizing:
             log.info(
                 "fleet %s, hour %s: published version %d (deterministic %d, DRO %d, DRO_RH %d) in %.1f s",
                 city_name,
-                body.interval,
+                city.horizon.label(target),
                 result.version,
-                body.chosen.deterministic,
-                body.chosen.dro,
-                body.chosen.dro_rh,
+                rec.plan.deterministic.size,
+                rec.plan.dro.size,
+                rec.plan.rolling[rec.position].choice.size,
                 wall,
             )
             return SolveOutcome(city_name, target, "published", result.version, None, request_id, wall)

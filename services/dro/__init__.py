@@ -1,4 +1,5 @@
-"""Distributionally robust worst-case expectations over φ-divergence balls (paper Section 3.3, METHOD 8).
+"""Distributionally robust worst-case expectations over φ-divergence balls (paper Section 3.3,
+docs/METHOD.md section 8).
 
 Framework-free (numpy and scipy). Entry point: :func:`worst_case` (samples to a :class:`WorstCase`); the
 pieces are the divergences (:mod:`.divergences`), the radius rule (:mod:`.radius`), the support

@@ -3,10 +3,11 @@
 Each ``p_i`` is bounded by the projection of the φ-ball on coordinate ``i`` (Eq. (27)),
 ``[p̲_i, p̄_i] = {p_i : p in the simplex, I_φ(p, q) <= ρ}``, and the LP maximizes ``Σ g_i p_i`` over the
 simplex intersected with that box. The box contains the ball, so the LP's value is at least the exact worst
-case on the same cells; on realistic data it overstates it considerably (METHOD section 8: about 10-28 %).
+case on the same cells; on realistic data it overstates it considerably (docs/METHOD.md section 8: about
+10-28 %).
 
 Equation numbers count the paper's numbered equations as the rest of the code does (sensing Eq. (1)-(3),
-matching (4)-(16)); METHOD section 8 calls this LP "Eq. (24)".
+matching (4)-(16)); docs/METHOD.md section 8 calls this LP "Eq. (24)".
 """
 
 from __future__ import annotations

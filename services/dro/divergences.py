@@ -1,4 +1,4 @@
-"""The seven φ-divergences of the paper's Appendix A (Table A.1), as METHOD section 8 fixes them.
+"""The seven φ-divergences of the paper's Appendix A (Table A.1), as docs/METHOD.md section 8 fixes them.
 
 Each :class:`Divergence` carries φ, its convex conjugate φ*, the curvature φ''(1) that scales the radius,
 the slope at infinity ``L = lim φ(t)/t`` (finite exactly when mass may "pop" to cells the data left empty),

@@ -1,4 +1,4 @@
-"""From KPI samples to a worst-case expectation: support, radius, solve (METHOD section 8)."""
+"""From KPI samples to a worst-case expectation: support, radius, solve (docs/METHOD.md section 8)."""
 
 from __future__ import annotations
 

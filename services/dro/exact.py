@@ -1,4 +1,4 @@
-"""The exact worst-case expectation over a φ-divergence ball, and its dual (METHOD section 8).
+"""The exact worst-case expectation over a φ-divergence ball, and its dual (docs/METHOD.md section 8).
 
 :func:`solve_exact` reduces the problem (equal values merged, the one empty cell mass could usefully pop
 to kept), normalizes the values, handles ``ρ = 0``, a single value and saturation, then calls the

@@ -1,4 +1,5 @@
-"""The radius of the φ-divergence ball from a significance level (paper Eq. (25); METHOD section 8)."""
+"""The radius of the φ-divergence ball from a significance level (paper Eq. (25); docs/METHOD.md
+section 8)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Exact worst-case expectations, one solver per divergence, on a reduced and normalized problem.
 
-The problem (METHOD section 8, paper Eq. (18) with the ball of Eq. (21))::
+The problem (docs/METHOD.md section 8, paper Eq. (18) with the ball of Eq. (21))::
 
     sup { Σ_j p_j f_j : p in the simplex, I_φ(p, q) <= ρ }
 

@@ -1,8 +1,8 @@
 """The cells of the empirical distribution: equal-width bins (the default) or one cell per sample.
 
-METHOD section 8: the default support is ``w`` equal-width bins over ``[min f, max f]`` (never extended
-beyond the data), each non-empty bin represented by the mean of its samples, an empty bin by its midpoint,
-``q_j = count_j / M`` and ``m = w``. With one cell per sample ``m = M``.
+docs/METHOD.md section 8: the default support is ``w`` equal-width bins over ``[min f, max f]`` (never
+extended beyond the data), each non-empty bin represented by the mean of its samples, an empty bin by its
+midpoint, ``q_j = count_j / M`` and ``m = w``. With one cell per sample ``m = M``.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Demand sets: synthetic Chengdu requests, the real NYC day, and user CSV files (METHOD section 10).
+"""Demand sets: synthetic Chengdu requests, the real NYC day, and user CSV files (docs/METHOD.md section 10).
 
 Every set records its generator, version and seed so a run can be reproduced exactly. Request times are
 whole POSIX seconds (they travel through RFC 3339 text without rounding).
@@ -15,6 +15,7 @@ This module holds the types they share, the file error and the JSON form of a se
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -23,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from services.city import City
+    from services.city import City, Horizon
 
 __all__ = [
     "DEMAND_VERSION",
@@ -31,6 +32,7 @@ __all__ = [
     "DemandSet",
     "DemandFileError",
     "demand_rng",
+    "demand_on_date",
     "demand_to_json",
     "demand_from_json",
 ]
@@ -83,6 +85,14 @@ class DemandSet:
             if 0 <= k < n_intervals:
                 counts[k] += 1
         return counts
+
+
+def demand_on_date(demand: DemandSet, horizon: Horizon, date: str) -> DemandSet:
+    """The same requests on local date ``date`` (``YYYY-MM-DD``): each keeps its time from the start of the
+    horizon (so a replay can run on a day the service holds no epochs of yet)."""
+    shift_s = horizon.start_s(date) - horizon.start_s(demand.date)
+    moved = tuple(Request(r.id, r.time_s + shift_s, r.origin, r.destination) for r in demand.requests)
+    return dataclasses.replace(demand, date=date, requests=moved)
 
 
 class DemandFileError(ValueError):

@@ -1,4 +1,4 @@
-"""Synthetic Chengdu demand calibrated to measured DiDi facts (METHOD section 10, "Demand data").
+"""Synthetic Chengdu demand calibrated to measured DiDi facts (docs/METHOD.md section 10, "Demand data").
 
 No open trip records exist for the paper's district, so the requests are synthetic, made from three
 ingredients and labelled ``generator="chengdu-synthetic"``:
@@ -31,7 +31,7 @@ share ``p_s`` (``0``, ``0.2``, ``0.4`` for 1, 2, 3): each request carries a unif
 cells holding nodes with the lowest origin density, :class:`PoiDensity`) with the same length rule. Every
 draw is made whatever the scenario, so scenarios 1-3 of one ``(seed, day)`` share times, origins and trip
 lengths, scenario 3 moves a superset of the requests scenario 2 moves, and the volume is identical: the
-scenarios differ only in space, as METHOD section 10 asks. The random streams therefore derive from
+scenarios differ only in space, as docs/METHOD.md section 10 asks. The random streams therefore derive from
 ``(seed, day)``; the scenario selects ``p_s``.
 """
 

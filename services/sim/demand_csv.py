@@ -1,4 +1,4 @@
-"""Demand sets from and to CSV files (METHOD section 10: user demand next to the generated sets).
+"""Demand sets from and to CSV files (docs/METHOD.md section 10: user demand next to the generated sets).
 
 File format (UTF-8, one header line, one request per row; columns in any order, extra columns ignored
 and listed in ``params["ignored_columns"]``):
@@ -6,7 +6,7 @@ and listed in ``params["ignored_columns"]``):
 ``request_id,time,origin_node,destination_node``
     node ids are the network's *external* ids (OSM ids for the bundled cities);
 ``request_id,time,origin_lon,origin_lat,destination_lon,destination_lat``
-    WGS84 degrees, snapped to the nearest node within ``city.params.snap_limit_m`` (METHOD section 2).
+    WGS84 degrees, snapped to the nearest node within ``city.params.snap_limit_m`` (docs/METHOD.md section 2).
 
 ``time`` is RFC 3339 with an offset (``2016-11-02T08:05:00+08:00``, ``...Z``) or local wall time in the
 city's timezone without one (``2016-11-02 08:05:00``, a ``T`` also accepted), whole seconds (fractions

@@ -1,4 +1,5 @@
-"""The real NYC requests of 2014-12-21 on the Manhattan network, and bootstrap days (METHOD section 10).
+"""The real NYC requests of 2014-12-21 on the Manhattan network, and bootstrap days (docs/METHOD.md
+section 10).
 
 * **Day 0** is the real day: the records between the horizon's start and end (08:00-12:00 local) as they
   are -- their ids, their (whole-minute) times, origin and destination snapped to the nearest node. A

@@ -1,4 +1,5 @@
-"""Idle drift: vacant taxis with no job move toward cells of high recent request density (METHOD section 10).
+"""Idle drift: vacant taxis with no job move toward cells of high recent request density (docs/METHOD.md
+section 10).
 
 Each grid cell the network touches has a hub, the node nearest the cell's centre. One reverse shortest-path
 tree per hub gives, for every node, the next node toward that hub and the remaining travel time, so a

@@ -1,4 +1,5 @@
-"""The fleet simulator: taxis, riders and POI tasks over one operating horizon (METHOD sections 6 and 10).
+"""The fleet simulator: taxis, riders and POI tasks over one operating horizon (docs/METHOD.md sections 6
+and 10).
 
 Every epoch the simulator builds the snapshot the platform would post (waiting riders, every taxi's node
 and state), asks a ``Dispatcher`` for the decision and applies it: matched taxis drive their path at the
@@ -190,8 +191,9 @@ def simulate(
     *,
     on_epoch: Callable[[int, int], None] | None = None,
     start_nodes: Sequence[int] | None = None,
+    n_epochs: int | None = None,
 ) -> RunTrace:
-    """Run one operating horizon of ``demand`` (METHOD section 10).
+    """Run one operating horizon of ``demand`` (docs/METHOD.md section 10).
 
     Parameters
     ----------
@@ -202,11 +204,18 @@ def simulate(
     dispatcher : where the decisions come from.
     on_epoch : called with (epochs done, epochs in all) after each epoch, for progress bars.
     start_nodes : the taxis' start nodes (instrumented first), instead of seeded random nodes.
+    n_epochs : run only the horizon's first ``n_epochs`` epochs (a short demo); the run then ends when the
+        next epoch would start, and it is the first ``n_epochs`` epochs of the whole horizon's run.
     """
     hz = city.horizon
     start_s = hz.start_s(demand.date)
-    n_epochs = hz.length_s // hz.epoch_s
     end_s = start_s + hz.length_s
+    if n_epochs is None:
+        n_epochs = hz.length_s // hz.epoch_s
+    elif not 1 <= n_epochs <= hz.length_s // hz.epoch_s:
+        raise ValueError(f"n_epochs must lie in 1..{hz.length_s // hz.epoch_s}, got {n_epochs}")
+    else:
+        end_s = start_s + n_epochs * hz.epoch_s
     last_epoch_s = start_s + (n_epochs - 1) * hz.epoch_s
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x51D]))
     n_nodes = city.network.n_nodes

@@ -1,27 +1,36 @@
-"""KPIs of a simulated horizon (METHOD sections 6, 7 and 10), per run and per hour.
+"""KPIs of a simulated horizon (docs/METHOD.md sections 6, 7 and 10), per run and per hour.
 
 Riders: matching rate (matched / posted requests), wait from request to pickup (time waiting to be matched
 plus the pickup drive), riders lost (patience ran out) and unserved (lost, or still waiting at the end).
 Sensing: Gamma (Eq. 1) and the grid coverage rate (mean over the horizon's intervals of the share of the
 cells the network touches that were crossed at least once). Tasks: completion rate (reached by the end of the
 horizon / all tasks) and timeliness (completion - scheduled time, per task). Cost: 1.5 CNY/km of Step 3 routes
-plus the subsidy; the design KPI is that per instrumented vehicle-hour (METHOD section 7).
+plus the subsidy; the design KPI is that per instrumented vehicle-hour (docs/METHOD.md section 7).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from services.city import City
 from services.sensing import coverage_rate, gamma
 from services.sim.engine import RunTrace
 
-__all__ = ["HourKpis", "TaskOutcome", "RunKpis", "run_kpis", "design_kpi", "price_of_sensing"]
+__all__ = [
+    "HourKpis",
+    "TaskOutcome",
+    "RunKpis",
+    "run_kpis",
+    "design_kpi",
+    "price_of_sensing",
+    "reachable_tasks_by_interval",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,7 +98,8 @@ class RunKpis:
 def design_kpi(
     cost_cny: float, n_instrumented: int, hours: float, subsidy_cny_per_vehicle_hour: float
 ) -> float:
-    """KPI(x, Q) = (cost + zeta * x * hours) / (x * hours) (METHOD section 7); NaN when x * hours is 0."""
+    """KPI(x, Q) = (cost + zeta * x * hours) / (x * hours) (docs/METHOD.md section 7); NaN when x * hours
+    is 0."""
     if n_instrumented <= 0 or hours <= 0:
         return float("nan")
     return (cost_cny + subsidy_cny_per_vehicle_hour * n_instrumented * hours) / (n_instrumented * hours)
@@ -214,3 +224,27 @@ def price_of_sensing(run: Mapping[str, Any], baseline: Mapping[str, Any]) -> dic
         "extra_riders_lost": diff("riders_unserved", run, baseline),
         "matching_rate_drop": diff("matching_rate", baseline, run),
     }
+
+
+def reachable_tasks_by_interval(
+    tasks: Sequence[TaskOutcome], start_s: float, interval_s: float, n_intervals: int, reach_s: float
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Per interval of the horizon, the tasks scheduled in it that can still be reached within the horizon
+    and how many of them were completed within it (docs/METHOD.md section 8).
+
+    A task scheduled less than ``reach_s`` before the end of the horizon is not counted: a taxi sent at its
+    scheduled time could not be expected to arrive before the horizon closes, so missing it says nothing
+    about the fleet's size.
+    """
+    if interval_s <= 0 or n_intervals < 1 or reach_s < 0:
+        raise ValueError("interval_s and n_intervals must be positive and reach_s non-negative")
+    end_s = start_s + interval_s * n_intervals
+    due = np.zeros(n_intervals, dtype=np.int64)
+    done = np.zeros(n_intervals, dtype=np.int64)
+    for t in tasks:
+        if not start_s <= t.scheduled_at_s <= end_s - reach_s or t.scheduled_at_s >= end_s:
+            continue
+        i = min(int((t.scheduled_at_s - start_s) // interval_s), n_intervals - 1)
+        due[i] += 1
+        done[i] += t.completed_at_s is not None
+    return due, done

@@ -16,7 +16,8 @@ from app.ports import Store
 from app.settings import Settings
 from app.usecases import DecideFn
 from services.model import TaxiId
-from tests.api.fakes import CITY, FakeDecide, build_bundle
+from tests.api.fakes import CITY as CITY
+from tests.api.fakes import FakeDecide, build_bundle
 
 ALL = "tok-all-000000001"
 READ = "tok-read-00000001"

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from app import cli
+from app.demo import DemoConfig, run_demo
 from app.settings import Settings
 
 
@@ -59,19 +60,23 @@ def test_import_city_is_delegated(tmp_path: Path) -> None:
     assert rc == 0 and (tmp_path / "c" / "mini" / "city.json").is_file()
 
 
-def test_worker_absent_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
-    try:
-        import app.worker  # noqa: F401
-    except ModuleNotFoundError:
-        assert cli.main(["worker"]) == 2
-        assert "not part of this build" in capsys.readouterr().err
-    else:
-        assert callable(app.worker.main)  # type: ignore[attr-defined]
+def test_worker_is_delegated(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SD_STORE", "memory")
+    assert cli.main(["worker", "--once", "--city", "atlantis"]) == 2
+    assert "unknown cities ['atlantis']" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["experiment", "fleet-experiment"])
+def test_the_experiments_point_to_the_research_package(
+    command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli.main([command, "--seeds", "1"]) == 2
+    assert f"python -m research {command}" in capsys.readouterr().err
 
 
 def test_demo_in_process() -> None:
     out = io.StringIO()
-    rc = cli.run_demo(cli.DemoConfig(epochs=2, riders=6, taxis=10, tasks=2, seed=3), out=out)
+    rc = run_demo(DemoConfig(epochs=2, riders=6, taxis=10, tasks=2, seed=3), out=out)
     text = out.getvalue()
     assert rc == 0, text
     assert "epoch 2/2" in text and "step 1" in text and "coverage of interval" in text

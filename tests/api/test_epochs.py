@@ -170,7 +170,7 @@ class RacingStore:
 def test_version_mismatch_solves_again(make_client: MakeClient) -> None:
     store = RacingStore(races=2)
     decide = FakeDecide()
-    client = make_client(store=store, decide=decide)  # type: ignore[arg-type]
+    client = make_client(store=store, decide=decide)
     r = client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
     assert r.status_code == 200, r.text
     assert len(decide.calls) == 3 and r.json()["stats"]["attempts"] == 3
@@ -180,7 +180,7 @@ def test_version_mismatch_solves_again(make_client: MakeClient) -> None:
 def test_endless_version_mismatch_is_503_busy(make_client: MakeClient) -> None:
     store = RacingStore(races=None)
     decide = FakeDecide()
-    client = make_client(store=store, decide=decide, commit_attempts=8)  # type: ignore[arg-type]
+    client = make_client(store=store, decide=decide, commit_attempts=8)
     r = client.post(URL, json=payloads.epoch("e1", 0), headers=auth())
     assert r.status_code == 503
     assert r.json()["error"] == "busy"
@@ -202,7 +202,7 @@ def test_duplicate_at_commit_is_a_replay(make_client: MakeClient) -> None:
         def get_epoch(self, city: str, epoch_id: str) -> None:
             return None  # as if the winner had not committed yet when we looked
 
-    late = make_client(store=Late(), decide=FakeDecide())  # type: ignore[arg-type]
+    late = make_client(store=Late(), decide=FakeDecide())
     r = late.post(URL, json=payloads.epoch(), headers=auth())
     assert r.status_code == 200 and r.headers["Idempotent-Replayed"] == "true"
     assert r.content == first.content
@@ -261,7 +261,7 @@ def test_commit_carries_retention(make_client: MakeClient) -> None:
             seen.append(commit)
             return inner.commit_epoch(city, commit)
 
-    client = make_client(store=Spy(), retention_s=7200)  # type: ignore[arg-type]
+    client = make_client(store=Spy(), retention_s=7200)
     client.post(URL, json=payloads.epoch(), headers=auth())
     assert seen[0].retention_s == 7200
     assert dataclasses.asdict(seen[0])["expected_version"] == 0
@@ -313,3 +313,19 @@ def test_two_apps_on_one_redis_serialize(make_client: MakeClient, redis_url: str
     assert st.version == 2
     for s in stores:
         s.close()
+
+
+def test_tasks_left_pending_past_the_retention_expire(make_client: MakeClient, any_store: Store) -> None:
+    """A task still pending when its scheduled time is older than the retention leaves the open set as
+    ``expired`` (listed, never dispatched again); the epoch's decision never saw it."""
+    fake = FakeDecide()
+    client = make_client(store=any_store, decide=fake, retention_s=3600)
+    assert client.post(f"/v1/cities/{CITY}/tasks", json=payloads.tasks(), headers=auth()).status_code == 200
+    # poi-b (scheduled at +30 min) is still within an hour at +80 min; poi-a (-10 min) is not
+    r = client.post(URL, json=payloads.epoch("e1", minutes=80.0, riders=[], taxis=[]), headers=auth())
+    assert r.status_code == 200, r.text
+    assert [[str(t.id) for t in call["tasks"]] for call in fake.calls] == [["poi-b"]]
+    listed = client.get(f"/v1/cities/{CITY}/tasks", headers=auth()).json()["tasks"]
+    status = {t["id"]: t["status"] for t in listed}
+    assert status == {"poi-a": "expired", "poi-b": "pending"}
+    assert [t.id for t in any_store.load_state(CITY, [], []).tasks] == ["poi-b"]

@@ -9,9 +9,17 @@ import pytest
 
 from app.cities import CityRegistry
 from app.ports import FleetRecord, Store
-from app.schemas_fleet import SolveStatsOut
-from app.worker.sizing import HistoryDay, HistoryWindow, SizingConfig, recommendation_body
-from services.fleet import plan_fleet
+from app.schemas.fleet import render_recommendation
+from app.worker.sizing import (
+    HistoryDay,
+    HistoryWindow,
+    Observed,
+    Recommendation,
+    SizingConfig,
+    SolveStats,
+    TaskSet,
+)
+from services.fleet import CostModel, DayOutcomes, plan_fleet
 from services.model import IntervalKey
 from tests.api.conftest import ALL, DISPATCH, READ, TOKENS, MakeClient, auth
 from tests.api.fakes import CITY, T0
@@ -29,21 +37,61 @@ def target(registry: CityRegistry) -> IntervalKey:
 def body_json(
     registry: CityRegistry, k: IntervalKey, daily: dict[int, list[float]], request_id: str | None
 ) -> str:
-    """A real recommendation document: a plan from hand-made samples, rendered as the worker renders it."""
+    """A real recommendation document: a plan from hand-made outcomes, rendered as the worker renders it.
+
+    Day ``j`` of size ``x`` costs ``daily[x][j] + h`` CNY in hour ``h``; 5 reachable tasks are due every hour
+    and ``min(5, x + 2)`` of them are done. The three history days had 30, 40 and 50 requests an hour; the
+    day solved for showed 41 in its first hour."""
     city = registry.get(CITY)
     hours = city.horizon.n_intervals
-    hourly = [{x: [v + h for v in samples] for x, samples in daily.items()} for h in range(hours)]
-    completion = {x: [0.85 + 0.03 * x] * len(s) for x, s in daily.items()}
-    config = SizingConfig(sizes=tuple(sorted(daily)), days=3, completion_target=0.95)
-    plan = plan_fleet(daily, hourly, config.ambiguity, completion=completion, target=0.95)
+    outcomes = {
+        x: DayOutcomes.of(
+            [[v + h for h in range(hours)] for v in s],
+            [[5] * hours] * len(s),
+            [[min(5, x + 2)] * hours] * len(s),
+        )
+        for x, s in daily.items()
+    }
+    n_days = len(next(iter(daily.values())))
+    volumes = [[30.0 + 10.0 * j] * hours for j in range(n_days)]
+    config = SizingConfig(
+        sizes=tuple(sorted(daily)),
+        days=3,
+        completion_target=0.95,
+        subsidy_cny_per_vehicle_hour=0.25,
+        rolling_days=2,
+    )
+    observed = Observed("2026-11-23", (41,))
+    plan = plan_fleet(
+        outcomes,
+        volumes,
+        config.ambiguity,
+        CostModel(0.25),
+        observed=observed.requests_per_hour,
+        keep=2,
+        target=0.95,
+    )
     window = HistoryWindow(
-        "synthetic", tuple(HistoryDay(f"synthetic-{d}", d, None) for d in (1, 2, 3)), 0, "three seeded days"
+        "synthetic",
+        tuple(HistoryDay(f"synthetic-{d}", d, None) for d in range(1, n_days + 1)),
+        0,
+        "three seeded days",
     )
-    stats = SolveStatsOut(runs=6, cached_runs=0, wall_s=1.5, jobs=2)
-    body = recommendation_body(
-        city, k, plan, config, window, [140, 150, 160], stats, trigger="request", request_id=request_id
+    stats = SolveStats(runs=6, cached_runs=0, wall_s=1.5, jobs=2)
+    rec = Recommendation(
+        city,
+        k,
+        plan,
+        config,
+        window,
+        (140, 150, 160)[:n_days],
+        stats,
+        "request",
+        request_id,
+        observed,
+        TaskSet("synthetic", None),
     )
-    return body.model_dump_json()
+    return render_recommendation(rec)
 
 
 def publish(store: Store, registry: CityRegistry, version: int, at: dt.datetime, **kw: object) -> FleetRecord:
@@ -94,21 +142,48 @@ def test_recommendation_serves_the_published_document(
     assert rec["version"] == 1 and rec["computed_at"] == "2026-11-23T15:00:05+08:00"
     assert rec["interval"] == "2026-11-23T09:00" and rec["position"] == 1
     assert rec["interval_start"] == "2026-11-23T09:00:00+08:00"
-    # size 4 is lower on every day: every method picks it; completion 0.85 + 0.03 x meets 0.95 from x = 4
-    assert rec["chosen"] == {"deterministic": 4, "dro": 4, "dro_rh": 4, "completion_target": 4}
-    assert [row["size"] for row in rec["daily_table"]] == [2, 4]
-    row = rec["daily_table"][1]
-    assert row["mean"] == pytest.approx(3.5) and row["worst_case"] >= row["mean"]
-    assert row["premium"] == pytest.approx(row["worst_case"] - row["mean"])
+    # size 4 is cheaper on every day and the only one completing >= 0.95 of the reachable tasks
+    assert rec["chosen"] == {"deterministic": 4, "dro": 4, "box_lp": 4, "dro_rh": 4}
+    assert rec["subsidy_cny_per_vehicle_hour"] == 0.25 and rec["completion_target"] == 0.95
+    assert [row["size"] for row in rec["candidates"]] == [2, 4]
+    row = rec["candidates"][1]
+    # total cost per hour of day j: mean over hours of (daily + h) + 0.25 * 4 = daily + 1.5 + 1
+    assert row["samples"] == pytest.approx([5.5, 6.0, 6.5])
+    assert row["mean_cost_cny_per_h"] == pytest.approx(6.0) and row["design_kpi_mean"] == pytest.approx(1.5)
+    assert row["worst_case_cost_cny_per_h"] >= row["mean_cost_cny_per_h"]
+    assert row["premium_cny_per_h"] == pytest.approx(
+        row["worst_case_cost_cny_per_h"] - row["mean_cost_cny_per_h"]
+    )
+    # the box LP puts the mass on bin midpoints: the top one is 6.5 - 0.1 / 2, its saturated worst case
+    assert row["box_lp_worst_case_cny_per_h"] == pytest.approx(6.45)
     assert row["rho"] > 0 and row["m"] == 10 and row["n_samples"] == 3
-    assert rec["hour_table"][1]["mean"] == pytest.approx(4.5)  # the 09:00 samples are the daily ones + 1
-    assert [h["interval"] for h in rec["dro_rh_by_hour"]] == [
-        f"2026-11-23T{h:02d}:00" for h in (8, 9, 10, 11)
-    ]
+    assert row["completion_mean"] == 1.0 and rec["candidates"][0]["completion_worst_case"] == pytest.approx(
+        0.8
+    )
+    assert (
+        sorted(row["picked_by"]) == ["box_lp", "deterministic", "dro"]
+        and rec["candidates"][0]["picked_by"] == []
+    )
+    assert rec["deterministic"]["target_met"] is True
+    # hour 0 had nothing to condition on; from hour 1 on, the two days closest to 41 requests an hour
+    by_hour = rec["dro_rh_by_hour"]
+    assert [h["interval"] for h in by_hour] == [f"2026-11-23T{h:02d}:00" for h in (8, 9, 10, 11)]
+    assert (
+        by_hour[0]["days"] == ["synthetic-1", "synthetic-2", "synthetic-3"]
+        and by_hour[0]["observed_hours"] == 0
+    )
+    assert by_hour[1]["days"] == ["synthetic-2", "synthetic-3"] and by_hour[1]["observed_hours"] == 1
+    # days 2 and 3 of size 4 in hour 1: (3.5 + 1, 4.0 + 1) + 0.25 * 4
+    assert by_hour[1]["candidates"][1]["samples"] == pytest.approx([5.5, 6.0])
+    assert rec["dro_rh"] == by_hour[1] and rec["observed"] == {
+        "date": "2026-11-23",
+        "hours": 1,
+        "requests_per_hour": [41],
+    }
     assert rec["divergence"] == "kl" and rec["alpha"] == 0.05 and rec["support"] == "binned"
     assert rec["data_window"]["source"] == "synthetic" and rec["data_window"]["days"][0] == "synthetic-1"
     assert rec["request_id"] == "req-1" and rec["trigger"] == "request"
-    assert rec["completion_target"]["status"] == "met" and rec["completion_target"]["size"] == 4
+    assert rec["simulation"]["tasks_source"] == "synthetic"
 
 
 def test_history_lists_published_and_failed_solves_newest_first(
@@ -136,7 +211,10 @@ def test_history_lists_published_and_failed_solves_newest_first(
     ]
     assert entries[1]["reason"] == "2 of 6 runs failed: boom" and entries[1]["recommendation"] is None
     assert entries[1]["interval"] == "2026-11-23T09:00" and entries[1]["computed_at"] == T0.isoformat()
-    assert entries[0]["recommendation"]["chosen"]["dro"] == 2 and entries[0]["recommendation"]["version"] == 2
+    # size 2 is cheaper in version 2, but completes 0.8 < 0.95 of the reachable tasks: the target keeps 4
+    newest = entries[0]["recommendation"]
+    assert newest["chosen"]["dro"] == 4 and newest["version"] == 2 and newest["dro"]["target_met"] is True
+    assert newest["candidates"][0]["mean_cost_cny_per_h"] < newest["candidates"][1]["mean_cost_cny_per_h"]
     # the current one is the last published, not the failure after it
     assert client.get(f"{BASE}/recommendation", headers=auth(READ)).json()["version"] == 2
     r = client.get(f"{BASE}/recommendations?limit=1", headers=auth(READ))

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import datetime as dt
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
@@ -39,7 +41,7 @@ def lattice_csv(folder: Path, n: int = 6, step_deg: float = 0.004) -> tuple[Path
 
 
 @pytest.fixture
-def client(tmp_path: Path) -> TestClient:
+def client(tmp_path: Path) -> Iterator[TestClient]:
     nodes, edges = lattice_csv(tmp_path)
     out = tmp_path / "cities"
     rc = cli.main(
@@ -90,7 +92,7 @@ def test_every_endpoint_on_an_imported_city(client: TestClient) -> None:
         ],
     )
     assert r.status_code in (200, 201), r.text
-    epoch = {
+    epoch: dict[str, Any] = {
         "epoch_id": "e1",
         "time": now.isoformat(),
         "riders": [

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from app.adapters import RedisStore
 from app.adapters.codec import utc_day
 from app.ports import CityState, EpochCommit, Store, StoredEpoch, StoreUnavailable
+from services.ledger import Ledger, apply_decision
 from services.model import IntervalKey, Task, TaskId, TaxiId, Visit
 
 from .conftest import StoreCase
@@ -283,9 +284,31 @@ def test_task_updates_in_commits(store: Store) -> None:
     assert store.load_state(CITY, [], []).tasks == [assigned, task("p2")]
     store.commit_epoch(CITY, commit("e2", version=1, time_s=T0 + 200, tasks=[done, task("p3", node=1)]))
     assert store.list_tasks(CITY) == [done, task("p2"), task("p3", node=1)]
+    # a completed task has left what an epoch reads, and is still listed
+    assert store.load_state(CITY, [], []).tasks == [task("p2"), task("p3", node=1)]
     # a rejected commit does not touch tasks
     store.commit_epoch(CITY, commit("e3", version=0, time_s=T0 + 300, tasks=[task("p2", status="completed")]))
     assert store.list_tasks(CITY) == [done, task("p2"), task("p3", node=1)]
+
+
+def test_finished_tasks_are_history_kept_for_the_retention(store: Store) -> None:
+    """Completed and expired tasks leave the open set; they stay listed (and their ids registered, so a
+    repeated registration is unchanged, another one a conflict) until an epoch commits more than the
+    retention after they finished."""
+    store.put_tasks(CITY, [task("p1"), task("p2"), task("p3")])
+    done = task("p1", status="completed", completed_at_s=T0, taxi_id=A, mode="passive")
+    gone = task("p2", status="expired")
+    store.commit_epoch(CITY, commit("e1", version=0, time_s=T0, tasks=[done, gone], retention_s=3600))
+    assert store.load_state(CITY, [], []).tasks == [task("p3")]
+    assert store.list_tasks(CITY) == [done, gone, task("p3")]
+    again = store.put_tasks(CITY, [task("p1"), task("p2", node=9)])
+    assert again.unchanged == [] and again.conflicts == [TaskId("p2")]
+    assert store.put_tasks(CITY, [task("p1")]).unchanged == [TaskId("p1")]
+    store.commit_epoch(CITY, commit("e2", version=1, time_s=T0 + 3600, retention_s=3600))
+    assert store.list_tasks(CITY) == [done, gone, task("p3")]  # finished exactly one retention ago: kept
+    store.commit_epoch(CITY, commit("e3", version=2, time_s=T0 + 3601, retention_s=3600))
+    assert store.list_tasks(CITY) == [task("p3")]
+    assert store.put_tasks(CITY, [task("p1")]).created == [TaskId("p1")]  # forgotten: a new task
 
 
 # -- intervals and demand ------------------------------------------------------------------------------
@@ -435,3 +458,47 @@ def test_redis_that_never_answers_raises_store_unavailable() -> None:
             store.ping()
         assert time.monotonic() - started < 3.0
         store.close()
+
+
+# -- property: every store commits exactly what the core's apply_decision does ---------------------------
+
+_updates = st.lists(
+    st.tuples(st.sampled_from(["p1", "p2", "p3"]), st.sampled_from(["assigned", "completed"])), max_size=3
+)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(epochs=st.lists(st.tuples(_visits, _updates), min_size=1, max_size=5))
+def test_commit_is_apply_decision(
+    make_case: Callable[[], StoreCase], epochs: list[tuple[list[tuple[str, int, int]], list[tuple[str, str]]]]
+) -> None:
+    """The Redis commit script (and the memory store) against ``services.ledger.apply_decision``."""
+    store = make_case().store
+    ledger = Ledger()
+    store.put_tasks(CITY, [task(t) for t in ("p1", "p2", "p3")])
+    apply_decision(ledger, (), [task(t) for t in ("p1", "p2", "p3")])
+    for i, (batch, updates) in enumerate(epochs):
+        visits = [visit(*v) for v in batch]
+        done = [task(t, status=status, taxi_id=TaxiId("a"), completed_at_s=T0 + i) for t, status in updates]
+        before = {k: dict(row) for k, row in ledger.counts.items()}
+        counted = apply_decision(ledger, visits, done)
+        result = store.commit_epoch(
+            CITY, commit(f"e{i}", version=i, time_s=T0 + i, visits=visits, tasks=done)
+        )
+        assert result.status == "committed"
+        for v in counted:  # each counted visit raised its cell by one, nothing else changed
+            before.setdefault(v.interval, {}).setdefault(v.cell, 0)
+            before[v.interval][v.cell] += 1
+        assert {k: row for k, row in before.items() if row} == {
+            k: row for k, row in ledger.counts.items() if row
+        }
+        for k in range(3):
+            assert store.interval_counts(CITY, IntervalKey(k)) == ledger.counts.get(IntervalKey(k), {})
+    intervals = [IntervalKey(k) for k in range(3)]
+    state = store.load_state(CITY, intervals, [TaxiId(t) for t in "abcd"])
+    for taxi, pairs in state.visited.items():
+        assert pairs == {(k, c) for (k, t), cells in ledger.visits.items() if t == taxi for c in cells}
+    listed = {**ledger.done, **ledger.tasks}  # open records over finished ones of the same id
+    assert sorted(store.list_tasks(CITY), key=lambda t: t.id) == sorted(listed.values(), key=lambda t: t.id)
+    # an epoch reads the open tasks only: a completed task has left the set
+    assert sorted(state.tasks, key=lambda t: t.id) == sorted(ledger.tasks.values(), key=lambda t: t.id)

@@ -136,7 +136,9 @@ def _compare(city: City, local: RunTrace, remote: RunTrace, prefix: str) -> None
 
 def test_local_run_is_not_trivial(city: City, local: RunTrace) -> None:
     k = run_kpis(city, local)
-    assert k.n_step1 > 0 and k.n_step2 > 0 and k.n_active > 0 and k.riders_lost >= 0
+    assert k.n_step1 > 0 and k.n_step2 > 0 and k.n_active > 0
+    # 14 taxis for 160 requests: patience runs out for some (the replays must agree on who)
+    assert 0 < k.riders_lost <= k.riders_unserved < k.n_requests
     assert sum(int(c.sum()) for c in local.counts.values()) > 0
 
 

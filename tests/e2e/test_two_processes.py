@@ -8,16 +8,9 @@ decisions and the grid counts must equal those of a single service that saw the 
 from __future__ import annotations
 
 import datetime as dt
-import json
-import os
-import socket
-import subprocess
-import sys
 import threading
-import time
 import uuid
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -29,66 +22,24 @@ from app.adapters.memory_store import MemoryStore
 from app.main import create_app
 from app.settings import Settings
 from services.citydata import load_city
+from tests.e2e.service import ROOT, start_service, stop, wait_ready
 
-ROOT = Path(__file__).resolve().parents[2]
 TOKEN = "e2e-token-0000001"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 CITY = "chengdu"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _start(redis_url: str, prefix: str) -> tuple[subprocess.Popen[bytes], str]:
-    port = _free_port()
-    env = {
-        **os.environ,
-        "SD_STORE": "redis",
-        "SD_REDIS_URL": redis_url,
-        "SD_REDIS_PREFIX": prefix,
-        "SD_PORT": str(port),
-        "SD_TOKENS": json.dumps({TOKEN: ["read", "dispatch"]}),
-        "SD_LOG_LEVEL": "warning",
-    }
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app", "run"],
-        cwd=ROOT,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
-    return proc, f"http://127.0.0.1:{port}"
-
-
-def _wait_ready(url: str, proc: subprocess.Popen[bytes]) -> None:
-    deadline = time.monotonic() + 90
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"service exited: {proc.stderr.read().decode() if proc.stderr else ''}")
-        try:
-            if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        time.sleep(0.2)
-    raise RuntimeError("service not ready within 90 s")
-
-
 @pytest.fixture
 def two_services(redis_url: str) -> Iterator[tuple[str, str]]:
     prefix = f"e2e{uuid.uuid4().hex[:10]}"
-    procs = [_start(redis_url, prefix) for _ in range(2)]
+    procs = [start_service(redis_url, prefix, {TOKEN: ["read", "dispatch"]}) for _ in range(2)]
     try:
         for proc, url in procs:
-            _wait_ready(url, proc)
+            wait_ready(url, proc)
         yield procs[0][1], procs[1][1]
     finally:
         for proc, _ in procs:
-            proc.terminate()
-            proc.wait(timeout=20)
+            stop(proc)
 
 
 def _epochs(n: int) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:

@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 from zoneinfo import ZoneInfo
 
 import numpy as np
@@ -18,12 +19,25 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters import MemoryStore, RedisStore
-from app.experiment.workload import RunSpec, demand_for, load, run_result
+from app.cities import CityRegistry
 from app.main import create_app
 from app.ports import EpochCommit, SolveRequest, Store
+from app.schemas.fleet import render_recommendation
 from app.settings import Settings
+from app.simulation import (
+    ProcessExecutor,
+    ProgressFn,
+    RunBatch,
+    RunCache,
+    RunJob,
+    Runner,
+    RunResult,
+    RunSpec,
+    demand_for,
+    open_bundle,
+    run_job,
+)
 from app.worker import main as worker_main
-from app.worker.runs import DayJob, DayResult, PoolRunner, RunBatch, RunCache, run_day
 from app.worker.service import FleetWorker
 from app.worker.sizing import FleetSizing, SizingConfig, SolveOutcome
 from services.sim.demand import DemandSet, Request
@@ -31,6 +45,7 @@ from services.sim.demand import DemandSet, Request
 CITY = "chengdu"
 TINY = SizingConfig(sizes=(2, 4), days=3, n0=4, n_tasks=3, rate_per_hour=10.0, lookback_days=9)
 SHANGHAI = ZoneInfo("Asia/Shanghai")
+BUNDLE = open_bundle(CityRegistry().bundle_dir(CITY))
 TOKEN, ADMIN = "tok-read-worker-1", "tok-admin-worker1"
 
 
@@ -70,9 +85,11 @@ def make_store(request: pytest.FixtureRequest) -> Iterator[Callable[[], Store]]:
 
 
 def worker(
-    store: Store, cache: Path, clock: Clock, config: SizingConfig = TINY, runner: PoolRunner | None = None
+    store: Store, cache: Path, clock: Clock, config: SizingConfig = TINY, runner: Runner | None = None
 ) -> FleetWorker:
-    sizing = FleetSizing(store, runner or PoolRunner(RunCache(cache), 1), config, clock=clock)
+    sizing = FleetSizing(
+        store, runner or Runner(RunCache(cache)), config, render=render_recommendation, clock=clock
+    )
     return FleetWorker(sizing, [CITY], lead_s=3600.0, poll_s=0.05, clock=clock)
 
 
@@ -83,6 +100,14 @@ def client_for(store: Store) -> TestClient:
 
 def auth(token: str = TOKEN) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"}
+
+
+def current_body(store: Store) -> dict[str, Any]:
+    """The current recommendation's document (there must be one)."""
+    record = store.current_recommendation(CITY)
+    assert record is not None and record.body_json is not None
+    doc: dict[str, Any] = json.loads(record.body_json)
+    return doc
 
 
 def only(outcomes: Sequence[SolveOutcome]) -> SolveOutcome:
@@ -101,30 +126,40 @@ def test_hourly_solves_publish_and_later_hours_reuse_the_runs(
     first = only(w.tick())
     assert (first.status, first.version) == ("published", 1)
     assert w.tick() == []  # tried once per hour
-    body = json.loads(store.current_recommendation(CITY).body_json)  # type: ignore[union-attr]
+    body = current_body(store)
     assert body["interval"] == "2026-11-23T08:00" and body["trigger"] == "schedule"
     assert body["solve"]["runs"] == 6 and body["solve"]["cached_runs"] == 0
     assert body["data_window"]["source"] == "synthetic"
     assert body["data_window"]["days"] == ["synthetic-1", "synthetic-2", "synthetic-3"]
 
-    # the same numbers the experiment's own code path gives for these runs
-    for row in body["daily_table"]:
-        specs = [RunSpec(CITY, n1=row["size"], n0=4, day=d, n_tasks=3, rate_per_hour=10.0) for d in (1, 2, 3)]
-        runs = [run_result(spec) for spec in specs]
-        assert row["mean"] == pytest.approx(np.mean([r["kpis"]["design_kpi"] for r in runs]), rel=1e-12)
-        hour0 = [r["hours"][0]["design_kpi"] for r in runs]
-        assert body["hour_table"][TINY.sizes.index(row["size"])]["mean"] == pytest.approx(np.mean(hour0))
+    # the same numbers a direct run of each job gives: total cost per hour = Step 3 cost / 4 h (ζ = 0), every
+    # day with the one seeded task set
+    assert body["simulation"]["tasks_source"] == "synthetic" and body["observed"]["hours"] == 0
+    for i, row in enumerate(body["candidates"]):
+        specs = [
+            RunSpec(CITY, n1=row["size"], n0=4, day=d, n_tasks=3, rate_per_hour=10.0, tasks_day=0)
+            for d in (1, 2, 3)
+        ]
+        runs = [run_job(RunJob(spec, BUNDLE.directory)) for spec in specs]
+        assert row["samples"] == pytest.approx([r.kpis.monitoring_cost_cny / 4.0 for r in runs], rel=1e-12)
+        assert row["mean_cost_cny_per_h"] == pytest.approx(np.mean(row["samples"]), rel=1e-12)
+        assert row["design_kpi_mean"] == pytest.approx(row["mean_cost_cny_per_h"] / row["size"], rel=1e-12)
+        hour0 = body["dro_rh_by_hour"][0]["candidates"][i]
+        assert hour0["samples"] == pytest.approx(
+            [r.kpis.hours[0].monitoring_cost_cny for r in runs], rel=1e-12
+        )
+        assert len({tuple((t.node, t.scheduled_at_s % 86400) for t in r.kpis.tasks) for r in runs}) == 1
     assert body["data_window"]["requests_per_day"] == [
-        len(demand_for(RunSpec(CITY, day=d, rate_per_hour=10.0)).requests) for d in (1, 2, 3)
+        len(demand_for(RunSpec(CITY, day=d, rate_per_hour=10.0), BUNDLE).requests) for d in (1, 2, 3)
     ]
 
     clock.t = local(23, 8, 0)
     second = only(w.tick())
     assert (second.status, second.version) == ("published", 2)
-    body2 = json.loads(store.current_recommendation(CITY).body_json)  # type: ignore[union-attr]
+    body2 = current_body(store)
     assert body2["interval"] == "2026-11-23T09:00" and body2["position"] == 1
     assert body2["solve"]["cached_runs"] == 6  # the whole-day runs of the 08:00 solve
-    assert body2["daily_table"] == body["daily_table"]
+    assert body2["candidates"] == body["candidates"]
 
     with client_for(store) as client:
         r = client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth())
@@ -132,7 +167,7 @@ def test_hourly_solves_publish_and_later_hours_reuse_the_runs(
         rec = r.json()
         assert rec["version"] == 2 and rec["interval"] == "2026-11-23T09:00"
         assert rec["computed_at"] == "2026-11-23T08:00:00+08:00"
-        assert rec["chosen"]["dro_rh"] == rec["dro_rh_by_hour"][1]["size"]
+        assert rec["chosen"]["dro_rh"] == rec["dro_rh_by_hour"][1]["size"] == rec["dro_rh"]["size"]
         history = client.get(f"/v1/cities/{CITY}/fleet/recommendations", headers=auth()).json()["entries"]
         assert [(e["status"], e["version"], e["interval"]) for e in history] == [
             ("published", 2, "2026-11-23T09:00"),
@@ -140,14 +175,14 @@ def test_hourly_solves_publish_and_later_hours_reuse_the_runs(
         ]
 
 
-class CountingRunner(PoolRunner):
+class CountingRunner(Runner):
     def __init__(self, cache: RunCache) -> None:
-        super().__init__(cache, 1)
+        super().__init__(cache)
         self.batches = 0
 
-    def run(self, jobs: Sequence[DayJob]) -> RunBatch:
+    def run(self, jobs: Sequence[RunJob], progress: ProgressFn | None = None) -> RunBatch:
         self.batches += 1
-        return super().run(jobs)
+        return super().run(jobs, progress)
 
 
 def test_two_workers_racing_for_one_hour_solve_it_once(
@@ -181,11 +216,11 @@ def test_two_workers_racing_for_one_hour_solve_it_once(
     assert [(h.status, h.version) for h in store.recommendation_history(CITY, 10)] == [("published", 1)]
 
 
-def fail_size_4(job: DayJob) -> DayResult:
+def fail_size_4(job: RunJob) -> RunResult:
     """A simulation that breaks for fleet size 4 (module level: the runner may send it to processes)."""
     if job.spec.n1 == 4:
         raise RuntimeError("size 4 broke")
-    return run_day(job)
+    return run_job(job)
 
 
 def test_a_failing_simulation_keeps_the_last_good_recommendation(
@@ -198,7 +233,7 @@ def test_a_failing_simulation_keeps_the_last_good_recommendation(
 
     clock.t = local(23, 7, 20)
     store.enqueue_solve_request(CITY, SolveRequest("req-broken", clock.t, "admin"))
-    broken = worker(store, tmp_path / "b", clock, runner=PoolRunner(RunCache(tmp_path / "b"), 1, fail_size_4))
+    broken = worker(store, tmp_path / "b", clock, runner=Runner(RunCache(tmp_path / "b"), run_fn=fail_size_4))
     out = broken.requested(CITY)
     assert out is not None
     assert out.status == "failed" and out.request_id == "req-broken"
@@ -223,9 +258,10 @@ def test_a_failing_simulation_keeps_the_last_good_recommendation(
     retry = worker(store, tmp_path / "b", clock).requested(CITY)
     assert retry is not None
     assert (retry.status, retry.version, retry.request_id) == ("published", 2, "req-retry")
-    body = json.loads(store.current_recommendation(CITY).body_json)  # type: ignore[union-attr]
+    body = current_body(store)
     assert body["solve"]["cached_runs"] == 3 and body["trigger"] == "request"
-    assert body["daily_table"] == json.loads(good.body_json)["daily_table"]  # type: ignore[union-attr]
+    assert good is not None and good.body_json is not None
+    assert body["candidates"] == json.loads(good.body_json)["candidates"]
 
 
 def test_an_admin_request_is_picked_up_at_the_next_poll(tmp_path: Path) -> None:
@@ -274,47 +310,98 @@ def recorded_epochs(demand: DemandSet, ids: np.ndarray, epoch_s: int = 200, pati
     return out
 
 
+def record_demand(store: Store, demand: DemandSet) -> None:
+    """Commit the set's riders as epochs, as the API records them."""
+    for doc in recorded_epochs(demand, BUNDLE.city.network.node_ids):
+        t = json.loads(doc)["time_s"]
+        version = store.load_state(CITY, [], []).version
+        commit = EpochCommit(f"e{t}", "h", t, version, (), (), "{}", demand_json=doc)
+        assert store.commit_epoch(CITY, commit).status == "committed"
+
+
 def test_recorded_demand_is_used_once_m_days_exist(tmp_path: Path) -> None:
-    city, _ = load(CITY)
+    city = BUNDLE.city
     store = MemoryStore()
     dates = ["2026-11-21", "2026-11-22"]
     expected = []
     for d, date in enumerate(dates, start=7):
-        synthetic = demand_for(RunSpec(CITY, day=d, rate_per_hour=10.0))
+        synthetic = demand_for(RunSpec(CITY, day=d, rate_per_hour=10.0), BUNDLE)
         shift = city.horizon.start_s(date) - city.horizon.start_s(synthetic.date)
         moved = tuple(
             Request(f"{date}-{r.id}", r.time_s + shift, r.origin, r.destination) for r in synthetic.requests
         )
         expected.append(len(moved))
-        for doc in recorded_epochs(
-            dataclasses.replace(synthetic, date=date, requests=moved), city.network.node_ids
-        ):
-            t = json.loads(doc)["time_s"]
-            version = store.load_state(CITY, [], []).version
-            commit = EpochCommit(f"e{t}", "h", t, version, (), (), "{}", demand_json=doc)
-            assert store.commit_epoch(CITY, commit).status == "committed"
+        record_demand(store, dataclasses.replace(synthetic, date=date, requests=moved))
     config = dataclasses.replace(TINY, days=2)
     out = worker(store, tmp_path, Clock(local(23, 7, 0)), config).tick()
     assert only(out).status == "published"
-    window = json.loads(store.current_recommendation(CITY).body_json)["data_window"]  # type: ignore[union-attr]
+    window = current_body(store)["data_window"]
     assert window["source"] == "recorded" and window["days"] == ["2026-11-22", "2026-11-21"]
     assert window["requests_per_day"] == expected[::-1] and window["seed"] is None
 
 
+def test_the_rolling_recommendation_conditions_on_the_hours_recorded_today(tmp_path: Path) -> None:
+    """Today's 08:00 and 09:00 requests are recorded; the 10:00 solve (for 11:00) keeps the two history days
+    whose 08:00 and 09:00 volumes are closest to today's, for every hour from 11:00 on; 08:00 keeps all."""
+    city = BUNDLE.city
+    store = MemoryStore()
+    today = "2026-11-23"
+    synthetic = demand_for(RunSpec(CITY, day=7, rate_per_hour=10.0), BUNDLE)
+    shift = city.horizon.start_s(today) - city.horizon.start_s(synthetic.date)
+    two_hours = city.horizon.start_s(today) + 7200
+    moved = tuple(
+        Request(f"t-{r.id}", r.time_s + shift, r.origin, r.destination)
+        for r in synthetic.requests
+        if r.time_s + shift < two_hours - 600  # recorded epochs run a little past the last request
+    )
+    record_demand(store, dataclasses.replace(synthetic, date=today, requests=moved))
+    config = dataclasses.replace(TINY, rolling_days=2)
+    assert only(worker(store, tmp_path, Clock(local(23, 10, 0)), config).tick()).status == "published"
+    body = current_body(store)
+    assert body["interval"] == "2026-11-23T11:00" and body["observed"]["hours"] == 2
+    start = city.horizon.start_s(today)
+    seen = [sum(1 for r in moved if start + 3600 * h <= r.time_s < start + 3600 * (h + 1)) for h in (0, 1)]
+    assert body["observed"]["requests_per_hour"] == seen
+    # the history days' hourly volumes, from direct runs; the two closest by RMS of log(1 + volume)
+    volumes = []
+    for d in (1, 2, 3):
+        run = run_job(
+            RunJob(
+                RunSpec(CITY, n1=2, n0=4, day=d, n_tasks=3, rate_per_hour=10.0, tasks_day=0), BUNDLE.directory
+            )
+        )
+        volumes.append([h.requests for h in run.kpis.hours])
+    dist = [np.sqrt(np.mean((np.log1p(seen) - np.log1p(v[:2])) ** 2)) for v in volumes]
+    kept = sorted(sorted(range(3), key=lambda j: (dist[j], j))[:2])
+    by_hour = body["dro_rh_by_hour"]
+    assert (
+        by_hour[0]["days"] == ["synthetic-1", "synthetic-2", "synthetic-3"]
+        and by_hour[0]["observed_hours"] == 0
+    )
+    assert by_hour[1]["observed_hours"] == 1 and by_hour[3]["observed_hours"] == 2
+    assert by_hour[3]["days"] == [f"synthetic-{j + 1}" for j in kept] == by_hour[2]["days"]
+    assert body["dro_rh"] == by_hour[3] and all(len(c["samples"]) == 2 for c in by_hour[3]["candidates"])
+
+
 def test_two_processes_give_the_same_runs_as_one(tmp_path: Path) -> None:
-    city = load(CITY)[0]
-    sizing = FleetSizing(MemoryStore(), PoolRunner(RunCache(tmp_path / "unused"), 1), TINY)
+    city = BUNDLE.city
+    sizing = FleetSizing(
+        MemoryStore(), Runner(RunCache(tmp_path / "unused")), TINY, render=render_recommendation
+    )
     jobs = list(sizing.jobs(city, sizing.window(city, city.horizon.interval_of(local(23, 8)))).values())
-    pooled = PoolRunner(RunCache(tmp_path / "pool"), 2)
+    pooled = Runner(RunCache(tmp_path / "pool"), ProcessExecutor(2))
     try:
         two = pooled.run(jobs)
     finally:
         pooled.close()
-    one = PoolRunner(RunCache(tmp_path / "single"), 1).run(jobs)
+    one = Runner(RunCache(tmp_path / "single")).run(jobs)
     assert two.failures == {} and two.cached == 0 and len(two.results) == 6
 
     def numbers(batch: RunBatch) -> dict[str, tuple[float, tuple[float, ...], int]]:
-        return {k: (r.design_kpi, r.hour_cost_cny, r.n_requests) for k, r in batch.results.items()}
+        return {
+            k: (r.kpis.design_kpi, tuple(h.monitoring_cost_cny for h in r.kpis.hours), r.n_requests)
+            for k, r in batch.results.items()
+        }
 
     assert numbers(two) == numbers(one)
 

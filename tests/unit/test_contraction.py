@@ -1,30 +1,26 @@
-"""The contracted search against the plain ``kernels.dijkstra``: random lattices whose edges are subdivided
-into chains of shape nodes (one-way and two-way, dead ends, loops back to one junction, parallel chains and
-cycles of shape nodes only), then whole epochs on the bundled Chengdu network with contraction on and off."""
+"""The contraction of degree-2 chains and the canonical search on it: random lattices whose edges are
+subdivided into chains of shape nodes (one-way and two-way, dead ends, loops back to one junction, parallel
+chains and cycles of shape nodes only). The structure is checked against the definition; every search
+(full, bounded by a limit, stopped at targets, from kept and from interior sources, forward and reverse)
+against the plain lexicographic Dijkstra on the original edges (``tests.reference.canonical_tree``)."""
 
 from __future__ import annotations
 
-import datetime as dt
-from pathlib import Path
-from zoneinfo import ZoneInfo
-
 import numpy as np
 import pytest
-from numpy.typing import NDArray
 
-from services import contraction, kernels
-from services.citydata import load_city
-from services.dispatch import decide
-from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
-from services.routing import graph_arrays
+from services import contraction, search
+from services.graph import INF, RoadGraph, prepare, road_graph
 from tests.citymaker import make_city
+from tests.reference import canonical_tree, tree_path
 
 NONE = np.zeros(0, dtype=np.int64)
-CITIES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"
 
 
 class Graph:
     """A CSR graph (edges sorted by (u, v), no parallel edges, no self-loops) with per-edge lengths."""
+
+    pos: list[tuple[float, float]]
 
     def __init__(self, n: int, edges: dict[tuple[int, int], float]) -> None:
         keys = sorted(edges)
@@ -97,34 +93,27 @@ def chain_graph(seed: int, side: int = 5, spacing: float = 100.0) -> Graph:
             node(-500.0 * k + 60 * np.cos(t), -500.0 + 60 * np.sin(t)) for t in np.arange(k) * 2 * np.pi / k
         ]
         street([*ring, ring[0]], kind)
-    return Graph(len(pos), edges)
+    graph = Graph(len(pos), edges)
+    graph.pos = pos
+    return graph
 
 
-def run_plain(
-    g: Graph, cost: NDArray[np.float64], s: int, limit: float = np.inf, targets: NDArray[np.int64] = NONE
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
-    return kernels.dijkstra(g.indptr, g.head, cost, s, limit, targets, g.length)  # type: ignore[no-any-return]
+def as_road_graph(g: Graph) -> RoadGraph:
+    """The chain graph as a city's road graph (the same nodes and edges, in the same order)."""
+    edges = [(int(u), int(v), float(x)) for u, v, x in zip(g.tail, g.head, g.length, strict=True)]
+    city = make_city(dict(enumerate(g.pos)), edges, both_ways=False)
+    graph = road_graph(city)
+    assert np.array_equal(graph.edges.tail, g.tail) and np.array_equal(graph.edges.head, g.head)
+    return graph
 
 
-def run_contracted(
-    g: Graph,
-    c: contraction.Contraction,
-    cost: NDArray[np.float64],
-    s: int,
-    limit: float = np.inf,
-    targets: NDArray[np.int64] = NONE,
-    queries: NDArray[np.int64] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
-    return contraction.search(c, cost, s, limit, targets, g.length, queries)
-
-
-def interior_sources(c: contraction.Contraction, rng: np.random.Generator, k: int) -> list[int]:
+def interior_sources(c, rng: np.random.Generator, k: int) -> list[int]:
     inner = np.flatnonzero(c.kept_of < 0)
     kept = c.kept
     return [int(x) for x in rng.choice(inner, k, replace=False)] + [int(x) for x in rng.choice(kept, k)]
 
 
-def chain_mates(c: contraction.Contraction, v: int) -> list[int]:
+def chain_mates(c, v: int) -> list[int]:
     """Every node on the super-edges through ``v`` (both ends included), or on those leaving ``v``."""
     if c.kept_of[v] >= 0:
         k = int(c.kept_of[v])
@@ -136,6 +125,29 @@ def chain_mates(c: contraction.Contraction, v: int) -> list[int]:
         out.add(int(c.kept[c.se_tail[s]]))
         out.update(int(x) for x in c.se_node[c.se_ptr[s] : c.se_ptr[s + 1]])
     return sorted(out)
+
+
+def check(graph: RoadGraph, cost, s: int, reverse: bool, limit: int, targets, queries) -> None:
+    """The search's label and path of every query equal the plain lexicographic Dijkstra's; a query beyond
+    the limit is unreached, and after an early stop a query that is not a target may read as unreached
+    (never wrong)."""
+    g = graph.reverse if reverse else graph.forward
+    costs = prepare(g, np.asarray(cost, dtype=np.int64))
+    ws = search.workspace(graph, reverse)
+    out = np.zeros(len(queries), dtype=np.int64)
+    search.tree(g, graph.edges, costs, s, limit, targets, queries, ws, out)
+    label, pred = canonical_tree(graph, cost, s, reverse)
+    stopped = ws.info[1] == 0
+    for q, got in zip(queries.tolist(), out.tolist(), strict=True):
+        exact = label[q] is not None and label[q][0] <= limit
+        if got >= INF:
+            assert not exact or (stopped and q not in set(targets.tolist()))
+            continue
+        assert exact and got == label[q][0]
+        assert search.resolve(g, graph.edges, costs, limit, q, ws)[:3] == label[q]
+        assert search.path_to(graph.edges, g.towards, ws.pred, s, q).tolist() == tree_path(
+            graph, pred, s, q, reverse
+        )
 
 
 # ---------------------------------------------------------------- structure
@@ -195,60 +207,46 @@ def test_a_cycle_of_shape_nodes_only() -> None:
         ((i + 1) % 5, i): 2.0 + i / 11 for i in range(5)
     }
     g = Graph(5, edges)
+    g.pos = [(100.0 * np.cos(t), 100.0 * np.sin(t)) for t in np.arange(5) * 2 * np.pi / 5]
     c = contraction.contract(g.indptr, g.head)
     assert c.n_kept == 1 and c.n_super_edges == 2
+    graph = as_road_graph(g)
+    cost = (g.length * 1e6).astype(np.int64)
     everyone = np.arange(5, dtype=np.int64)
     for s in range(5):
-        expect = run_plain(g, g.length, s)
-        got = run_contracted(g, c, g.length, s, queries=everyone)
-        for a, b in zip(expect, got, strict=True):
-            np.testing.assert_array_equal(a, b)
+        for reverse in (False, True):
+            check(graph, cost, s, reverse, int(INF), NONE, everyone)
 
 
-# ---------------------------------------------------------------- the search against the plain kernel
+# ---------------------------------------------------------------- the search against the plain Dijkstra
 
 
-def assert_same(
-    expect: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]],
-    got: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]],
-    nodes: NDArray[np.int64] | slice,
-) -> None:
-    np.testing.assert_array_equal(got[0][nodes], expect[0][nodes])
-    np.testing.assert_array_equal(got[1][nodes], expect[1][nodes])
-    np.testing.assert_array_equal(got[2][nodes], expect[2][nodes])
-
-
-@pytest.mark.parametrize("seed", range(12))
-@pytest.mark.parametrize("direction", ["forward", "reverse"])
-def test_full_trees_are_identical(seed: int, direction: str) -> None:
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("reverse", [False, True])
+def test_full_and_bounded_trees(seed: int, reverse: bool) -> None:
     g = chain_graph(seed)
-    if direction == "reverse":
-        g = g.reversed()
-    c = contraction.contract(g.indptr, g.head)
+    graph = as_road_graph(g)
+    c = graph.reverse if reverse else graph.forward
     rng = np.random.default_rng(seed + 100)
-    cost = g.length * rng.uniform(0.3, 1.0, len(g.length))
+    cost = (g.length * 1e6 * rng.uniform(0.3, 1.0, len(g.length))).astype(np.int64) + 1
     everyone = np.arange(g.n, dtype=np.int64)
-    for s in interior_sources(c, rng, 6):
-        assert_same(run_plain(g, cost, s), run_contracted(g, c, cost, s, queries=everyone), slice(None))
-        # a radius: a node is written iff its exact distance is within the limit
-        full = run_plain(g, cost, s)[0]
-        reach = full[np.isfinite(full)]
-        for limit in (float(np.median(reach)), float(rng.choice(reach)), 0.0):
-            expect = run_plain(g, cost, s, limit)
-            got = run_contracted(g, c, cost, s, limit, queries=everyone)
-            assert_same(expect, got, slice(None))
-            assert (np.isfinite(got[0]) == (full <= limit)).all()
+    for s in interior_sources(c, rng, 5):
+        check(graph, cost, s, reverse, int(INF), NONE, everyone)
+        label, _ = canonical_tree(graph, cost, s, reverse)
+        reach = [x[0] for x in label if x is not None]
+        for limit in (int(np.median(reach)), int(rng.choice(reach)), 0):
+            check(graph, cost, s, reverse, limit, NONE, everyone)
 
 
-@pytest.mark.parametrize("seed", range(12))
-def test_targets_and_queries_are_identical(seed: int) -> None:
+@pytest.mark.parametrize("seed", range(10))
+def test_targets_and_queries(seed: int) -> None:
     g = chain_graph(seed)
-    c = contraction.contract(g.indptr, g.head)
+    graph = as_road_graph(g)
+    c = graph.forward
     rng = np.random.default_rng(seed + 200)
-    cost = g.length * rng.uniform(0.3, 1.0, len(g.length))
-    for s in interior_sources(c, rng, 8):
-        # random targets, the source itself and every node on the source's own chain(s)
-        mates = chain_mates(c, s)
+    cost = (g.length * 1e6 * rng.uniform(0.3, 1.0, len(g.length))).astype(np.int64) + 1
+    for s in interior_sources(c, rng, 6):
+        mates = chain_mates(c, s)  # the source's own chain(s): reached directly or around
         for targets in (
             rng.integers(g.n, size=int(rng.integers(1, 6))),
             np.array([s]),
@@ -256,141 +254,20 @@ def test_targets_and_queries_are_identical(seed: int) -> None:
             np.array([*rng.integers(g.n, size=3), s, *mates]),
         ):
             targets = targets.astype(np.int64)
-            expect = run_plain(g, cost, s, np.inf, targets)
-            got = run_contracted(g, c, cost, s, np.inf, targets)
-            assert_same(expect, got, targets)
-            for t in targets:
-                np.testing.assert_array_equal(
-                    kernels.walk_edges(got[1], g.tail, int(t)), kernels.walk_edges(expect[1], g.tail, int(t))
-                )
-        # queries other than the targets (the pickup search: a radius and the taxis' nodes)
-        queries = rng.integers(g.n, size=10).astype(np.int64)
-        limit = float(np.median(run_plain(g, cost, s)[0][np.isfinite(run_plain(g, cost, s)[0])]))
-        expect = run_plain(g, cost, s, limit)
-        got = run_contracted(g, c, cost, s, limit, NONE, queries)
-        assert_same(expect, got, queries)
+            check(graph, cost, s, False, int(INF), targets, targets)
+        queries = rng.integers(g.n, size=10).astype(np.int64)  # the pickup search: a radius and the taxis
+        check(graph, cost, s, False, int(np.median(cost)) * 6, queries, queries)
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_every_pair_on_the_same_chain(seed: int) -> None:
-    g = chain_graph(seed, side=4)
-    c = contraction.contract(g.indptr, g.head)
-    cost = g.length * np.random.default_rng(seed).uniform(0.3, 1.0, len(g.length))
-    for s in np.flatnonzero(c.kept_of < 0).tolist():
-        mates = np.array(chain_mates(c, s), dtype=np.int64)
-        expect = run_plain(g, cost, s)
-        for t in mates:
-            got = run_contracted(g, c, cost, s, np.inf, np.array([t]))
-            assert_same(expect, got, np.array([t]))
-
-
-def tree_path(pred: NDArray[np.int64], g: Graph, s: int, v: int) -> list[int]:
-    """Edges of the tree path to ``v``; fails on a cycle."""
-    out: list[int] = []
-    while v != s:
-        e = int(pred[v])
-        assert e >= 0 and len(out) <= len(g.head), "broken or cyclic tree"
-        out.append(e)
-        v = int(g.tail[e])
-    return out[::-1]
-
-
-@pytest.mark.parametrize("seed", range(10))
-def test_ties_and_zero_costs_give_valid_shortest_paths(seed: int) -> None:
-    # small integer costs, many of them 0: paths may differ from the plain search, distances may not
+def test_small_integer_costs_tie_everywhere(seed: int) -> None:
+    """Costs of 1-3 microseconds: ties everywhere, decided by the tie words as the reference decides them."""
     g = chain_graph(seed)
-    c = contraction.contract(g.indptr, g.head)
+    graph = as_road_graph(g)
     rng = np.random.default_rng(seed + 300)
-    cost = rng.integers(0, 3, len(g.length)).astype(np.float64)
+    cost = rng.integers(1, 4, len(g.length)).astype(np.int64)
     everyone = np.arange(g.n, dtype=np.int64)
-    for s in interior_sources(c, rng, 6):
-        expect = run_plain(g, cost, s)
-        for queries in (everyone, rng.integers(g.n, size=7).astype(np.int64)):
-            dist, pred, acc = run_contracted(g, c, cost, s, np.inf, queries[:3], queries)
-            np.testing.assert_array_equal(dist[queries[:3]], expect[0][queries[:3]])
-            # past the targets the search may have stopped: a query is then unknown, never wrong
-            known = np.isfinite(dist[queries])
-            np.testing.assert_array_equal(dist[queries][known], expect[0][queries][known])
-            for v in queries.tolist():
-                if not np.isfinite(dist[v]):
-                    continue
-                edges = tree_path(pred, g, s, v)
-                d, a = 0.0, 0.0
-                for e in edges:
-                    d += cost[e]
-                    a += g.length[e]
-                assert d == dist[v] and a == acc[v]
-
-
-# ---------------------------------------------------------------- through the city wrapper and decide()
-
-
-def test_city_wrapper_switch() -> None:
-    rng = np.random.default_rng(5)
-    nodes = {i: (float(x), float(y)) for i, (x, y) in enumerate(rng.uniform(0, 3000, (30, 2)))}
-    ring = [(i, (i + 1) % 30) for i in range(30)]  # a ring with chords: most nodes are chain interiors
-    city = make_city(nodes, ring + [(0, 10), (10, 20), (5, 25)])
-    ga = graph_arrays(city)
-    assert contraction.forward(ga) is contraction.forward(ga)
-    assert contraction.forward(ga).n_kept == 5 and contraction.reverse(ga).n_kept == 5
-    taxis = np.arange(30, dtype=np.int64)
-    for s in range(30):
-        for kw in ({"reverse_graph": False}, {"reverse_graph": True}):
-            cost, aux = (ga.rev_time_s, ga.rev_length_m) if kw["reverse_graph"] else (ga.time_s, ga.length_m)
-            a = contraction.dijkstra(ga, cost, s, 300.0, NONE, aux, queries=taxis, contracted=False, **kw)
-            b = contraction.dijkstra(ga, cost, s, 300.0, NONE, aux, queries=taxis, contracted=True, **kw)
-            assert_same(a, b, slice(None))
-
-
-def random_epochs(city, seed: int, n: int) -> list[tuple[Snapshot, list[Task]]]:  # type: ignore[no-untyped-def]
-    """Epochs like the benchmark's paper scenario: 60 + 60 vacant taxis, ~10 riders, up to 85 open tasks."""
-    rng = np.random.default_rng(seed)
-    nn = city.network.n_nodes
-    t0 = dt.datetime(2026, 11, 23, 8, 0, tzinfo=ZoneInfo(city.horizon.timezone)).timestamp()
-    out = []
-    for e in range(n):
-        now = t0 + e * 200.0
-        riders = tuple(
-            Rider(
-                RiderId(f"r{e}-{i}"),
-                int(rng.integers(nn)),
-                int(rng.integers(nn)),
-                now - float(rng.uniform(0, 300)),
-            )
-            for i in range(int(rng.poisson(10)))
-        )
-        taxis = tuple(Taxi(TaxiId(f"i{i}"), int(rng.integers(nn)), True, True) for i in range(60)) + tuple(
-            Taxi(TaxiId(f"o{i}"), int(rng.integers(nn)), False, True) for i in range(60)
-        )
-        tasks = [
-            Task(TaskId(f"k{e}-{i}"), int(rng.integers(nn)), now - 60.0) for i in range(int(rng.integers(86)))
-        ]
-        out.append((Snapshot(f"e{e}", now, riders, taxis), tasks))
-    return out
-
-
-@pytest.mark.parametrize("name", ["chengdu", "manhattan"])
-def test_decide_is_identical_with_and_without_contraction(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    city = load_city(CITIES / name)
-    assert contraction.ENABLED
-    counts: dict[IntervalKey, NDArray[np.int64]] = {}
-    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
-    n_epochs = 10 if name == "chengdu" else 3
-    kappas: set[float] = set()
-    for snap, tasks in random_epochs(city, 11, n_epochs):
-        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})
-        monkeypatch.setattr(contraction, "ENABLED", True)
-        on = decide(city, view, snap, tasks)
-        monkeypatch.setattr(contraction, "ENABLED", False)
-        off = decide(city, view, snap, tasks)
-        assert on.rider_matches == off.rider_matches
-        assert on.task_assignments == off.task_assignments
-        assert on.task_updates == off.task_updates
-        assert on == off
-        assert on.rider_matches and on.task_assignments
-        kappas.update(a.kappa for a in on.task_assignments)
-        for v in on.visits:  # commit, so counts evolve as they would in service
-            if (v.interval, v.cell) not in visited.setdefault(v.taxi_id, set()):
-                visited[v.taxi_id].add((v.interval, v.cell))
-                counts.setdefault(v.interval, np.zeros(city.grid.n_cells, dtype=np.int64))[v.cell] += 1
-    assert len(kappas) > 1  # utility-discounted routes were compared too, not only fastest paths
+    for s in interior_sources(graph.forward, rng, 4):
+        check(graph, cost, s, False, int(INF), NONE, everyone)
+        check(graph, cost, s, True, int(INF), NONE, everyone)
+        check(graph, cost, s, False, int(INF), everyone[:5], everyone)

@@ -91,7 +91,7 @@ def test_passive_completion_excludes_task_from_step3():
     d = decide(city, CountsView({}), snap, tasks)
     (m,) = d.rider_matches
     assert m.taxi_id == "a"
-    ups = {t.id: t for t in d.task_updates}
+    ups = {str(t.id): t for t in d.task_updates}
     assert ups["poi"].status == "assigned" and ups["poi"].mode == "passive" and ups["poi"].taxi_id == "a"
     # a reaches node 2 after 80 s to node 1 and 20 s more
     assert ups["poi"].completed_at_s == pytest.approx(T0 + 10 + 100.0)
@@ -250,7 +250,7 @@ def test_step3_matches_brute_force(seed: int):
     now = snap.time_s
     step1 = {m.taxi_id for m in d.rider_matches if m.step == 1}
     reached = {t.id for t in d.task_updates if t.mode == "passive" and t.taxi_id in step1}
-    open_nodes = {}
+    open_nodes: dict[int, TaskId] = {}
     for t in sorted(tasks, key=lambda t: (t.scheduled_at_s, t.id)):
         if t.id not in reached:
             open_nodes.setdefault(t.node, t.id)
@@ -296,7 +296,7 @@ def test_algorithm2_never_lowers_total_utility(seed: int):
     assert d.stats["alg2_utility_final"] >= d.stats["alg2_utility_initial"]
     # and the reported joint utility is what the routes really give together
     if d.task_assignments:
-        from services.routing import joint_utility
+        from services.gains import joint_utility, pair_counts
 
         pairs = []
         for a in d.task_assignments:
@@ -305,7 +305,7 @@ def test_algorithm2_never_lowers_total_utility(seed: int):
             pairs.append(
                 {(k, c) for k, c, _ in ref.crossings(city, edges, snap.time_s) if (k, c) not in seen}
             )
-        assert joint_utility(city, counts.counts, pairs) == pytest.approx(
+        assert joint_utility(city, counts.counts, pair_counts(pairs)) == pytest.approx(
             d.stats["alg2_utility_final"], rel=1e-12
         )
 

@@ -33,11 +33,12 @@ def _violations(path: Path) -> list[str]:
             names = [node.module]
             if node.module == "os":
                 names += [f"os.{alias.name}" for alias in node.names]
+        line = node.lineno if isinstance(node, ast.stmt) else 0
         for name in names:
             if name.split(".")[0] in FORBIDDEN:
-                found.append(f"line {node.lineno}: imports {name}")
+                found.append(f"line {line}: imports {name}")
             if name in ("os.environ", "os.getenv", "os.putenv"):
-                found.append(f"line {node.lineno}: imports {name}")
+                found.append(f"line {line}: imports {name}")
         if (
             isinstance(node, ast.Attribute)
             and isinstance(node.value, ast.Name)

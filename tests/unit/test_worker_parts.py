@@ -3,6 +3,7 @@ and runner, settings and options. (Real solves: tests/e2e/test_worker.py.)"""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import json
 import logging
@@ -16,17 +17,29 @@ from pydantic import ValidationError
 
 from app.adapters import MemoryStore
 from app.cities import CityRegistry
-from app.experiment.workload import RunSpec
 from app.ports import EpochCommit
+from app.schemas.fleet import render_recommendation
 from app.settings import DivergenceName, Settings
+from app.simulation import (
+    RunCache,
+    RunJob,
+    Runner,
+    RunResult,
+    RunSpec,
+    TaskTemplate,
+    open_bundle,
+    tasks_for,
+)
+from app.simulation.workload import placed_tasks
 from app.worker.cli import parser, settings_from_args
 from app.worker.recorded import RecordedDemandError, demand_from_records, local_day_records, recorded_days
-from app.worker.runs import DayJob, DayResult, PoolRunner, RunCache
-from app.worker.schedule import coming_interval, due_interval, interval_start_s
-from app.worker.sizing import FleetSizing, SizingConfig
+from app.worker.schedule import coming_interval, due_interval
+from app.worker.sizing import FleetSizing, SizingConfig, TaskSet, observed_today
 from services.city import City, Horizon
 from services.dro import DIVERGENCE_NAMES
+from services.model import Task, TaskId
 from services.sim.demand import DemandSet, Request
+from services.sim.kpi import HourKpis, RunKpis, TaskOutcome
 from tests.api.fakes import CITY, build_bundle, node_id
 
 SHANGHAI = ZoneInfo("Asia/Shanghai")
@@ -38,10 +51,16 @@ def at(day: int, hour: int, minute: int = 0, second: int = 0, month: int = 11) -
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory: pytest.TempPathFactory) -> City:
-    """The API tests' 5 x 5 lattice city (Asia/Shanghai, horizon 08:00-12:00)."""
+def tiny_cities(tmp_path_factory: pytest.TempPathFactory) -> CityRegistry:
+    """A registry serving the API tests' 5 x 5 lattice city."""
     root = build_bundle(tmp_path_factory.mktemp("cities"))
-    return CityRegistry(bundled_dir=tmp_path_factory.mktemp("none"), user_dir=root).get(CITY)
+    return CityRegistry(bundled_dir=tmp_path_factory.mktemp("none"), user_dir=root)
+
+
+@pytest.fixture(scope="module")
+def tiny(tiny_cities: CityRegistry) -> City:
+    """The API tests' 5 x 5 lattice city (Asia/Shanghai, horizon 08:00-12:00)."""
+    return tiny_cities.get(CITY)
 
 
 # ----------------------------------------------------------------------------------------------- schedule
@@ -67,7 +86,7 @@ def test_coming_and_due_hours(
     t = at(*now)
     month = 12 if coming[0] == 1 else 11
     k = coming_interval(hz, t)
-    assert interval_start_s(hz, k) == at(coming[0], coming[1], month=month)
+    assert hz.interval_start_s(k) == at(coming[0], coming[1], month=month)
     assert hz.in_horizon(k)
     d = due_interval(hz, t, 3600.0)
     assert (d is None) == (due is None) and (d is None or d == k)
@@ -85,7 +104,7 @@ def test_due_in_another_time_zone_and_lead() -> None:
 
 
 def record(epoch: str, time_s: float, riders: list[tuple[str, int, int, float]]) -> str:
-    """An epoch's demand as the service records it (``DispatchService._demand``)."""
+    """An epoch's demand as the service records it (``app.usecases._demand_json``)."""
     return json.dumps(
         {
             "epoch_id": epoch,
@@ -176,8 +195,10 @@ def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path:
         docs.append((t, record(f"d{day}", t, [(f"r{day}", node_id(0, 0), node_id(4, 4), t - 30)])))
     commit_demand(store, CITY, docs)
     k = tiny.horizon.interval_of(at(23, 9))
-    runner = PoolRunner(RunCache(tmp_path), 1)
-    two = FleetSizing(store, runner, SizingConfig(days=2, lookback_days=7)).window(tiny, k)
+    runner = Runner(RunCache(tmp_path))
+    two = FleetSizing(
+        store, runner, SizingConfig(days=2, lookback_days=7), render=render_recommendation
+    ).window(tiny, k)
     assert two.source == "recorded" and two.recorded_available == 2
     assert [d.label for d in two.days] == ["2026-11-22", "2026-11-21"]
     assert [d.spec_day for d in two.days] == [
@@ -185,24 +206,117 @@ def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path:
         dt.date(2026, 11, 21).toordinal(),
     ]
     assert all(d.demand is not None and len(d.demand.requests) == 1 for d in two.days)
-    four = FleetSizing(store, runner, SizingConfig(days=4, lookback_days=7, seed=5)).window(tiny, k)
+    four = FleetSizing(
+        store, runner, SizingConfig(days=4, lookback_days=7, seed=5), render=render_recommendation
+    ).window(tiny, k)
     assert four.source == "synthetic" and four.recorded_available == 3
     assert [(d.label, d.spec_day, d.demand) for d in four.days] == [
         (f"synthetic-{d}", d, None) for d in range(1, 5)
     ]
     assert "3 day(s) of recorded demand" in four.note and "seed 5" in four.note
     # the look-back bounds the search (retention): two days back finds only the 22nd
-    short = FleetSizing(store, runner, SizingConfig(days=2, lookback_days=1)).window(tiny, k)
+    short = FleetSizing(
+        store, runner, SizingConfig(days=2, lookback_days=1), render=render_recommendation
+    ).window(tiny, k)
     assert short.source == "synthetic" and short.recorded_available == 1
+
+
+def test_registered_tasks_of_the_day_become_templates_else_one_seeded_set(
+    tiny: City, tiny_cities: CityRegistry, tmp_path: Path
+) -> None:
+    """The platform's tasks scheduled within the target day's horizon are every simulated day's tasks, kept
+    at their offset from the horizon's start; without any, one seeded set (or one per day if they vary)."""
+    store = MemoryStore()
+    k = tiny.horizon.interval_of(at(23, 9))
+    runner = Runner(RunCache(tmp_path))
+    sizing = FleetSizing(
+        store, runner, SizingConfig(sizes=(2, 4), days=2), render=render_recommendation, cities=tiny_cities
+    )
+    assert sizing.task_set(tiny, k) == TaskSet("synthetic", None)
+    varying = FleetSizing(
+        store,
+        runner,
+        SizingConfig(sizes=(2, 4), days=2, vary_tasks=True),
+        render=render_recommendation,
+        cities=tiny_cities,
+    )
+    assert varying.task_set(tiny, k).source == "synthetic_per_day"
+    store.put_tasks(
+        CITY,
+        [
+            Task(TaskId("b"), 3, at(23, 10, 30)),
+            Task(TaskId("a"), 7, at(23, 8, 5)),
+            Task(TaskId("yesterday"), 1, at(22, 9)),
+            Task(TaskId("after-hours"), 1, at(23, 12, 0)),
+        ],
+    )
+    ts = sizing.task_set(tiny, k)
+    assert ts.source == "registered"
+    assert ts.templates == (TaskTemplate("a", 7, 300.0), TaskTemplate("b", 3, 9000.0))
+    window = sizing.window(tiny, k)
+    jobs = sizing.jobs(tiny, window, ts)
+    assert {j.spec.n_tasks for j in jobs.values()} == {2} and all(
+        j.tasks == ts.templates for j in jobs.values()
+    )
+    seeded = sizing.jobs(tiny, window, TaskSet("synthetic", None))
+    assert {j.spec.tasks_day for j in seeded.values()} == {0}
+    assert {
+        j.spec.tasks_day for j in varying.jobs(tiny, window, TaskSet("synthetic_per_day", None)).values()
+    } == {None}
+
+
+def test_observed_hours_are_the_whole_horizon_hours_past(tiny: City) -> None:
+    """Solving 11:00 at 10:05 sees 08:00 and 09:00 (10:00 is not over); solving 09:00 at 08:00 sees none."""
+    store = MemoryStore()
+    riders = [
+        ("r1", node_id(0, 0), node_id(1, 1), at(23, 8, 10)),
+        ("r2", node_id(1, 1), node_id(2, 2), at(23, 8, 50)),
+        ("r3", node_id(2, 2), node_id(3, 3), at(23, 9, 20)),
+        ("r4", node_id(2, 2), node_id(3, 3), at(23, 10, 1)),
+    ]
+    commit_demand(store, CITY, [(r[3] + 5, record(r[0], r[3] + 5, [r])) for r in riders])
+    k11 = tiny.horizon.interval_of(at(23, 11))
+    seen = observed_today(store, tiny, k11, at(23, 10, 5))
+    assert seen.date == "2026-11-23" and seen.requests_per_hour == (2, 1)
+    assert observed_today(store, tiny, k11, at(23, 11, 30)).requests_per_hour == (2, 1, 1)
+    k9 = tiny.horizon.interval_of(at(23, 9))
+    assert observed_today(store, tiny, k9, at(23, 8)).requests_per_hour == ()
+    assert observed_today(store, tiny, k9, at(23, 11)).requests_per_hour == (2,)  # never the hour itself
+
+
+def test_tasks_day_fixes_the_task_draw_across_days(tiny_cities: CityRegistry) -> None:
+    bundle = open_bundle(tiny_cities.bundle_dir(CITY))
+    spec = RunSpec(city=CITY, n_tasks=5, day=1, tasks_day=0)
+    one = tasks_for(spec, bundle, "2026-11-23")
+    other = tasks_for(dataclasses.replace(spec, day=2), bundle, "2026-11-24")
+    start = bundle.city.horizon.start_s
+    assert [(t.node, t.scheduled_at_s - start("2026-11-23")) for t in one] == [
+        (t.node, t.scheduled_at_s - start("2026-11-24")) for t in other
+    ]
+    own = [tasks_for(RunSpec(city=CITY, n_tasks=5, day=d), bundle, "2026-11-23") for d in (1, 2, 3)]
+    assert len({tuple((t.node, t.scheduled_at_s) for t in ts) for ts in own}) > 1  # per day they vary
+    placed = placed_tasks([TaskTemplate("a", 3, 60.0)], bundle, "2026-11-24")
+    assert placed == [Task(TaskId("a"), 3, start("2026-11-24") + 60.0)]
 
 
 # -------------------------------------------------------------------------------------------- runs, cache
 
 
-def result(key: str, size: int, kpi: float = 2.5) -> DayResult:
-    return DayResult(
-        key, size, "2026-11-23", 140, kpi, float("nan"), (0.0, 1.5, kpi, 3.0), (0.0, 3.0, 5.0, 6.0), 0.2
+BUNDLE = Path("/bundles/chengdu")  # jobs name their bundle; these tests never open it
+
+
+def result(key: str, size: int, kpi: float = 2.5) -> RunResult:
+    hours = tuple(
+        HourKpis(h, 30, 25, 25 / 30, 120.0, 0.4, 0.01, cost, hk, 2)
+        for h, (hk, cost) in enumerate(zip((0.0, 1.5, kpi, 3.0), (0.0, 3.0, 5.0, 6.0), strict=True))
     )
+    task = TaskOutcome("t1", 7, 1.0e9, None, None, None, None)
+    kpis = RunKpis(
+        120, 100, 60, 40, 100 / 120, 200.0, 90.0, 20000.0, 3, 20, 0.02, 0.4, 1, 0, 0, 0, float("nan"),
+        float("nan"), 12.5, 18.75, kpi, 4.0, hours, (task,),
+    )  # fmt: skip
+    spec = RunSpec(n1=size, day=1)
+    return RunResult(key, spec, {"date": "2026-11-23", "seed": 1}, kpis, 20, 0.2)
 
 
 def test_cache_round_trip_and_unreadable_files(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
@@ -211,8 +325,9 @@ def test_cache_round_trip_and_unreadable_files(tmp_path: Path, caplog: pytest.Lo
     r = result("k", 20)
     cache.put(r)
     back = cache.get("k")
-    assert back is not None and math.isnan(back.completion_rate)
-    assert back.to_json() == r.to_json() and back.hour_cost_cny == r.hour_cost_cny
+    assert back is not None and math.isnan(back.kpis.completion_rate) and math.isnan(back.kpis.mean_delay_s)
+    assert back.to_json() == r.to_json() and back.kpis.hours == r.kpis.hours
+    assert back.kpis.tasks == r.kpis.tasks and back.spec == r.spec and back.n_requests == 140
     (tmp_path / "runs" / "bad.json").write_text("{truncated")
     with caplog.at_level(logging.WARNING):
         assert cache.get("bad") is None
@@ -223,29 +338,40 @@ def test_job_keys_name_the_inputs() -> None:
     spec = RunSpec(city="chengdu", n1=20, day=3)
     d1 = DemandSet("chengdu", "2026-11-23", (Request("a", 1.0e9, 1, 2),), "recorded")
     d2 = DemandSet("chengdu", "2026-11-23", (Request("a", 1.0e9, 1, 3),), "recorded")
-    keys = {DayJob(spec).key, DayJob(spec, d1).key, DayJob(spec, d2).key, DayJob(RunSpec(n1=30, day=3)).key}
-    assert len(keys) == 4
-    assert DayJob(spec, d1).key == DayJob(spec, DemandSet("chengdu", "2026-11-23", d1.requests, "x")).key
+    keys = {
+        RunJob(spec, BUNDLE).key,
+        RunJob(spec, BUNDLE, d1).key,
+        RunJob(spec, BUNDLE, d2).key,
+        RunJob(RunSpec(n1=30, day=3), BUNDLE).key,
+    }
+    keys |= {RunJob(dataclasses.replace(spec, tasks_day=0), BUNDLE).key}
+    keys |= {RunJob(spec, BUNDLE, None, (TaskTemplate("a", 1, 0.0),)).key}
+    keys |= {RunJob(spec, BUNDLE, None, (TaskTemplate("a", 1, 60.0),)).key}
+    assert len(keys) == 7
+    same = DemandSet("chengdu", "2026-11-23", d1.requests, "x")
+    assert RunJob(spec, BUNDLE, d1).key == RunJob(spec, BUNDLE, same).key
 
 
 def test_runner_uses_the_cache_and_reports_failures_without_caching_them(tmp_path: Path) -> None:
     calls: list[int] = []
 
-    def fake(job: DayJob) -> DayResult:
+    def fake(job: RunJob) -> RunResult:
         calls.append(job.spec.n1)
         if job.spec.n1 == 30:
             raise ValueError("no taxis left")
         return result(job.key, job.spec.n1, kpi=job.spec.n1 / 10)
 
-    runner = PoolRunner(RunCache(tmp_path), 1, run_fn=fake)
-    jobs = [DayJob(RunSpec(n1=x, day=1)) for x in (10, 20, 30)]
-    batch = runner.run([*jobs, jobs[0]])  # a repeated job runs once
+    runner = Runner(RunCache(tmp_path), run_fn=fake)
+    jobs = [RunJob(RunSpec(n1=x, day=1), BUNDLE) for x in (10, 20, 30)]
+    seen: list[tuple[int, int, int, int]] = []
+    batch = runner.run([*jobs, jobs[0]], lambda p: seen.append((p.total, p.done, p.cached, p.failed)))
     assert sorted(calls) == [10, 20, 30] and batch.cached == 0
     assert set(batch.results) == {jobs[0].key, jobs[1].key}
     assert batch.failures == {jobs[2].key: "ValueError: no taxis left"}
+    assert seen[0] == (3, 0, 0, 0) and seen[-1] == (3, 3, 0, 1) and len(seen) == 4  # a repeated job runs once
     again = runner.run(jobs)
     assert sorted(calls) == [10, 20, 30, 30] and again.cached == 2
-    assert again.results[jobs[1].key].design_kpi == 2.0
+    assert again.results[jobs[1].key].kpis.design_kpi == 2.0
 
 
 # ------------------------------------------------------------------------------------- settings, options
@@ -259,11 +385,12 @@ def test_settings_and_config() -> None:
     s = Settings(worker_sizes=[40, 20], worker_days=3, worker_divergence="burg", retention_s=3 * 86400)
     cfg = SizingConfig.from_settings(s)
     assert cfg.sizes == (20, 40) and cfg.days == 3 and cfg.ambiguity.divergence == "burg"
-    assert cfg.lookback_days == 4 and cfg.completion_target == 0.95
+    assert cfg.lookback_days == 4 and cfg.completion_target is None
+    assert cfg.subsidy_cny_per_vehicle_hour == 0.0 and cfg.rolling_days == 7 and not cfg.vary_tasks
     assert Settings(tokens={"abcdefgh12": ["admin"]}).tokens == {"abcdefgh12": ["admin"]}
     for bad in ({"worker_sizes": [10, 10]}, {"worker_sizes": [0]}, {"worker_days": 1}, {"worker_alpha": 1.0}):
         with pytest.raises(ValidationError):
-            Settings(**bad)  # type: ignore[arg-type]
+            Settings(**bad)
     with pytest.raises(ValueError, match="days"):
         SizingConfig(days=1)
 
@@ -275,7 +402,9 @@ def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> No
         "--sizes",
         "4,2",
         "--target",
-        "off",
+        "0.9",
+        "--subsidy",
+        "0.5",
         "--city",
         "chengdu",
         "--divergence",
@@ -285,9 +414,11 @@ def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> No
     ]
     args = parser().parse_args(options)
     s = settings_from_args(args)
-    assert s.worker_sizes == [2, 4] and s.worker_completion_target is None and s.worker_cities == ["chengdu"]
+    assert s.worker_sizes == [2, 4] and s.worker_completion_target == 0.9 and s.worker_cities == ["chengdu"]
+    assert s.worker_subsidy_cny_per_vehicle_hour == 0.5
     assert s.worker_divergence == "chi2" and s.worker_jobs == 1 and s.worker_days == 7
-    assert settings_from_args(parser().parse_args([])).worker_completion_target == 0.95
+    assert settings_from_args(parser().parse_args([])).worker_completion_target is None
+    assert settings_from_args(parser().parse_args(["--target", "off"])).worker_completion_target is None
     with pytest.raises(SystemExit):
         parser().parse_args(["--sizes", "two"])
     with pytest.raises(ValidationError):

@@ -70,8 +70,9 @@ def test_box_lp_fills_from_the_top() -> None:
 
 
 def test_box_lp_overstates_on_realistic_samples() -> None:
-    """METHOD section 8: on random instances the paper's LP (bin midpoints) overstates the exact binned worst
-    case by about 10-28 %; on seeded lognormal KPI samples the median excess lies in that region."""
+    """docs/METHOD.md section 8: on random instances the paper's LP (bin midpoints) overstates the exact
+    binned worst case by about 10-28 %; on seeded lognormal KPI samples the median excess lies in that
+    region."""
     rng = np.random.default_rng(2026)
     excess = []
     for _ in range(40):

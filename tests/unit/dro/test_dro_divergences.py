@@ -9,7 +9,7 @@ from services.dro import DIVERGENCE_NAMES, DIVERGENCES, divergence_value, get_di
 from services.dro.divergences import j_inverse_derivative
 from tests.unit.dro.oracle import POPPING, textbook_divergence
 
-# METHOD section 8: φ''(1) and popping; suppression from the paper's Table A.1
+# docs/METHOD.md section 8: φ''(1) and popping; suppression from the paper's Table A.1
 TABLE = {
     "kl": (1.0, False, True),
     "burg": (1.0, True, False),

@@ -270,7 +270,9 @@ def test_j_newton_and_nested_roots_agree() -> None:
         mean = float(q @ f)
         f = (f - mean) / float(f[-1] - f[0])
         u, inverse = np.unique(f, return_inverse=True)
-        reduced = Reduced(u, np.bincount(inverse, weights=q), None, float(np.exp(rng.uniform(-8, 2))))
+        reduced = Reduced(
+            u, np.bincount(inverse, weights=q).astype(np.float64), None, float(np.exp(rng.uniform(-8, 2)))
+        )
         fast, nested = solve_j(reduced), solve_j(reduced, fast=False)
         assert "Newton on the KKT" in fast.note and "nested" in nested.note
         assert fast.p == pytest.approx(nested.p, abs=1e-10)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 
 from services.city import DispatchParams, Horizon
 from services.model import IntervalKey, Snapshot, Task, TaskId
-from services.sim.demand import DemandSet, Request
+from services.sim.demand import DemandSet, Request, demand_on_date
 from services.sim.drift import choose_target, drift_map, drift_walk
 from services.sim.engine import SimConfig, poi_tasks, simulate
 from services.sim.kpi import design_kpi, price_of_sensing, run_kpis
@@ -19,7 +20,7 @@ from tests.citymaker import T0, make_city
 DATE = "2026-11-23"  # T0 is 08:00 UTC of this day
 
 
-def line_city(n: int = 5, spacing_m: float = 100.0, **kw: object):  # type: ignore[no-untyped-def]
+def line_city(n: int = 5, spacing_m: float = 100.0, **kw: object):
     nodes = {i: (i * spacing_m, 0.0) for i in range(n)}
     edges = [(i, i + 1) for i in range(n - 1)]
     return make_city(nodes, edges, horizon=Horizon(timezone="UTC"), **kw)  # type: ignore[arg-type]
@@ -46,7 +47,7 @@ class Recording:
     def tasks(self) -> list[Task]:
         return self.inner.tasks()
 
-    def interval_counts(self, k: IntervalKey) -> np.ndarray:  # type: ignore[type-arg]
+    def interval_counts(self, k: IntervalKey) -> np.ndarray:
         return self.inner.interval_counts(k)
 
 
@@ -57,6 +58,35 @@ def test_horizon_has_72_epochs_from_the_start() -> None:
     assert len(trace.epochs) == 72 == len(rec.snapshots)
     assert [s.time_s - T0 for s in rec.snapshots[:3]] == [0.0, 200.0, 400.0]
     assert trace.start_s == T0 and trace.end_s == T0 + 4 * 3600
+
+
+def test_a_short_run_is_the_start_of_the_whole_run() -> None:
+    city = line_city(n=12)
+    reqs = [(f"r{i}", 90.0 * i + 5, (3 * i) % 12, (5 * i + 4) % 12) for i in range(30)]
+    tasks = [Task(TaskId("poi"), 11, T0 + 100)]
+    config = SimConfig(1, 1, 1, seed=4)  # drift on: its seeded draws must line up too
+    full = simulate(city, demand(reqs), tasks, config, LocalDispatcher(city))
+    short = simulate(city, demand(reqs), tasks, config, LocalDispatcher(city), n_epochs=5)
+    untimed = [dataclasses.replace(e, solve_ms=0.0) for e in (*short.epochs, *full.epochs[:5])]
+    assert len(short.epochs) == 5 and untimed[:5] == untimed[5:]
+    assert short.assignments == tuple((t, a) for t, a in full.assignments if t < T0 + 1000)
+    assert short.end_s == T0 + 5 * 200 and full.end_s == T0 + 4 * 3600
+    posted = {r.id for r in short.riders}
+    assert posted == {f"r{i}" for i in range(30) if 90 * i + 5 <= 800}  # requested by the 5th epoch
+    assert short.n_unposted == 30 - len(posted)
+    with pytest.raises(ValueError, match="n_epochs"):
+        simulate(city, demand(reqs), tasks, config, LocalDispatcher(city), n_epochs=73)
+
+
+def test_demand_on_another_date_keeps_the_times_from_the_start() -> None:
+    d = demand([("a", 50, 2, 4), ("b", 3600, 4, 0)])
+    hz = Horizon(timezone="America/New_York")  # 2026-03-08 has 23 hours: the shift is not whole days
+    moved = demand_on_date(d, hz, "2026-03-09")
+    shift = hz.start_s("2026-03-09") - hz.start_s(DATE)
+    assert moved.date == "2026-03-09" and moved.generator == d.generator
+    assert [(r.id, r.time_s - shift, r.origin) for r in moved.requests] == [
+        (r.id, r.time_s, r.origin) for r in d.requests
+    ]
 
 
 def test_ordinary_taxi_serves_two_riders_with_exact_waits() -> None:
@@ -177,7 +207,7 @@ def test_same_seed_same_run_other_seed_other_starts() -> None:
     ]
     tasks = poi_tasks(np.arange(30), 5, T0, 4 * 3600, np.random.default_rng(1))
 
-    def run(seed: int):  # type: ignore[no-untyped-def]
+    def run(seed: int):
         return simulate(city, demand(reqs), tasks, SimConfig(2, 2, 5, seed=seed), LocalDispatcher(city))
 
     a, b, c = run(1), run(1), run(2)

@@ -1,0 +1,124 @@
+"""Requests to the core's types: sizes and ids checked, locations resolved against the city, interval
+queries parsed. Every refusal is a 422 naming the offending field, raised before the store is touched."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from app.errors import InvalidInput
+from app.schemas.common import LocationIn
+from app.schemas.dispatch import EpochIn, body_hash
+from app.schemas.tasks import TaskIn
+from app.settings import Settings
+from app.usecases import EpochCommand
+from services.city import City
+from services.model import IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
+from services.network import SnapError
+
+__all__ = ["Limits", "node_of", "snapshot_of", "epoch_command", "tasks_of", "interval_of"]
+
+
+@dataclass(frozen=True, slots=True)
+class Limits:
+    """Items per request (``SD_MAX_RIDERS``, ``SD_MAX_TAXIS``, ``SD_MAX_TASKS``)."""
+
+    max_riders: int = 2000
+    max_taxis: int = 5000
+    max_tasks: int = 1000
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> Limits:
+        """The limits the settings set."""
+        return cls(settings.max_riders, settings.max_taxis, settings.max_tasks)
+
+
+def node_of(city: City, loc: LocationIn, where: str) -> int:
+    """Node index of a location; 422 naming ``where`` when it is unknown or off the network."""
+    if loc.node is not None:
+        try:
+            return city.network.index_of(loc.node)
+        except SnapError:
+            raise InvalidInput.at(f"{where}.node", f"unknown node id {loc.node}") from None
+    assert loc.lon is not None and loc.lat is not None
+    try:
+        node, _ = city.network.snap(loc.lon, loc.lat, city.params.snap_limit_m)
+    except SnapError:
+        raise InvalidInput.at(
+            where,
+            f"({loc.lon}, {loc.lat}) is farther than {city.params.snap_limit_m:.0f} m from every node",
+        ) from None
+    return node
+
+
+def _unique(ids: Sequence[str], where: str) -> None:
+    """422 naming the first id that repeats an earlier one."""
+    seen: set[str] = set()
+    for i, ident in enumerate(ids):
+        if ident in seen:
+            raise InvalidInput.at(f"{where}[{i}].id", f"duplicate id {ident!r}")
+        seen.add(ident)
+
+
+def _at_most(n: int, limit: int, where: str) -> None:
+    if n > limit:
+        raise InvalidInput.at(where, f"at most {limit} items per request, got {n}")
+
+
+def snapshot_of(city: City, body: EpochIn, limits: Limits) -> Snapshot:
+    """The epoch resolved to node indices (sizes, unique ids, request times and locations checked)."""
+    _at_most(len(body.riders), limits.max_riders, "riders")
+    _at_most(len(body.taxis), limits.max_taxis, "taxis")
+    _unique([r.id for r in body.riders], "riders")
+    _unique([t.id for t in body.taxis], "taxis")
+    time_s = body.time.timestamp()
+    riders: list[Rider] = []
+    for i, r in enumerate(body.riders):
+        requested_s = r.requested_at.timestamp()
+        if requested_s > time_s:
+            raise InvalidInput.at(f"riders[{i}].requested_at", "is later than the epoch time")
+        riders.append(
+            Rider(
+                id=RiderId(r.id),
+                origin=node_of(city, r.origin, f"riders[{i}].origin"),
+                destination=node_of(city, r.destination, f"riders[{i}].destination"),
+                requested_at_s=requested_s,
+            )
+        )
+    taxis = tuple(
+        Taxi(
+            id=TaxiId(t.id),
+            node=node_of(city, t.location, f"taxis[{i}].location"),
+            instrumented=t.instrumented,
+            vacant=t.status == "vacant",
+        )
+        for i, t in enumerate(body.taxis)
+    )
+    return Snapshot(epoch_id=body.epoch_id, time_s=time_s, riders=tuple(riders), taxis=taxis)
+
+
+def epoch_command(city: City, body: EpochIn, limits: Limits) -> EpochCommand:
+    """The use case's input for an epoch post: the snapshot, the body's canonical hash and the posted time."""
+    return EpochCommand(snapshot_of(city, body, limits), body_hash(body), body.time.isoformat())
+
+
+def tasks_of(city: City, tasks: Sequence[TaskIn], limits: Limits) -> list[Task]:
+    """Tasks to register, resolved to node indices (a lon/lat registration keeps its position)."""
+    _at_most(len(tasks), limits.max_tasks, "body")
+    _unique([t.id for t in tasks], "")
+    out: list[Task] = []
+    for i, t in enumerate(tasks):
+        node = node_of(city, t.location, f"[{i}].location")
+        where = None if t.location.lon is None or t.location.lat is None else (t.location.lon, t.location.lat)
+        out.append(
+            Task(id=TaskId(t.id), node=node, scheduled_at_s=t.scheduled_at.timestamp(), location=where)
+        )
+    return out
+
+
+def interval_of(city: City, text: str) -> IntervalKey:
+    """The interval of ``?interval=``: a label (``YYYY-MM-DDTHH:MM``) or an RFC 3339 time inside it."""
+    try:
+        return city.horizon.parse_interval(text)
+    except ValueError as exc:
+        raise InvalidInput.at("interval", str(exc)) from None

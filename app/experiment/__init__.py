@@ -1,2 +1,0 @@
-"""The reference experiment (issue 3) and the fleet-sizing runs: workloads, a parallel resumable runner,
-figures and the markdown report."""

@@ -1,0 +1,180 @@
+"""Models of the city routes (``app.api.cities``): served cities and their road graph."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from app.schemas.common import ResponseModel
+from services.city import City
+from services.grid import node_col_row
+
+__all__ = [
+    "NetworkSizeOut",
+    "GridOut",
+    "HorizonOut",
+    "ParamsOut",
+    "CityOut",
+    "CitiesOut",
+    "GraphNodeOut",
+    "GraphEdgeOut",
+    "GraphOut",
+]
+
+
+class NetworkSizeOut(ResponseModel):
+    """Size of a road network."""
+
+    nodes: int
+    edges: int
+    road_km: float = Field(description="Total length of the directed edges, km.")
+
+
+class GridOut(ResponseModel):
+    """The sensing grid."""
+
+    crs: str
+    origin: tuple[float, float] = Field(description="Lower-left corner [x_m, y_m] in crs.")
+    cell_m: float
+    n_cols: int
+    n_rows: int
+    n_cells_touched: int = Field(description="Cells the network touches (the coverage denominator).")
+
+
+class HorizonOut(ResponseModel):
+    """The operating horizon."""
+
+    timezone: str
+    start: str = Field(description="Local start time, HH:MM:SS.")
+    interval_s: int
+    n_intervals: int
+    epoch_s: int
+
+
+class ParamsOut(ResponseModel):
+    """Dispatch parameters (services.city.DispatchParams)."""
+
+    rho: float
+    radius_m: float
+    speed_kmh: float
+    kappas: list[float]
+    max_iter: int
+    patience_s: float
+    snap_limit_m: float
+    unit_cost_cny_per_km: float
+    subsidy_cny_per_vehicle_hour: float
+    active_sensing: bool
+
+
+class CityOut(ResponseModel):
+    """A served city."""
+
+    name: str
+    network: NetworkSizeOut
+    bbox: tuple[float, float, float, float] = Field(description="[min_lon, min_lat, max_lon, max_lat].")
+    grid: GridOut
+    horizon: HorizonOut
+    params: ParamsOut
+    source: str = Field(description="Provenance and attribution.")
+
+    @classmethod
+    def of(cls, city: City) -> CityOut:
+        """Describe ``city``."""
+        net, grid, hz, p = city.network, city.grid, city.horizon, city.params
+        bbox = (
+            (float(net.lon.min()), float(net.lat.min()), float(net.lon.max()), float(net.lat.max()))
+            if net.n_nodes
+            else (0.0, 0.0, 0.0, 0.0)
+        )
+        return cls(
+            name=city.name,
+            network=NetworkSizeOut(
+                nodes=net.n_nodes,
+                edges=net.n_edges,
+                road_km=round(float(net.edge_length_m.sum()) / 1000.0, 3),
+            ),
+            bbox=bbox,
+            grid=GridOut(
+                crs=grid.crs,
+                origin=(float(grid.origin_x_m), float(grid.origin_y_m)),
+                cell_m=float(grid.cell_m),
+                n_cols=grid.n_cols,
+                n_rows=grid.n_rows,
+                n_cells_touched=city.n_cells_touched,
+            ),
+            horizon=HorizonOut(
+                timezone=hz.timezone,
+                start=hz.start.isoformat(),
+                interval_s=hz.interval_s,
+                n_intervals=hz.n_intervals,
+                epoch_s=hz.epoch_s,
+            ),
+            params=ParamsOut(
+                rho=p.rho,
+                radius_m=p.radius_m,
+                speed_kmh=p.speed_kmh,
+                kappas=list(p.kappas),
+                max_iter=p.max_iter,
+                patience_s=p.patience_s,
+                snap_limit_m=p.snap_limit_m,
+                unit_cost_cny_per_km=p.unit_cost_cny_per_km,
+                subsidy_cny_per_vehicle_hour=p.subsidy_cny_per_vehicle_hour,
+                active_sensing=p.active_sensing,
+            ),
+            source=city.source,
+        )
+
+
+class CitiesOut(ResponseModel):
+    """Every served city."""
+
+    cities: list[CityOut]
+
+
+class GraphNodeOut(ResponseModel):
+    """A network node with its grid cell."""
+
+    id: int
+    lon: float
+    lat: float
+    cell: tuple[int, int] = Field(description="[col, row] of the node's grid cell.")
+
+
+class GraphEdgeOut(ResponseModel):
+    """A directed edge between external node ids."""
+
+    u: int
+    v: int
+    length_m: float
+    travel_time_s: float
+
+
+class GraphOut(ResponseModel):
+    """The road network of a city."""
+
+    nodes: list[GraphNodeOut]
+    edges: list[GraphEdgeOut]
+
+    @classmethod
+    def of(cls, city: City) -> GraphOut:
+        """Nodes with external ids, lon/lat and grid cells; edges between external ids."""
+        net = city.network
+        col, row = node_col_row(city.grid, net)
+        ids = net.node_ids
+        return cls(
+            nodes=[
+                GraphNodeOut(id=int(i), lon=float(lo), lat=float(la), cell=(int(c), int(r)))
+                for i, lo, la, c, r in zip(
+                    ids.tolist(), net.lon.tolist(), net.lat.tolist(), col.tolist(), row.tolist(), strict=True
+                )
+            ],
+            edges=[
+                GraphEdgeOut(u=int(ids[u]), v=int(ids[v]), length_m=float(length), travel_time_s=float(t))
+                for u, v, length, t in zip(
+                    net.edge_u.tolist(),
+                    net.edge_v.tolist(),
+                    net.edge_length_m.tolist(),
+                    net.edge_time_s.tolist(),
+                    strict=True,
+                )
+            ],
+        )

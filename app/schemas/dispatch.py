@@ -1,0 +1,256 @@
+"""Models of the epoch route (``app.api.dispatch``): the posted epoch, its canonical hash, and the decision
+as the response document renders it (stored with the commit and returned verbatim to replays)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Mapping
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field, StrictBool
+
+from app.schemas.common import Identifier, LocationIn, RequestModel, ResponseModel, Rfc3339, TimedRequest
+from app.schemas.tasks import TaskOut, task_of
+from app.usecases import EpochResult, StoredDecision
+from services.city import City
+from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
+from services.rfc3339 import parse_rfc3339
+
+__all__ = [
+    "RiderIn",
+    "TaxiIn",
+    "EpochIn",
+    "body_hash",
+    "RiderMatchOut",
+    "TaskAssignmentOut",
+    "EpochOut",
+    "render_epoch",
+    "decision_of",
+    "read_epoch",
+]
+
+
+class RiderIn(TimedRequest):
+    """A waiting rider."""
+
+    id: Identifier
+    origin: LocationIn
+    destination: LocationIn
+    requested_at: Rfc3339
+
+
+class TaxiIn(RequestModel):
+    """A taxi's position and state at the epoch."""
+
+    id: Identifier
+    location: LocationIn
+    instrumented: StrictBool
+    status: Literal["vacant", "busy"]
+
+
+class EpochIn(TimedRequest):
+    """One decision epoch posted by the platform."""
+
+    epoch_id: Identifier
+    time: Rfc3339
+    riders: list[RiderIn]
+    taxis: list[TaxiIn]
+
+
+def body_hash(body: EpochIn) -> str:
+    """sha256 of the canonical JSON of a validated epoch body: the model dumped in JSON mode, keys sorted,
+    no spaces. Every committed epoch stores it and a replay must match it, so this never changes."""
+    canonical = json.dumps(body.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+def _ext_path(city: City, path: tuple[int, ...]) -> list[int]:
+    return [int(v) for v in city.network.node_ids[list(path)]] if path else []
+
+
+def _cells(cells: tuple[tuple[int, int], ...]) -> list[tuple[int, int]]:
+    return [(int(c), int(r)) for c, r in cells]
+
+
+class RiderMatchOut(ResponseModel):
+    """A taxi sent to a rider (Step 1: instrumented, Step 2: not)."""
+
+    step: Literal[1, 2]
+    taxi_id: str
+    rider_id: str
+    pickup_m: float
+    wait_s: float
+    trip_m: float
+    trip_time_s: float = Field(description="Travel time from the pickup to the dropoff.")
+    sensing_gain: float
+    path: list[int] = Field(description="External node ids from the taxi via the pickup to the dropoff.")
+    cells: list[tuple[int, int]] = Field(description="G-route of the path, [col, row] in order.")
+
+    @classmethod
+    def of(cls, city: City, m: RiderMatch) -> RiderMatchOut:
+        """Render a core match."""
+        return cls(
+            step=m.step,
+            taxi_id=str(m.taxi_id),
+            rider_id=str(m.rider_id),
+            pickup_m=float(m.pickup_m),
+            wait_s=float(m.wait_s),
+            trip_m=float(m.trip_m),
+            trip_time_s=float(m.trip_time_s),
+            sensing_gain=float(m.sensing_gain),
+            path=_ext_path(city, m.path),
+            cells=_cells(m.cells),
+        )
+
+
+class TaskAssignmentOut(ResponseModel):
+    """A vacant instrumented taxi sent along a sensing route to a POI (Step 3)."""
+
+    taxi_id: str
+    task_id: str
+    path: list[int]
+    cells: list[tuple[int, int]]
+    length_m: float
+    travel_time_s: float
+    sensing_gain: float
+    efficiency: float = Field(description="sensing_gain / travel_time_s (Eq. 12).")
+    cost_cny: float
+
+    @classmethod
+    def of(cls, city: City, a: TaskAssignment) -> TaskAssignmentOut:
+        """Render a core assignment."""
+        return cls(
+            taxi_id=str(a.taxi_id),
+            task_id=str(a.task_id),
+            path=_ext_path(city, a.path),
+            cells=_cells(a.cells),
+            length_m=float(a.length_m),
+            travel_time_s=float(a.travel_time_s),
+            sensing_gain=float(a.sensing_gain),
+            efficiency=float(a.efficiency),
+            cost_cny=float(a.cost_cny),
+        )
+
+
+class EpochOut(ResponseModel):
+    """What was decided for one epoch."""
+
+    epoch_id: str
+    time: str
+    rider_matches: list[RiderMatchOut]
+    task_assignments: list[TaskAssignmentOut]
+    tasks_completed: list[TaskOut]
+    unmatched_rider_ids: list[str]
+    expired_rider_ids: list[str]
+    stats: dict[str, float | int | str] = Field(
+        description="Matches per step, interval label, solve time, Gamma and other diagnostics."
+    )
+
+    @classmethod
+    def of(cls, result: EpochResult) -> EpochOut:
+        """Render a decided epoch with external node ids and local times."""
+        city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
+        stats = _core_stats(decision)
+        stats.update(
+            {
+                "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
+                "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
+                "task_assignments": len(decision.task_assignments),
+                "tasks_completed": len(decision.tasks_completed),
+                "riders": len(snapshot.riders),
+                "taxis": len(snapshot.taxis),
+                "interval": city.horizon.label(result.interval),
+                "interval_key": int(result.interval),
+                "in_horizon": int(city.horizon.in_horizon(result.interval)),
+                "solve_ms": round(result.solve_ms, 3),
+                "attempts": result.attempts,
+                "visits": len(decision.visits),
+                "gamma": result.gamma_after,
+                "gamma_gain": result.gamma_after - result.gamma_before,
+            }
+        )
+        return cls(
+            epoch_id=snapshot.epoch_id,
+            time=result.epoch.time_text,
+            rider_matches=[RiderMatchOut.of(city, m) for m in decision.rider_matches],
+            task_assignments=[TaskAssignmentOut.of(city, a) for a in decision.task_assignments],
+            tasks_completed=[TaskOut.of(city, t) for t in decision.tasks_completed],
+            unmatched_rider_ids=[str(r) for r in decision.unmatched_rider_ids],
+            expired_rider_ids=[str(r) for r in decision.expired_rider_ids],
+            stats=stats,
+        )
+
+
+def _core_stats(decision: Decision) -> dict[str, float | int | str]:
+    """The solver's diagnostics as JSON values (booleans as 0/1; NaN and infinities left out)."""
+    stats: dict[str, float | int | str] = {}
+    for key, value in decision.stats.items():
+        v: Any = value
+        if isinstance(v, bool | np.bool_ | int | np.integer):
+            stats[key] = int(v)
+        elif isinstance(v, float | np.floating):
+            if math.isfinite(v):  # JSON has no NaN or infinity
+                stats[key] = float(v)
+        elif isinstance(v, str):
+            stats[key] = v
+    return stats
+
+
+def render_epoch(result: EpochResult) -> str:
+    """The response document of a decided epoch (``DispatchService``'s renderer)."""
+    return EpochOut.of(result).model_dump_json()
+
+
+def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:
+    """The decision an ``EpochOut`` document holds, in core types (node indices, POSIX times); the inverse
+    of ``EpochOut.of`` for what the document keeps. A match's ``trip_time_s`` is NaN in a document written
+    before responses carried it, an assignment's ``kappa`` always (the document does not keep it)."""
+    index = city.network.index_of
+
+    def path(ids: list[int]) -> tuple[int, ...]:
+        return tuple(index(v) for v in ids)
+
+    def cells(pairs: list[list[int]]) -> tuple[tuple[int, int], ...]:
+        return tuple((int(c), int(r)) for c, r in pairs)
+
+    matches = tuple(
+        RiderMatch(
+            step=m["step"],
+            taxi_id=TaxiId(m["taxi_id"]),
+            rider_id=RiderId(m["rider_id"]),
+            pickup_m=float(m["pickup_m"]),
+            wait_s=float(m["wait_s"]),
+            trip_m=float(m["trip_m"]),
+            trip_time_s=float(m.get("trip_time_s", math.nan)),
+            sensing_gain=float(m["sensing_gain"]),
+            path=path(m["path"]),
+            cells=cells(m["cells"]),
+        )
+        for m in doc["rider_matches"]
+    )
+    routes = tuple(
+        TaskAssignment(
+            taxi_id=TaxiId(a["taxi_id"]),
+            task_id=TaskId(a["task_id"]),
+            path=path(a["path"]),
+            cells=cells(a["cells"]),
+            length_m=float(a["length_m"]),
+            travel_time_s=float(a["travel_time_s"]),
+            sensing_gain=float(a["sensing_gain"]),
+            efficiency=float(a["efficiency"]),
+            cost_cny=float(a["cost_cny"]),
+            kappa=math.nan,
+        )
+        for a in doc["task_assignments"]
+    )
+    completed = tuple(task_of(city, t) for t in doc["tasks_completed"])
+    time_s = parse_rfc3339(doc["time"]).timestamp()
+    return StoredDecision(doc["epoch_id"], time_s, matches, routes, completed)
+
+
+def read_epoch(city: City, response_json: str) -> StoredDecision:
+    """The decision inside a stored response document (``DispatchService``'s reader)."""
+    return decision_of(city, json.loads(response_json))

@@ -1,0 +1,48 @@
+"""Simulation runs, built once and shared by the fleet-sizing worker and the research experiments.
+
+A run is a pure function of its ``RunJob`` (spec, city bundle, recorded demand); ``Runner`` answers a batch
+of jobs from its ``RunCache`` or by running the rest on an ``Executor`` (this process, or local processes),
+reporting ``Progress`` as runs finish.
+"""
+
+from app.simulation.executor import (
+    Executor,
+    ExecutorName,
+    Finished,
+    InlineExecutor,
+    ProcessExecutor,
+    make_executor,
+)
+from app.simulation.result import RouteRecord, RunResult
+from app.simulation.runner import Progress, ProgressFn, RunBatch, RunCache, RunFn, Runner
+from app.simulation.spec import CACHE_FORMAT, RunJob, RunSpec, TaskTemplate, demand_digest, tasks_digest
+from app.simulation.workload import Bundle, demand_for, open_bundle, run_job, simulate_spec, tasks_for
+
+__all__ = [
+    "CACHE_FORMAT",
+    "RunSpec",
+    "RunJob",
+    "demand_digest",
+    "TaskTemplate",
+    "tasks_digest",
+    "RunResult",
+    "RouteRecord",
+    "Bundle",
+    "open_bundle",
+    "demand_for",
+    "tasks_for",
+    "simulate_spec",
+    "run_job",
+    "Executor",
+    "ExecutorName",
+    "Finished",
+    "InlineExecutor",
+    "ProcessExecutor",
+    "make_executor",
+    "Progress",
+    "ProgressFn",
+    "RunBatch",
+    "RunCache",
+    "Runner",
+    "RunFn",
+]

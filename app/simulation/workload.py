@@ -1,0 +1,159 @@
+"""Running one spec in this process: the city's bundle (network, POIs, recorded trips; read once per process
+and kept), the spec's demand and tasks, the simulation and its KPIs."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from functools import cached_property, lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.simulation.result import RouteRecord, RunResult
+from app.simulation.spec import RunJob, RunSpec, TaskTemplate
+from services.city import City
+from services.citydata import load_city, read_meta
+from services.dispatch import warm_up
+from services.model import Task, TaskId
+from services.network import SnapError
+from services.sim.demand import DemandSet
+from services.sim.demand_chengdu import PoiDensity, chengdu_demand, poi_density, read_pois_csv
+from services.sim.demand_nyc import TripRecords, manhattan_demand, read_nyc_requests
+from services.sim.engine import RunTrace, SimConfig, poi_tasks, simulate
+from services.sim.kpi import run_kpis
+from services.sim.local import LocalDispatcher
+
+__all__ = ["Bundle", "open_bundle", "demand_for", "tasks_for", "placed_tasks", "simulate_spec", "run_job"]
+
+_TASK_STREAM = 0x7A5
+
+
+class Bundle:
+    """A city bundle and what runs draw from it (each part read on first use)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.city: City = load_city(directory)
+        self.files = read_meta(directory).files
+
+    @cached_property
+    def pois(self) -> NDArray[np.float64] | None:
+        """The bundle's POIs (lon, lat), if it has any."""
+        return read_pois_csv(self.directory / self.files["pois"]) if "pois" in self.files else None
+
+    @cached_property
+    def density(self) -> PoiDensity | None:
+        """POI density per cell, which the synthetic generator draws destinations from."""
+        return None if self.pois is None else poi_density(self.city, self.pois)
+
+    @cached_property
+    def records(self) -> TripRecords:
+        """The bundle's recorded trips (the bootstrap source when it has no POIs)."""
+        if "requests" not in self.files:
+            raise ValueError(
+                f"city {self.city.name!r} has neither POIs nor recorded requests to build demand from"
+            )
+        return read_nyc_requests(self.directory / self.files["requests"])
+
+    @cached_property
+    def candidates(self) -> NDArray[np.int64]:
+        """POI nodes: the POIs snapped to the network (those within the snap limit), else every node."""
+        city = self.city
+        if self.pois is None:
+            return np.arange(city.network.n_nodes, dtype=np.int64)
+        nodes = []
+        for lon, lat in self.pois:
+            try:
+                nodes.append(city.network.snap(float(lon), float(lat), city.params.snap_limit_m)[0])
+            except SnapError:
+                continue
+        return np.unique(np.asarray(nodes, dtype=np.int64))
+
+
+@lru_cache(maxsize=8)
+def open_bundle(directory: Path) -> Bundle:
+    """The bundle in ``directory`` (kept per process; the kernels are warmed up on first load)."""
+    bundle = Bundle(Path(directory))
+    warm_up(bundle.city)
+    return bundle
+
+
+def demand_for(spec: RunSpec, bundle: Bundle) -> DemandSet:
+    """The spec's demand: the calibrated generator on the bundle's POIs, else the recorded trips
+    (bootstrapped for ``day > 0``)."""
+    city = bundle.city
+    density = bundle.density
+    if density is not None:
+        kwargs: dict[str, Any] = {} if spec.rate_per_hour is None else {"rate_per_hour": spec.rate_per_hour}
+        return chengdu_demand(city, density, seed=spec.seed, scenario=spec.scenario, day=spec.day, **kwargs)
+    if spec.scenario != 1:
+        raise ValueError("scenarios 2 and 3 exist only for the synthetic generator (Chengdu)")
+    return manhattan_demand(
+        city, bundle.records, seed=spec.seed, day=spec.day, rate_per_hour=spec.rate_per_hour
+    )
+
+
+def tasks_for(spec: RunSpec, bundle: Bundle, date: str, prefix: str = "") -> list[Task]:
+    """The spec's monitoring tasks: ``n_tasks`` distinct POIs scheduled uniformly over the horizon (drawn
+    for ``spec.tasks_day`` when set, so every day of a history shares one task set, else for its day)."""
+    hz = bundle.city.horizon
+    day = spec.day if spec.tasks_day is None else spec.tasks_day
+    rng = np.random.default_rng(np.random.SeedSequence([spec.seed, day, _TASK_STREAM]))
+    return poi_tasks(bundle.candidates, spec.n_tasks, hz.start_s(date), hz.length_s, rng, prefix)
+
+
+def placed_tasks(templates: Sequence[TaskTemplate], bundle: Bundle, date: str) -> list[Task]:
+    """Task templates placed on the horizon of local day ``date`` (pending, in template order)."""
+    start = bundle.city.horizon.start_s(date)
+    return [Task(TaskId(t.id), int(t.node), start + float(t.offset_s)) for t in templates]
+
+
+def simulate_spec(
+    spec: RunSpec,
+    bundle: Bundle,
+    demand: DemandSet | None = None,
+    tasks: Sequence[TaskTemplate] | None = None,
+) -> tuple[City, RunTrace]:
+    """Simulate one spec in-process (on ``demand`` instead of the spec's own, e.g. recorded requests, and
+    on the platform's ``tasks`` instead of the spec's seeded draw)."""
+    city = bundle.city
+    if city.params.active_sensing != spec.active:
+        city = dataclasses.replace(city, params=dataclasses.replace(city.params, active_sensing=spec.active))
+    if demand is None:
+        demand = demand_for(spec, bundle)
+    config = SimConfig(
+        n_instrumented=spec.n1,
+        n_ordinary=spec.n0,
+        n_tasks=spec.n_tasks if tasks is None else len(tasks),
+        seed=spec.seed,
+        wait_only=spec.wait_only,
+    )
+    day_tasks = (
+        tasks_for(spec, bundle, demand.date) if tasks is None else placed_tasks(tasks, bundle, demand.date)
+    )
+    trace = simulate(city, demand, day_tasks, config, LocalDispatcher(city))
+    return city, trace
+
+
+def run_job(job: RunJob) -> RunResult:
+    """Simulate one job in this process (top level, so an executor can send it to other processes)."""
+    started = time.perf_counter()
+    city, trace = simulate_spec(job.spec, open_bundle(job.bundle), job.demand, job.tasks)
+    routes = None
+    if job.spec.keep_routes:
+        routes = tuple(
+            RouteRecord(t, str(a.taxi_id), str(a.task_id), tuple(a.path)) for t, a in trace.assignments
+        )
+    return RunResult(
+        key=job.key,
+        spec=job.spec,
+        demand=dict(trace.demand),
+        kpis=run_kpis(city, trace),
+        n_unposted=trace.n_unposted,
+        elapsed_s=time.perf_counter() - started,
+        routes=routes,
+    )

@@ -1,0 +1,5 @@
+"""``python -m research``: see ``research.cli``."""
+
+from research.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,738 @@
+"""Algorithm 1: the enhanced A* drive-by sensing route from a taxi to a POI (docs/METHOD.md section 5).
+
+For one taxi and one POI, each kappa of the family (default 0, 0.3, 0.6, 0.9) gives the shortest path
+under the utility-discounted edge cost ``c_e = t_e (1 - kappa u_e / max u)``, ``u_e`` the first slot's
+marginal terms of the cells edge ``e`` enters, for this taxi (zero where it is already counted); the
+route kept is the one with the largest phi = gain / time (Eq. 12), ties to the smaller kappa, so kappa = 0
+(the fastest path) wins unless beaten. Costs are fixed for the epoch, so one canonical shortest-path tree
+per (taxi, kappa) serves every POI at once (the straight-line A* heuristic would only prune the search:
+the canonical path it returns is the same). Every candidate route is evaluated exactly (``gains``).
+
+The kappa = 0 cost is the travel time whatever the taxi, so when an epoch has fewer POIs than taxis the
+fastest paths come from one in-tree per POI instead of one tree per taxi; paths are canonical
+(``services.graph``), so both give the same routes, and the tests check it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services import search
+from services.gains import (
+    Counted,
+    Gains,
+    TreeScratch,
+    entered_utility,
+    eval_path,
+    eval_tree,
+    mark,
+    tree_scratch,
+)
+from services.graph import INF, CellEdges, Costs, Edges, RoadGraph, SearchGraph
+from services.jit import compiled, compiled_inline
+from services.pads import Pad, Pads
+from services.parallel import parallel_map
+
+__all__ = ["Plans", "Route", "Scratch", "scratch", "plan_routes", "plan_one", "route_pair", "kappa_metric"]
+
+
+class Scratch(NamedTuple):
+    """One thread's scratch: a zero mask and an evaluation stamp over the gain table and the next stamp,
+    the entered utility and one kappa metric per edge and super-edge, and the tree evaluation's scratch."""
+
+    zmask: NDArray[np.bool_]
+    stamp: NDArray[np.int64]
+    next_stamp: NDArray[np.int64]  # (1,)
+    u: NDArray[np.float64]  # (m,)
+    edge_cost: NDArray[np.int64]  # (m,)
+    se_cost: NDArray[np.int64]  # (S,) forward super-edges
+    tree: TreeScratch
+
+
+def _scratch(graph: RoadGraph, gn: Gains) -> Scratch:
+    shape = gn.term.shape
+    return Scratch(
+        np.zeros(shape, np.bool_),
+        np.zeros(shape, np.int64),
+        np.ones(1, np.int64),
+        np.zeros(graph.n_edges),
+        np.zeros(graph.n_edges, np.int64),
+        np.zeros(graph.forward.se_tail.shape[0], np.int64),
+        tree_scratch(graph.n_nodes, shape),
+    )
+
+
+@compiled_inline
+def _kappa_cost(t: float, u: float, umax: float, kappa: float) -> int:
+    c = t * (1.0 - kappa * (u / umax)) if kappa != 0.0 else t
+    q = int(np.rint(c * 1e6))
+    return q if q > 1 else 1
+
+
+@compiled
+def kappa_metric(
+    ed: Edges,
+    g: SearchGraph,
+    u: NDArray[np.float64],
+    umax: float,
+    kappa: float,
+    edge_cost: NDArray[np.int64],
+    se_cost: NDArray[np.int64],
+) -> Costs:
+    """Algorithm 1's edge cost ``c_e = t_e (1 - kappa u_e / umax)`` in whole microseconds (at least 1) into
+    ``edge_cost``, prepared for ``g`` (``graph.prepare_into``) in the same pass over the super-edges' edges
+    (every edge lies on exactly one super-edge)."""
+    ns = g.se_tail.shape[0]
+    lo = INF
+    hi = 1
+    for s in range(ns):
+        c = 0
+        for p in range(g.se_ptr[s], g.se_ptr[s + 1]):
+            e = g.se_edges[p]
+            ce = _kappa_cost(ed.time_s[e], u[e], umax, kappa)
+            edge_cost[e] = ce
+            c += ce
+        se_cost[s] = c
+        if c < lo:
+            lo = c
+        if c > hi:
+            hi = c
+    if ns == 0:
+        lo = 1
+    return Costs(edge_cost, se_cost, lo, hi // lo + 2)
+
+
+@compiled
+def _eval_walk(
+    ed: Edges, gn: Gains, sc: Scratch, succ: NDArray[np.int64], start: int, root: int, depart_s: float
+) -> tuple[float, float, float, int]:
+    """``gains.eval_path`` along the in-tree path from ``start`` to ``root`` (same operations, same order)."""
+    n_slots = gn.term.shape[0]
+    sid = sc.next_stamp[0]
+    sc.next_stamp[0] = sid + 1
+    t = depart_s
+    g = 0.0
+    length = 0.0
+    max_slot = 0
+    x = start
+    while x != root:
+        e = succ[x]
+        te = ed.time_s[e]
+        for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
+            slot = int(np.floor((t + ed.ec_frac[j] * te + gn.shift_s) / gn.interval_s)) - gn.k0
+            if slot > max_slot:
+                max_slot = slot
+            if slot >= n_slots:
+                continue
+            c = ed.ec_cell[j]
+            if sc.stamp[slot, c] == sid:
+                continue
+            sc.stamp[slot, c] = sid
+            if not sc.zmask[slot, c]:
+                g += gn.term[slot, c]
+        t += te
+        length += ed.length_m[e]
+        x = ed.head[e]
+    return g, t - depart_s, length, max_slot
+
+
+@compiled
+def _fastest_to_root(
+    ed: Edges,
+    rg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    gn: Gains,
+    sc: Scratch,
+    counted: Counted,
+    sources: NDArray[np.int64],
+    root: int,
+    depart_s: float,
+    out_g: NDArray[np.float64],
+    out_t: NDArray[np.float64],
+    out_l: NDArray[np.float64],
+) -> int:
+    """The fastest path from every source to ``root`` (one in-tree), each evaluated for its taxi; time is
+    NaN for a source that cannot reach the root. Returns the largest slot reached."""
+    search.run(rg, ed, time_costs, root, INF, sources, ws)
+    max_slot = 0
+    for a in range(sources.shape[0]):
+        if not search.unfold(rg, ed, time_costs, INF, sources[a], ws):
+            out_t[a] = np.nan
+            continue
+        mark(sc.zmask, counted, a, True)
+        g, t, length, ms = _eval_walk(ed, gn, sc, ws.pred, sources[a], root, depart_s)
+        mark(sc.zmask, counted, a, False)
+        out_g[a] = g
+        out_t[a] = t
+        out_l[a] = length
+        if ms > max_slot:
+            max_slot = ms
+    return max_slot
+
+
+class KappaBase(NamedTuple):
+    """What every taxi's kappa metrics share in one epoch: the entered utility with no cell zeroed, its
+    largest value and how many edges attain it, and the kappa metrics built from them (row q: kappa
+    ``kappas[q]``; rows of kappa = 0 unused). A taxi's own metric differs only on the edges that enter a
+    cell it is counted in (``_patch``); its utility there is lower, so its costs are higher: the base's
+    cheapest super-edge still bounds its buckets from below, the travel time's dearest from above."""
+
+    u: NDArray[np.float64]
+    umax: float
+    n_top: int
+    edge: NDArray[np.int64]  # (kappas, m)
+    se: NDArray[np.int64]  # (kappas, S)
+    width: NDArray[np.int64]  # (kappas,)
+    span: NDArray[np.int64]
+
+
+@compiled
+def _kappa_base(
+    ed: Edges, fg: SearchGraph, time_costs: Costs, gn: Gains, kappas: NDArray[np.float64]
+) -> KappaBase:
+    zmask = np.zeros(gn.term.shape, dtype=np.bool_)
+    m = ed.time_s.shape[0]
+    u = np.zeros(m)
+    umax = entered_utility(ed, gn, zmask, u)
+    n_top = 0
+    for e in range(m):
+        if u[e] == umax:
+            n_top += 1
+    nk = kappas.shape[0]
+    edge = np.zeros((nk, m), dtype=np.int64)
+    se = np.zeros((nk, fg.se_tail.shape[0]), dtype=np.int64)
+    width = np.ones(nk, dtype=np.int64)
+    span = np.ones(nk, dtype=np.int64)
+    time_max = 1
+    for s in range(time_costs.se.shape[0]):
+        if time_costs.se[s] > time_max:
+            time_max = time_costs.se[s]
+    for q in range(nk):
+        if kappas[q] != 0.0 and umax > 0.0:
+            c = kappa_metric(ed, fg, u, umax, kappas[q], edge[q], se[q])
+            width[q] = c.width
+            span[q] = time_max // c.width + 2
+    return KappaBase(u, umax, n_top, edge, se, width, span)
+
+
+class KappaWork(NamedTuple):
+    """A thread's copy of the base metrics, patched for one taxi at a time and restored after."""
+
+    edge: NDArray[np.int64]
+    se: NDArray[np.int64]
+    u: NDArray[np.float64]
+    dirty: NDArray[np.int64]  # (m,) the patched edges of the current taxi
+    stamp: NDArray[np.int64]  # (m,) stamp[e] == next_stamp[0]: e already listed
+
+
+def kappa_work(pad: Pad, base: KappaBase) -> KappaWork:
+    """The pad's copy of ``base`` (its arrays kept in the pad, refilled from ``base``)."""
+    key = ("kappa-work", base.edge.shape, base.se.shape)
+    work = pad.extra.get(key)
+    if not isinstance(work, KappaWork):
+        m = base.u.shape[0]
+        blank = np.zeros(m, np.int64)
+        work = KappaWork(
+            np.empty_like(base.edge), np.empty_like(base.se), np.empty_like(base.u), blank, blank.copy()
+        )
+        pad.extra[key] = work
+    np.copyto(work.edge, base.edge)
+    np.copyto(work.se, base.se)
+    np.copyto(work.u, base.u)
+    return work
+
+
+@compiled
+def _patch(
+    ed: Edges,
+    entering: CellEdges,
+    se_of: NDArray[np.int64],
+    gn: Gains,
+    sc: Scratch,
+    counted: Counted,
+    i: int,
+    kappas: NDArray[np.float64],
+    base: KappaBase,
+    work: KappaWork,
+) -> int:
+    """Turn ``work`` into taxi ``i``'s metrics: the entered utility of every edge that enters a cell the
+    taxi is counted in during the first slot, recomputed with its zero mask (the sum ``entered_utility``
+    makes, in the same order), and the kappa costs of those edges and of their super-edges (whole
+    numbers: a super-edge's sum moves by the edge's change exactly). Returns how many edges were patched,
+    or -1 when the taxi's largest utility is not the base's (every edge attaining it is zeroed): then the
+    taxi needs its metrics built whole."""
+    sid = sc.next_stamp[0]
+    sc.next_stamp[0] = sid + 1
+    n = 0
+    for p in range(counted.ptr[i], counted.ptr[i + 1]):
+        if counted.slot[p] != 0:
+            continue
+        c = counted.cell[p]
+        for q in range(entering.ptr[c], entering.ptr[c + 1]):
+            e = entering.edge[q]
+            if work.stamp[e] != sid:
+                work.stamp[e] = sid
+                work.dirty[n] = e
+                n += 1
+    lost = 0
+    for r in range(n):
+        e = work.dirty[r]
+        s = 0.0
+        for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
+            c = ed.ec_cell[j]
+            if not sc.zmask[0, c]:
+                s += gn.term[0, c]
+        work.u[e] = s
+        if base.u[e] == base.umax and s < base.umax:
+            lost += 1
+    if lost == base.n_top:
+        for r in range(n):
+            work.u[work.dirty[r]] = base.u[work.dirty[r]]
+        return -1
+    for q in range(kappas.shape[0]):
+        if kappas[q] == 0.0 or base.umax <= 0.0:
+            continue
+        for r in range(n):
+            e = work.dirty[r]
+            new = _kappa_cost(ed.time_s[e], work.u[e], base.umax, kappas[q])
+            old = work.edge[q, e]
+            if new != old:
+                work.edge[q, e] = new
+                work.se[q, se_of[e]] += new - old
+    return n
+
+
+@compiled
+def _unpatch(se_of: NDArray[np.int64], base: KappaBase, work: KappaWork, n: int) -> None:
+    """Restore ``work`` to the base after a taxi whose ``_patch`` listed ``n`` edges."""
+    for r in range(n):
+        e = work.dirty[r]
+        work.u[e] = base.u[e]
+        for q in range(base.edge.shape[0]):
+            work.edge[q, e] = base.edge[q, e]
+            work.se[q, se_of[e]] = base.se[q, se_of[e]]
+
+
+@compiled
+def _plan_taxi(
+    ed: Edges,
+    fg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    gn: Gains,
+    sc: Scratch,
+    kappas: NDArray[np.float64],
+    source: int,
+    targets: NDArray[np.int64],
+    depart_s: float,
+    fastest_given: bool,
+    out_k: NDArray[np.int64],
+    out_g: NDArray[np.float64],
+    out_t: NDArray[np.float64],
+    out_l: NDArray[np.float64],
+    base: KappaBase,
+    work: KappaWork,
+    patched: bool,
+) -> int:
+    """Algorithm 1 from one taxi (its zero mask set in ``sc``) to every target. With ``fastest_given`` the
+    kappa = 0 results are already in ``out_g/out_t/out_l`` (NaN time: unreachable) and only the other kappas
+    are searched. With ``patched`` the taxi's kappa metrics are ``work``'s rows (``_patch``), else they are
+    built whole. Writes the chosen kappa's index (-1: unreachable), gain, time and length per target;
+    returns the largest slot reached, or -1 when a target cannot be reached."""
+    k = targets.shape[0]
+    umax = base.umax if patched else entered_utility(ed, gn, sc.zmask, sc.u)
+    best = np.full(k, -np.inf)
+    g = np.zeros(k)
+    t = np.zeros(k)
+    length = np.zeros(k)
+    max_slot = 0
+    for ki in range(kappas.shape[0]):
+        kappa = kappas[ki]
+        if kappa == 0.0 and fastest_given:
+            for i in range(k):
+                if np.isnan(out_t[i]):
+                    return -1
+                phi = out_g[i] / out_t[i] if out_t[i] > 0 else 0.0
+                if phi > best[i]:
+                    best[i] = phi
+                    out_k[i] = ki
+            continue
+        if kappa == 0.0:
+            costs = time_costs
+        elif umax <= 0.0:
+            continue  # no edge enters a cell of positive gain: every kappa gives the fastest path
+        elif patched:
+            costs = Costs(work.edge[ki], work.se[ki], base.width[ki], base.span[ki])
+        else:
+            costs = kappa_metric(ed, fg, sc.u, umax, kappa, sc.edge_cost, sc.se_cost)
+        search.run(fg, ed, costs, source, INF, targets, ws)
+        for i in range(k):
+            if not search.unfold(fg, ed, costs, INF, targets[i], ws):
+                return -1
+        ms = eval_tree(ed, gn, sc.zmask, ws.pred, source, targets, depart_s, sc.tree, g, t, length)
+        if ms > max_slot:
+            max_slot = ms
+        for i in range(k):
+            phi = g[i] / t[i] if t[i] > 0 else 0.0
+            if phi > best[i]:
+                best[i] = phi
+                out_k[i] = ki
+                out_g[i] = g[i]
+                out_t[i] = t[i]
+                out_l[i] = length[i]
+    return max_slot
+
+
+@compiled
+def _roots_chunk(
+    ed: Edges,
+    rg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    gn: Gains,
+    sc: Scratch,
+    counted: Counted,
+    sources: NDArray[np.int64],
+    targets: NDArray[np.int64],
+    chunk: NDArray[np.int64],
+    depart_s: float,
+    out_g: NDArray[np.float64],
+    out_t: NDArray[np.float64],
+    out_l: NDArray[np.float64],
+) -> int:
+    """``_fastest_to_root`` for the targets ``chunk`` (columns of the (sources, targets) outputs) in one
+    compiled call; returns the largest slot reached."""
+    f = sources.shape[0]
+    col_g = np.zeros(f)
+    col_t = np.zeros(f)
+    col_l = np.zeros(f)
+    max_slot = 0
+    for j in chunk:
+        ms = _fastest_to_root(
+            ed, rg, ws, time_costs, gn, sc, counted, sources, targets[j], depart_s, col_g, col_t, col_l
+        )
+        for a in range(f):
+            out_g[a, j] = col_g[a]
+            out_t[a, j] = col_t[a]
+            out_l[a, j] = col_l[a]
+        if ms > max_slot:
+            max_slot = ms
+    return max_slot
+
+
+@compiled
+def _taxis_chunk(
+    ed: Edges,
+    fg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    entering: CellEdges,
+    se_of: NDArray[np.int64],
+    gn: Gains,
+    sc: Scratch,
+    counted: Counted,
+    kappas: NDArray[np.float64],
+    sources: NDArray[np.int64],
+    targets: NDArray[np.int64],
+    chunk: NDArray[np.int64],
+    depart_s: float,
+    fastest_given: bool,
+    out_k: NDArray[np.int64],
+    out_g: NDArray[np.float64],
+    out_t: NDArray[np.float64],
+    out_l: NDArray[np.float64],
+    base: KappaBase,
+    work: KappaWork,
+) -> tuple[int, int]:
+    """Algorithm 1 for the taxis ``chunk`` (rows of the outputs) in one compiled call: each taxi's zero mask
+    and patched metrics set, its targets planned, both undone. Returns the largest slot reached and -1, or
+    (0, the first taxi that cannot reach a target)."""
+    max_slot = 0
+    for i in chunk:
+        mark(sc.zmask, counted, i, True)
+        n = _patch(ed, entering, se_of, gn, sc, counted, i, kappas, base, work)
+        ms = _plan_taxi(
+            ed, fg, ws, time_costs, gn, sc, kappas, sources[i], targets, depart_s, fastest_given,
+            out_k[i], out_g[i], out_t[i], out_l[i], base, work, n >= 0,
+        )  # fmt: skip
+        _unpatch(se_of, base, work, n)
+        mark(sc.zmask, counted, i, False)
+        if ms < 0:
+            return 0, i
+        if ms > max_slot:
+            max_slot = ms
+    return max_slot, -1
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Plans:
+    """Algorithm 1 from each of F taxis to each of P targets: the chosen kappa (index into ``kappas``),
+    gain, travel time and length of the route, as (F, P) arrays, and the largest slot any route reached."""
+
+    kappas: NDArray[np.float64]
+    kappa_index: NDArray[np.int64]
+    gain: NDArray[np.float64]
+    time_s: NDArray[np.float64]
+    length_m: NDArray[np.float64]
+    max_slot: int
+
+    @property
+    def phi(self) -> NDArray[np.float64]:
+        """phi = gain / time (Eq. 12); 0 for a zero-length route."""
+        t = self.time_s
+        return np.divide(self.gain, t, out=np.zeros_like(self.gain), where=t > 0)
+
+
+def plan_routes(
+    graph: RoadGraph,
+    gn: Gains,
+    counted: Counted,
+    sources: NDArray[np.int64],
+    targets: NDArray[np.int64],
+    depart_s: float,
+    kappas: Sequence[float],
+    workers: int,
+    pads: Pads,
+    *,
+    fastest_from_targets: bool | None = None,
+) -> Plans:
+    """Algorithm 1 from every source (taxi ``i``'s counted pairs in ``counted``) to every target.
+
+    The fastest paths come from one in-tree per target when there are fewer than half as many targets as
+    sources (``fastest_from_targets`` forces the choice; the routes are the same either way).
+
+    Raises
+    ------
+    ValueError
+        When a target cannot be reached from a source.
+    """
+    ed = graph.edges
+    f, p = len(sources), len(targets)
+    kap = np.asarray(kappas, dtype=np.float64)
+    out_k = np.full((f, p), -1, dtype=np.int64)
+    out_g = np.zeros((f, p))
+    out_t = np.full((f, p), np.nan)
+    out_l = np.zeros((f, p))
+    slots: list[int] = []
+    from_roots = (0 < 2 * p < f) if fastest_from_targets is None else (fastest_from_targets and p > 0)
+    if from_roots:
+
+        def roots(chunk: Sequence[int]) -> list[int]:
+            with pads.take() as pad:
+                sc = scratch(pad, gn)
+                ms = _roots_chunk(
+                    ed, graph.reverse, pad.reverse, graph.time_reverse, gn, sc, counted, sources, targets,
+                    np.asarray(chunk, dtype=np.int64), depart_s, out_g, out_t, out_l,
+                )  # fmt: skip
+            return [ms] * len(chunk)
+
+        slots += parallel_map(roots, range(p), workers)
+
+    base = _kappa_base(ed, graph.forward, graph.time_forward, gn, kap)
+
+    def taxis(chunk: Sequence[int]) -> list[int]:
+        with pads.take() as pad:
+            ms, failed = _taxis_chunk(
+                ed, graph.forward, pad.forward, graph.time_forward, graph.entering, graph.se_of, gn,
+                scratch(pad, gn), counted, kap, sources, targets, np.asarray(chunk, dtype=np.int64), depart_s,
+                from_roots, out_k, out_g, out_t, out_l, base, kappa_work(pad, base),
+            )  # fmt: skip
+        if failed >= 0:
+            missing = targets[np.isnan(out_t[failed]) | (out_k[failed] < 0)]
+            raise ValueError(f"targets unreachable from node {int(sources[failed])}: {missing[:5].tolist()}")
+        return [ms] * len(chunk)
+
+    slots += parallel_map(taxis, range(f), workers)
+    return Plans(kap, out_k, out_g, out_t, out_l, max(slots, default=0))
+
+
+def scratch(pad: Pad, gn: Gains) -> Scratch:
+    """The pad's scratch for Algorithm 1 with tables shaped like ``gn`` (made on first need)."""
+    key = ("algorithm1", gn.term.shape)
+    got = pad.extra.get(key)
+    if not isinstance(got, Scratch):
+        got = pad.extra[key] = _scratch(pad.graph, gn)
+    return got
+
+
+@compiled
+def _kappa_metric(
+    ed: Edges, fg: SearchGraph, time_costs: Costs, sc: Scratch, umax: float, kappa: float
+) -> Costs:
+    """The kappa metric of the taxi whose zero mask and entered utility ``sc`` holds."""
+    if kappa == 0.0 or umax <= 0.0:
+        return time_costs
+    return kappa_metric(ed, fg, sc.u, umax, kappa, sc.edge_cost, sc.se_cost)
+
+
+@compiled
+def _path(
+    ed: Edges, fg: SearchGraph, ws: search.Workspace, costs: Costs, source: int, target: int
+) -> NDArray[np.int64]:
+    """The canonical path from ``source`` to ``target`` under ``costs`` (empty and ``ws.info[1] == -1``
+    when it cannot be reached)."""
+    tgt = np.empty(1, dtype=np.int64)
+    tgt[0] = target
+    search.run(fg, ed, costs, source, INF, tgt, ws)
+    if not search.unfold(fg, ed, costs, INF, target, ws):
+        ws.info[1] = -1
+        return np.empty(0, dtype=np.int64)
+    return search.path_to(ed, 1, ws.pred, source, target)
+
+
+@compiled
+def _route_pair(
+    ed: Edges,
+    fg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    gn: Gains,
+    sc: Scratch,
+    counted: Counted,
+    i: int,
+    source: int,
+    target: int,
+    kappa: float,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
+    """Taxi ``i``'s kappa route and fastest path from ``source`` to ``target`` (the canonical paths its trees
+    in ``plan_routes`` hold), and whether both were reached."""
+    mark(sc.zmask, counted, i, True)
+    umax = entered_utility(ed, gn, sc.zmask, sc.u)
+    mark(sc.zmask, counted, i, False)
+    fastest = _path(ed, fg, ws, time_costs, source, target)
+    ok = ws.info[1] != -1
+    if kappa == 0.0 or umax <= 0.0:
+        return fastest, fastest, ok
+    route = _path(ed, fg, ws, _kappa_metric(ed, fg, time_costs, sc, umax, kappa), source, target)
+    return route, fastest, ok and ws.info[1] != -1
+
+
+def route_pair(
+    graph: RoadGraph,
+    gn: Gains,
+    counted: Counted,
+    i: int,
+    source: int,
+    target: int,
+    kappa: float,
+    pad: Pad,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Taxi ``i``'s kappa route and its fastest path from ``source`` to ``target``: the canonical paths its
+    trees in ``plan_routes`` held (found again rather than kept: a tree per taxi and kappa is too much
+    memory at metropolitan scale).
+
+    Raises
+    ------
+    ValueError
+        When ``target`` cannot be reached.
+    """
+    route, fastest, ok = _route_pair(
+        graph.edges, graph.forward, pad.forward, graph.time_forward, gn, scratch(pad, gn), counted, i, source,
+        target, float(kappa),
+    )  # fmt: skip
+    if not ok:
+        raise ValueError(f"node {target} cannot be reached from node {source}")
+    return route, fastest
+
+
+@dataclass(frozen=True, slots=True)
+class Route:
+    """One monitoring route: the kappa chosen, its edges and their exact evaluation."""
+
+    source: int
+    target: int
+    kappa: float
+    edges: NDArray[np.int64]
+    gain: float
+    time_s: float
+    length_m: float
+    max_slot: int
+
+    @property
+    def efficiency(self) -> float:
+        """phi = gain / travel time (Eq. 12); 0 for a zero-length route."""
+        return self.gain / self.time_s if self.time_s > 0 else 0.0
+
+
+@compiled
+def _plan_one(
+    ed: Edges,
+    fg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    gn: Gains,
+    sc: Scratch,
+    counted: Counted,
+    i: int,
+    kappas: NDArray[np.float64],
+    source: int,
+    target: int,
+    fastest: NDArray[np.int64],
+    depart_s: float,
+) -> tuple[int, NDArray[np.int64], float, float, float, int]:
+    """``plan_one`` in one compiled call: (kappa index (-1: unreachable), edges, gain, time, length, largest
+    slot) of the best route."""
+    mark(sc.zmask, counted, i, True)
+    umax = entered_utility(ed, gn, sc.zmask, sc.u)
+    best_phi = -np.inf
+    best_k = -1
+    best_edges = fastest
+    best_g = 0.0
+    best_t = 0.0
+    best_l = 0.0
+    best_ms = 0
+    for ki in range(kappas.shape[0]):
+        kappa = kappas[ki]
+        if kappa == 0.0:
+            edges = fastest
+        elif umax > 0.0:
+            edges = _path(ed, fg, ws, _kappa_metric(ed, fg, time_costs, sc, umax, kappa), source, target)
+            if ws.info[1] == -1:
+                best_k = -1
+                break
+        else:
+            continue
+        sid = sc.next_stamp[0]
+        sc.next_stamp[0] = sid + 1
+        g, _gq, t, length, ms = eval_path(ed, gn, sc.zmask, sc.stamp, sid, edges, depart_s)
+        phi = g / t if t > 0 else 0.0
+        if phi > best_phi:
+            best_phi = phi
+            best_k = ki
+            best_edges = edges
+            best_g = g
+            best_t = t
+            best_l = length
+            best_ms = ms
+    mark(sc.zmask, counted, i, False)
+    return best_k, best_edges, best_g, best_t, best_l, best_ms
+
+
+def plan_one(
+    graph: RoadGraph,
+    gn: Gains,
+    counted: Counted,
+    i: int,
+    source: int,
+    target: int,
+    fastest: NDArray[np.int64],
+    kappas: Sequence[float],
+    depart_s: float,
+    pad: Pad,
+) -> Route:
+    """Algorithm 1 from taxi ``i`` to one target, its fastest path given (the kappa = 0 cost is the travel
+    time whatever the gains, so the fastest path does not change when the gains do)."""
+    kap = np.asarray(kappas, dtype=np.float64)
+    ki, edges, g, t, length, ms = _plan_one(
+        graph.edges, graph.forward, pad.forward, graph.time_forward, gn, scratch(pad, gn), counted, i, kap,
+        int(source), int(target), np.asarray(fastest, dtype=np.int64), float(depart_s),
+    )  # fmt: skip
+    if ki < 0:
+        raise ValueError(f"node {target} cannot be reached from node {source}")
+    return Route(int(source), int(target), float(kap[ki]), edges, float(g), float(t), float(length), int(ms))

@@ -1,0 +1,127 @@
+"""Algorithm 2: several vacant instrumented taxis' routes improved together (docs/METHOD.md section 5).
+
+Start from the Step 3 routes, each planned against the counts of the epoch. Then, for each taxi in turn,
+re-plan its route (Algorithm 1, same POI) against the counts plus the other taxis' planned visits, and
+keep the new route only if the joint utility of all planned routes rises; stop after a pass that changes
+nothing or after ``max_iter`` passes. The joint utility after each accepted re-plan is returned, so it is
+non-decreasing by construction (the tests check it against a recomputation).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections import Counter
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.algorithm1 import Route, plan_one
+from services.city import City
+from services.gains import Counted, gain_table, joint_utility, route_pairs
+from services.graph import RoadGraph
+from services.model import CountsView, TaxiId
+from services.pads import Pads
+from services.parallel import parallel_map
+
+__all__ = ["improve_routes"]
+
+
+def improve_routes(
+    city: City,
+    graph: RoadGraph,
+    counts: CountsView,
+    taxi_ids: Sequence[TaxiId],
+    counted: Counted,
+    routes: list[Route],
+    fastest: Sequence[NDArray[np.int64]],
+    depart_s: float,
+    k0: int,
+    n_slots: int,
+    workers: int,
+    pads: Pads,
+) -> tuple[list[Route], list[float], int]:
+    """Algorithm 2 over ``routes`` (route ``i`` is taxi ``taxi_ids[i]``'s, row ``i`` of ``counted``;
+    ``fastest[i]`` its fastest path to the same POI). Returns the routes, the joint utility after the
+    initial matching and after each accepted re-plan, and the number of passes.
+
+    The others' planned visits enter each re-plan's gain table as a dense count per (slot, cell), kept up
+    to date as routes are replaced (counts are whole numbers, so Lambda + n is the same float either way).
+    Re-plans are independent until one is accepted: a batch of the next ones is planned at once (on
+    ``workers`` threads) and taken in order; after an acceptance the rest of the batch is planned again
+    against the new counts, so the outcome is that of one re-plan after the other.
+    """
+    kappas = city.params.kappas
+    visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
+    pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
+    total: Counter[tuple[int, int]] = Counter()
+    for ps in pairs:
+        total.update(ps)
+    n_cells = city.grid.n_cells
+
+    def slots_cells(ps: set[tuple[int, int]]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        rows = np.array([k - k0 for k, _ in ps], dtype=np.int64)
+        cells = np.array([c for _, c in ps], dtype=np.int64)
+        keep = (rows >= 0) & (rows < n_slots)
+        return rows[keep], cells[keep]
+
+    dense = [slots_cells(ps) for ps in pairs]
+    total_n = np.zeros((n_slots, n_cells), dtype=np.int64)
+    for rows, cells in dense:
+        total_n[rows, cells] += 1  # a route's pairs are distinct
+    history = [joint_utility(city, counts.counts, total)]
+
+    def replan(total_n: NDArray[np.int64], todo: Sequence[int]) -> list[tuple[Route, NDArray[np.int64]]]:
+        out = []
+        with pads.take() as pad:
+            for i in todo:
+                r = routes[i]
+                others_n = total_n.copy()
+                others_n[dense[i]] -= 1
+                gn = gain_table(city, counts.counts, k0, n_slots, depart_s, extra_counts=others_n)
+                cand = plan_one(graph, gn, counted, i, r.source, r.target, fastest[i], kappas, depart_s, pad)
+                out.append((cand, others_n))
+        return out
+
+    batch = 1 if workers <= 1 else 4 * workers
+    passes = 0
+    accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
+    planned_at = [-1] * len(routes)
+    for _ in range(city.params.max_iter):
+        passes += 1
+        changed = False
+        i = 0
+        while i < len(routes):
+            todo: list[int] = []
+            j = i
+            while j < len(routes) and len(todo) < batch:
+                if planned_at[j] != accepted:
+                    todo.append(j)
+                j += 1
+            i = j
+            results = parallel_map(functools.partial(replan, total_n), todo, workers)
+            for a, (cand, others_n) in zip(todo, results, strict=True):
+                planned_at[a] = accepted
+                if np.array_equal(cand.edges, routes[a].edges):
+                    continue
+                cand_pairs = route_pairs(city, cand.edges, visited[a], depart_s)
+                trial = total.copy()
+                trial.subtract(pairs[a])
+                trial.update(cand_pairs)
+                u_new = joint_utility(city, counts.counts, trial)
+                if u_new > history[-1] * (1 + 1e-12) + 1e-300:
+                    routes[a] = cand
+                    pairs[a] = cand_pairs
+                    total = trial
+                    dense[a] = slots_cells(cand_pairs)
+                    total_n = others_n
+                    total_n[dense[a]] += 1
+                    history.append(u_new)
+                    accepted += 1
+                    planned_at[a] = accepted
+                    changed = True
+                    i = a + 1  # the rest of the batch saw the old counts
+                    break
+        if not changed:
+            break
+    return routes, history, passes

@@ -1,0 +1,188 @@
+"""Riders' legs: which taxis can pick a rider up (network pickup distance within the matching radius), the
+pickup paths and the trip paths (docs/METHOD.md section 4). All paths are canonical fastest paths."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from services import search
+from services.graph import US_PER_S, Costs, Edges, RoadGraph, SearchGraph
+from services.jit import compiled
+from services.pads import Pads
+from services.parallel import parallel_map
+
+__all__ = ["Pickups", "pickups", "trips", "Leg"]
+
+
+@dataclass(frozen=True, slots=True)
+class Leg:
+    """A path: its edges in travel order, length and travel time (summed in travel order)."""
+
+    edges: NDArray[np.int64]
+    length_m: float
+    time_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class Pickups:
+    """Candidate (taxi, rider) pairs, ordered by rider then taxi: the pickup length, the wait (travel time
+    in seconds, and in whole microseconds: the search's own cost, which the assignments compare)."""
+
+    taxi: NDArray[np.int64]
+    rider: NDArray[np.int64]
+    length_m: NDArray[np.float64]
+    wait_s: NDArray[np.float64]
+    wait_us: NDArray[np.int64]
+
+
+_Found = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
+
+
+@compiled
+def _within(
+    ed: Edges,
+    rg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    origin: int,
+    limit_us: int,
+    radius_m: float,
+    nodes: NDArray[np.int64],
+    ok: NDArray[np.bool_],
+    wait_us: NDArray[np.int64],
+    wait_s: NDArray[np.float64],
+    length_m: NDArray[np.float64],
+) -> None:
+    """One in-tree toward ``origin`` bounded by ``limit_us``; for each of ``nodes`` whether its fastest path
+    to the origin is at most ``radius_m`` long, with that path's wait and length."""
+    search.run(rg, ed, time_costs, origin, limit_us, nodes, ws)
+    for i in range(nodes.shape[0]):
+        ok[i] = False
+        if not search.unfold(rg, ed, time_costs, limit_us, nodes[i], ws):
+            continue
+        t = 0.0
+        length = 0.0
+        x = nodes[i]
+        while x != origin:
+            e = ws.pred[x]
+            t += ed.time_s[e]
+            length += ed.length_m[e]
+            x = ed.head[e]
+        if length <= radius_m + 1e-6:
+            ok[i] = True
+            wait_us[i] = search.resolve(rg, ed, time_costs, limit_us, nodes[i], ws)[0]
+            wait_s[i] = t
+            length_m[i] = length
+
+
+@compiled
+def _within_many(
+    ed: Edges,
+    rg: SearchGraph,
+    ws: search.Workspace,
+    time_costs: Costs,
+    origins: NDArray[np.int64],
+    ptr: NDArray[np.int64],
+    nodes: NDArray[np.int64],
+    limit_us: int,
+    radius_m: float,
+    ok: NDArray[np.bool_],
+    wait_us: NDArray[np.int64],
+    wait_s: NDArray[np.float64],
+    length_m: NDArray[np.float64],
+) -> None:
+    """``_within`` for several riders in one call: rider ``q``'s candidates are ``nodes[ptr[q]:ptr[q+1]]``."""
+    for q in range(origins.shape[0]):
+        lo, hi = ptr[q], ptr[q + 1]
+        if hi > lo:
+            _within(
+                ed, rg, ws, time_costs, origins[q], limit_us, radius_m, nodes[lo:hi], ok[lo:hi],
+                wait_us[lo:hi], wait_s[lo:hi], length_m[lo:hi],
+            )  # fmt: skip
+
+
+def pickups(
+    graph: RoadGraph,
+    xy: NDArray[np.float64],
+    origins: NDArray[np.int64],
+    taxi_nodes: NDArray[np.int64],
+    radius_m: float,
+    workers: int,
+    pads: Pads,
+) -> Pickups:
+    """Every (taxi, rider) pair whose fastest pickup path is at most ``radius_m`` long.
+
+    ``xy`` holds the nodes' projected coordinates: only taxis within a slightly larger straight-line
+    distance of a rider are looked at (a path is never shorter than the straight line; the margin covers
+    the projection's scale), then one in-tree per rider, bounded by the time the slowest road takes to
+    cover the radius, decides.
+    """
+    n_r = len(origins)
+    empty_i = np.zeros(0, dtype=np.int64)
+    if n_r == 0 or len(taxi_nodes) == 0:
+        return Pickups(empty_i, empty_i, np.zeros(0), np.zeros(0), empty_i)
+    limit_us = int(np.ceil(radius_m / graph.min_speed_mps * US_PER_S * (1 + 1e-9))) + 1
+    near = cKDTree(xy[taxi_nodes]).query_ball_point(xy[origins], r=radius_m * 1.01 + 1.0)
+    ed = graph.edges
+
+    def chunk(rs: Sequence[int]) -> list[_Found]:
+        cands = [np.array(sorted(near[j]), dtype=np.int64) for j in rs]
+        ptr = np.zeros(len(rs) + 1, dtype=np.int64)
+        ptr[1:] = np.cumsum([len(c) for c in cands])
+        flat = np.concatenate(cands) if cands else np.zeros(0, dtype=np.int64)
+        nodes = taxi_nodes[flat]
+        ok = np.zeros(len(flat), dtype=np.bool_)
+        w_us = np.zeros(len(flat), dtype=np.int64)
+        w_s = np.zeros(len(flat))
+        length = np.zeros(len(flat))
+        orig = np.asarray([origins[j] for j in rs], dtype=np.int64)
+        with pads.take() as pad:
+            _within_many(
+                ed, graph.reverse, pad.reverse, graph.time_reverse, orig, ptr, nodes, limit_us,
+                float(radius_m), ok, w_us, w_s, length,
+            )  # fmt: skip
+        out = []
+        for q in range(len(rs)):
+            sl = slice(ptr[q], ptr[q + 1])
+            keep = ok[sl]
+            out.append((flat[sl][keep], w_us[sl][keep], w_s[sl][keep], length[sl][keep]))
+        return out
+
+    found = parallel_map(chunk, range(n_r), workers)
+    counts = [len(c) for c, _, _, _ in found]
+    return Pickups(
+        taxi=np.concatenate([c for c, _, _, _ in found]).astype(np.int64),
+        rider=np.repeat(np.arange(n_r, dtype=np.int64), counts),
+        length_m=np.concatenate([x for _, _, _, x in found]),
+        wait_s=np.concatenate([x for _, _, x, _ in found]),
+        wait_us=np.concatenate([x for _, x, _, _ in found]).astype(np.int64),
+    )
+
+
+def _leg(ed: Edges, edges: NDArray[np.int64]) -> Leg:
+    return Leg(
+        edges, float(ed.length_m[edges].sum()), float(np.cumsum(ed.time_s[edges])[-1]) if len(edges) else 0.0
+    )
+
+
+def trips(graph: RoadGraph, pairs: Sequence[tuple[int, int]], workers: int, pads: Pads) -> list[Leg]:
+    """The fastest path of each (from, to) pair.
+
+    Raises
+    ------
+    ValueError
+        When a destination cannot be reached.
+    """
+
+    def chunk(ps: Sequence[tuple[int, int]]) -> list[Leg]:
+        src = np.array([a for a, _ in ps], dtype=np.int64)
+        dst = np.array([b for _, b in ps], dtype=np.int64)
+        with pads.take() as pad:
+            return [_leg(graph.edges, e) for e in search.fastest_paths(graph, pad.forward, src, dst)]
+
+    return parallel_map(chunk, pairs, workers)

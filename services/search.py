@@ -1,0 +1,682 @@
+"""Canonical shortest paths on a contracted search graph (compiled kernels and their wrappers).
+
+One Dijkstra serves every search of an epoch: the fastest-path trees of riders and POIs, the pickup
+searches bounded by the matching radius, the utility-discounted trees of Algorithm 1 and the legs of
+matched pairs. Costs are positive whole microseconds and ties are broken by the per-edge tie words
+(``services.graph``): a node's label is ``(cost, tie1, tie2)``, compared in that order, and the heap is
+keyed on ``cost`` alone. That is enough for an exact lexicographic search: every edge costs at least 1, so
+all labels that could still improve a node of cost ``c`` come from nodes of smaller cost, which are
+settled (and have relaxed their edges) before any node of cost ``c`` is taken from the heap.
+
+The search settles *kept* nodes only (``services.contraction``); a chain's interior node is resolved from
+the ends of its chain when asked for (``resolve``), and the predecessor edges of the original nodes on
+the tree path to a node are written when it is unfolded (``unfold``). Results are those of a plain
+Dijkstra with the same rule on the original network (``tests/unit/test_search.py`` checks this against a
+reference written in Python).
+
+A search's state lives in a :class:`Workspace` of the caller's (one per thread); ``pred`` holds original
+edge ids: the edge entering a node on its path from the source in a forward search, the edge leaving it
+toward the root in a reverse one.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.graph import INF, Costs, Edges, RoadGraph, SearchGraph
+from services.jit import compiled, compiled_inline
+
+__all__ = [
+    "RING",
+    "Workspace",
+    "workspace",
+    "run",
+    "resolve",
+    "unfold",
+    "path_to",
+    "tree",
+    "fastest_path",
+    "fastest_paths",
+    "paths",
+    "path",
+    "walk",
+]
+
+
+RING = 1 << 18
+"""Most buckets a workspace's bucket queue has; a metric whose ``span`` is larger than the workspace's ring
+is searched with the heap."""
+
+
+class Workspace(NamedTuple):
+    """Scratch arrays of one search (sizes: K kept nodes, n original nodes)."""
+
+    cost: NDArray[np.int64]  # (K,) label of each kept node
+    tie1: NDArray[np.int64]
+    tie2: NDArray[np.int64]
+    pse: NDArray[np.int64]  # super-edge the label came along, -1 at the source
+    pstart: NDArray[np.int64]  # offset on pse where it started (> 0: an interior source)
+    state: NDArray[np.int64]  # -1 unseen, -2 settled, -3 dead end reached, >= 0 queued (heap: position)
+    nxt: NDArray[np.int64]  # (K,) bucket lists (doubly linked) / heap keys
+    prv: NDArray[np.int64]  # (K,) bucket lists / heap nodes
+    ring: NDArray[np.int64]  # (RING,) first node of each bucket, -1 empty
+    bits: NDArray[np.int64]  # (RING / 64,) non-empty buckets
+    need: NDArray[np.bool_]
+    unfolded: NDArray[np.bool_]  # (K,)
+    touched: NDArray[np.int64]  # (K,) kept nodes whose entries the next search resets
+    pred: NDArray[np.int64]  # (n,) original edge ids, valid on unfolded tree paths only
+    info: NDArray[np.int64]  # [source, complete (1) or stopped early (0), number of touched nodes]
+
+
+def workspace(graph: RoadGraph, reverse: bool = False) -> Workspace:
+    """Fresh scratch arrays for searches on ``graph.forward`` (or ``graph.reverse``). The ring holds the
+    travel time's span 16 times over (the discounted metrics of Algorithm 1 divide the cheapest super-edge
+    by at most 1 / (1 - kappa)), at most ``RING`` buckets."""
+    g = graph.reverse if reverse else graph.forward
+    k = int(g.kept.shape[0])
+    time_span = (graph.time_reverse if reverse else graph.time_forward).span
+    ring = min(RING, 64 * ((16 * time_span + 63) // 64))
+    return Workspace(
+        cost=np.full(k, INF, dtype=np.int64),
+        tie1=np.zeros(k, dtype=np.int64),
+        tie2=np.zeros(k, dtype=np.int64),
+        pse=np.full(k, -1, dtype=np.int64),
+        pstart=np.zeros(k, dtype=np.int64),
+        state=np.full(k, -1, dtype=np.int64),
+        nxt=np.zeros(k, dtype=np.int64),
+        prv=np.zeros(k, dtype=np.int64),
+        ring=np.full(ring, -1, dtype=np.int64),
+        bits=np.zeros(ring // 64, dtype=np.int64),
+        need=np.zeros(k, dtype=np.bool_),
+        unfolded=np.zeros(k, dtype=np.bool_),
+        touched=np.zeros(k, dtype=np.int64),
+        pred=np.full(graph.n_nodes, -1, dtype=np.int64),
+        info=np.zeros(3, dtype=np.int64),
+    )
+
+
+@compiled_inline
+def _less(c1: int, a1: int, b1: int, c2: int, a2: int, b2: int) -> bool:
+    """Label (c1, a1, b1) before (c2, a2, b2)."""
+    if c1 != c2:
+        return c1 < c2
+    if a1 != a2:
+        return a1 < a2
+    return b1 < b2
+
+
+@compiled_inline
+def _sift_up(
+    keys: NDArray[np.int64], nodes: NDArray[np.int64], state: NDArray[np.int64], i: int, key: int, k: int
+) -> None:
+    while i > 0:
+        parent = (i - 1) >> 2
+        pk = keys[parent]
+        if pk <= key:
+            break
+        keys[i] = pk
+        w = nodes[parent]
+        nodes[i] = w
+        state[w] = i
+        i = parent
+    keys[i] = key
+    nodes[i] = k
+    state[k] = i
+
+
+@compiled_inline
+def _pop(keys: NDArray[np.int64], nodes: NDArray[np.int64], state: NDArray[np.int64], size: int) -> int:
+    """Remove the root of the 4-ary heap (its node is ``nodes[0]`` before the call); new size."""
+    size -= 1
+    if size == 0:
+        return 0
+    key = keys[size]
+    k = nodes[size]
+    i = 0
+    while True:
+        first = 4 * i + 1
+        if first >= size:
+            break
+        child = first
+        ck = keys[first]
+        last = min(first + 4, size)
+        for c in range(first + 1, last):
+            if keys[c] < ck:
+                ck = keys[c]
+                child = c
+        if key <= ck:
+            break
+        keys[i] = ck
+        w = nodes[child]
+        nodes[i] = w
+        state[w] = i
+        i = child
+    keys[i] = key
+    nodes[i] = k
+    state[k] = i
+    return size
+
+
+@compiled_inline
+def _link(
+    ring: NDArray[np.int64],
+    bits: NDArray[np.int64],
+    nxt: NDArray[np.int64],
+    prv: NDArray[np.int64],
+    b: int,
+    h: int,
+) -> None:
+    """Put kept node ``h`` first in bucket ``b``."""
+    first = ring[b]
+    nxt[h] = first
+    prv[h] = -1
+    if first >= 0:
+        prv[first] = h
+    else:
+        bits[b >> 6] |= np.int64(1) << (b & 63)
+    ring[b] = h
+
+
+@compiled_inline
+def _unlink(
+    ring: NDArray[np.int64],
+    bits: NDArray[np.int64],
+    nxt: NDArray[np.int64],
+    prv: NDArray[np.int64],
+    b: int,
+    h: int,
+) -> None:
+    """Take kept node ``h`` out of bucket ``b``."""
+    a = prv[h]
+    z = nxt[h]
+    if a >= 0:
+        nxt[a] = z
+    else:
+        ring[b] = z
+        if z < 0:
+            bits[b >> 6] &= ~(np.int64(1) << (b & 63))
+    if z >= 0:
+        prv[z] = a
+
+
+@compiled_inline
+def _next_bucket(bits: NDArray[np.int64], span: int, p: int) -> int:
+    """The first non-empty bucket at or after ``p``, cyclically (one must exist)."""
+    n_words = (span + 63) >> 6
+    i = p >> 6
+    word = bits[i] & (np.int64(-1) << (p & 63))
+    while word == 0:
+        i += 1
+        if i == n_words:
+            i = 0
+        word = bits[i]
+    low = word & -word
+    idx = 0
+    if (low >> 32) != 0:
+        idx += 32
+        low >>= 32
+    if (low >> 16) != 0:
+        idx += 16
+        low >>= 16
+    if (low >> 8) != 0:
+        idx += 8
+        low >>= 8
+    if (low >> 4) != 0:
+        idx += 4
+        low >>= 4
+    if (low >> 2) != 0:
+        idx += 2
+        low >>= 2
+    if (low >> 1) != 0:
+        idx += 1
+    return i * 64 + idx
+
+
+@compiled_inline
+def _offset_on(pos_se: NDArray[np.int64], pos_off: NDArray[np.int64], v: int, s: int) -> int:
+    """Offset of interior node ``v`` on super-edge ``s`` (-1 when it does not lie on it)."""
+    for j in range(2):
+        if pos_se[v, j] == s:
+            return int(pos_off[v, j])
+    return -1
+
+
+@compiled
+def run(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    limit: int,
+    targets: NDArray[np.int64],
+    ws: Workspace,
+) -> None:
+    """Grow the canonical shortest-path tree from ``source`` (all kept nodes with cost <= ``limit``).
+
+    With ``targets`` non-empty the search stops as soon as every target can be resolved: a kept target is
+    settled, and for an interior target both ends of its chain are (unless the source lies before it on
+    that chain). ``ws`` is reset here; read the result with ``resolve`` and ``unfold``.
+
+    Nodes are taken from a bucket queue of width ``costs.width`` (the cheapest super-edge): every label in
+    the lowest non-empty bucket is final, because anything that could still improve it would come along a
+    super-edge from a node of the same bucket and so cost at least one width more. Within a bucket the
+    order does not matter. Metrics too spread for the ring use a 4-ary heap on the cost instead.
+    """
+    cost = ws.cost
+    tie1 = ws.tie1
+    tie2 = ws.tie2
+    pse = ws.pse
+    pstart = ws.pstart
+    state = ws.state
+    nxt = ws.nxt
+    prv = ws.prv
+    ring = ws.ring
+    bits = ws.bits
+    need = ws.need
+    touched = ws.touched
+    # reset what the last search touched (the ring is left empty by every search)
+    for i in range(ws.info[2]):
+        k = touched[i]
+        cost[k] = INF
+        state[k] = -1
+        need[k] = False
+        ws.unfolded[k] = False
+    n_touched = 0
+    width = costs.width
+    span = costs.span
+    use_ring = span <= ring.shape[0]
+    se_cost = costs.se
+    edge_cost = costs.edge
+    ws.info[0] = source
+    sk = g.kept_of[source]
+    remaining = 0
+    for t in targets:
+        if t == source:
+            continue
+        kt = g.kept_of[t]
+        if kt >= 0:
+            if not need[kt]:
+                need[kt] = True
+                touched[n_touched] = kt
+                n_touched += 1
+                remaining += 1
+            continue
+        for j in range(2):
+            s = g.pos_se[t, j]
+            if s < 0:
+                continue
+            if sk < 0:
+                os = _offset_on(g.pos_se, g.pos_off, source, s)
+                if os >= 0 and os < g.pos_off[t, j]:
+                    continue  # reached from the source along this very super-edge
+            kt = g.se_tail[s]
+            if not need[kt]:
+                need[kt] = True
+                touched[n_touched] = kt
+                n_touched += 1
+                remaining += 1
+    early = targets.shape[0] > 0
+    size = 0  # queued nodes
+    pos = 0  # ring: the bucket being emptied
+    if not (early and remaining == 0):
+        n_seeds = 1 if sk >= 0 else 2
+        for j in range(n_seeds):
+            if sk >= 0:
+                h = sk
+                c = 0
+                a = 0
+                b = 0
+                s = -1
+                os = 0
+            else:
+                s = g.pos_se[source, j]
+                if s < 0:
+                    continue
+                os = g.pos_off[source, j]
+                c = 0
+                a = 0
+                b = 0
+                for p in range(g.se_ptr[s] + os, g.se_ptr[s + 1]):
+                    e = g.se_edges[p]
+                    c += edge_cost[e]
+                    a += ed.tie1[e]
+                    b += ed.tie2[e]
+                if c > limit:
+                    continue
+                h = g.se_head[s]
+            if not _less(c, a, b, cost[h], tie1[h], tie2[h]):
+                continue
+            if cost[h] == INF and not need[h]:
+                touched[n_touched] = h
+                n_touched += 1
+            old = cost[h]
+            cost[h] = c
+            tie1[h] = a
+            tie2[h] = b
+            pse[h] = s
+            pstart[h] = os
+            if use_ring:
+                if state[h] >= 0:
+                    _unlink(ring, bits, nxt, prv, (old // width) % span, h)
+                    size -= 1
+                _link(ring, bits, nxt, prv, (c // width) % span, h)
+                state[h] = 0
+                size += 1
+            elif state[h] >= 0:
+                _sift_up(nxt, prv, state, state[h], c, h)
+            else:
+                _sift_up(nxt, prv, state, size, c, h)
+                size += 1
+        if use_ring and size > 0:
+            pos = _next_bucket(bits, span, 0)
+    complete = 1
+    while size > 0:
+        if use_ring:
+            k = ring[pos]
+            if k < 0:
+                pos = _next_bucket(bits, span, pos)
+                k = ring[pos]
+            _unlink(ring, bits, nxt, prv, pos, k)
+            size -= 1
+            d = cost[k]
+        else:
+            k = prv[0]
+            d = nxt[0]
+            size = _pop(nxt, prv, state, size)
+        state[k] = -2
+        if need[k]:
+            remaining -= 1
+            if remaining == 0 and early:
+                complete = 0
+                break
+        a0 = tie1[k]
+        b0 = tie2[k]
+        stop = False
+        for s in range(g.indptr[k], g.indptr[k + 1]):
+            c = d + se_cost[s]
+            if c > limit:
+                continue
+            h = g.se_head[s]
+            st = state[h]
+            if st == -2:
+                continue
+            a = a0 + g.se_tie1[s]
+            b = b0 + g.se_tie2[s]
+            ch = cost[h]
+            if c < ch or (c == ch and (a < tie1[h] or (a == tie1[h] and b < tie2[h]))):
+                cost[h] = c
+                tie1[h] = a
+                tie2[h] = b
+                pse[h] = s
+                pstart[h] = 0
+                if st == -1:
+                    if ch == INF and not need[h]:
+                        touched[n_touched] = h
+                        n_touched += 1
+                    if g.dead_end[h]:
+                        state[h] = -3  # its only way in is from k: settled once k's edges are done
+                    elif use_ring:
+                        _link(ring, bits, nxt, prv, (c // width) % span, h)
+                        state[h] = 0
+                        size += 1
+                    else:
+                        _sift_up(nxt, prv, state, size, c, h)
+                        size += 1
+                elif st >= 0 and c < ch:
+                    if use_ring:
+                        ob = (ch // width) % span
+                        nb = (c // width) % span
+                        if ob != nb:
+                            _unlink(ring, bits, nxt, prv, ob, h)
+                            _link(ring, bits, nxt, prv, nb, h)
+                    else:
+                        _sift_up(nxt, prv, state, st, c, h)
+        # dead ends reached from k are final now: k was their only way in
+        for s in range(g.indptr[k], g.indptr[k + 1]):
+            h = g.se_head[s]
+            if state[h] == -3:
+                state[h] = -2
+                if need[h]:
+                    remaining -= 1
+                    if remaining == 0 and early:
+                        stop = True
+        if stop:
+            complete = 0
+            break
+    for i in range(n_touched):
+        k = touched[i]
+        if state[k] == -3:  # reached from a node that stopped the search: not known to be final
+            state[k] = -1
+        elif state[k] >= 0 and use_ring:  # still queued: leave the ring empty for the next search
+            b = (cost[k] // width) % span
+            ring[b] = -1
+            bits[b >> 6] = 0
+    ws.info[1] = complete
+    ws.info[2] = n_touched
+
+
+@compiled
+def resolve(
+    g: SearchGraph, ed: Edges, costs: Costs, limit: int, v: int, ws: Workspace
+) -> tuple[int, int, int, int, int]:
+    """The label of node ``v`` after ``run``: ``(cost, tie1, tie2, super-edge, start offset)``.
+
+    A kept node reads its own label; an interior node takes the best of arriving along each super-edge it
+    lies on (from the chain's tail, or from the source when it lies before ``v`` on that chain). Cost is
+    ``INF`` when ``v`` is not reached within ``limit`` or cannot be decided because the search stopped
+    early. The source itself is ``(0, 0, 0, -1, 0)``.
+    """
+    source = ws.info[0]
+    if v == source:
+        return 0, 0, 0, -1, 0
+    kv = g.kept_of[v]
+    if kv >= 0:
+        if ws.state[kv] != -2:
+            return INF, 0, 0, -1, 0
+        return ws.cost[kv], ws.tie1[kv], ws.tie2[kv], ws.pse[kv], ws.pstart[kv]
+    sk = g.kept_of[source]
+    best_c = INF
+    best_a = 0
+    best_b = 0
+    best_s = -1
+    best_start = 0
+    for j in range(2):
+        s = g.pos_se[v, j]
+        if s < 0:
+            continue
+        off = g.pos_off[v, j]
+        os = _offset_on(g.pos_se, g.pos_off, source, s) if sk < 0 else -1
+        if os >= 0 and os < off:
+            start = os
+            c = 0
+            a = 0
+            b = 0
+        else:
+            t = g.se_tail[s]
+            if ws.state[t] != -2:
+                if ws.info[1] == 0:
+                    return INF, 0, 0, -1, 0  # the tail may still be near: undecided
+                continue
+            start = 0
+            c = ws.cost[t]
+            a = ws.tie1[t]
+            b = ws.tie2[t]
+        for p in range(g.se_ptr[s] + start, g.se_ptr[s] + off):
+            e = g.se_edges[p]
+            c += costs.edge[e]
+            a += ed.tie1[e]
+            b += ed.tie2[e]
+        if _less(c, a, b, best_c, best_a, best_b):
+            best_c = c
+            best_a = a
+            best_b = b
+            best_s = s
+            best_start = start
+    if best_c > limit:
+        return INF, 0, 0, -1, 0
+    return best_c, best_a, best_b, best_s, best_start
+
+
+@compiled
+def unfold(g: SearchGraph, ed: Edges, costs: Costs, limit: int, v: int, ws: Workspace) -> bool:
+    """Write ``ws.pred`` for every original node on the tree path to ``v``; False if ``v`` is not reached."""
+    c, _a, _b, s, start = resolve(g, ed, costs, limit, v, ws)
+    if c >= INF:
+        return False
+    if v == ws.info[0]:
+        return True
+    kv = g.kept_of[v]
+    if kv < 0:  # interior: the prefix of its super-edge up to it, then on from the tail
+        off = _offset_on(g.pos_se, g.pos_off, v, s)
+        for p in range(g.se_ptr[s] + start, g.se_ptr[s] + off):
+            ws.pred[g.se_node[p]] = g.se_edges[p]
+        if start != 0:
+            return True
+        kv = g.se_tail[s]
+    while not ws.unfolded[kv]:
+        ws.unfolded[kv] = True
+        s = ws.pse[kv]
+        if s < 0:
+            break
+        start = ws.pstart[kv]
+        for p in range(g.se_ptr[s] + start, g.se_ptr[s + 1]):
+            ws.pred[g.se_node[p]] = g.se_edges[p]
+        if start != 0:
+            break
+        kv = g.se_tail[s]
+    return True
+
+
+@compiled
+def path_to(ed: Edges, towards: int, pred: NDArray[np.int64], source: int, v: int) -> NDArray[np.int64]:
+    """Edges of the unfolded tree path between the root ``source`` and ``v``, in travel order: from
+    ``source`` to ``v`` in a forward tree (``towards`` 1), from ``v`` to ``source`` in a reverse one."""
+    count = 0
+    x = v
+    while x != source:
+        e = pred[x]
+        count += 1
+        x = ed.tail[e] if towards == 1 else ed.head[e]
+    out = np.empty(count, dtype=np.int64)
+    x = v
+    for i in range(count):
+        e = pred[x]
+        if towards == 1:
+            out[count - 1 - i] = e
+            x = ed.tail[e]
+        else:
+            out[i] = e
+            x = ed.head[e]
+    return out
+
+
+@compiled
+def walk(ed: Edges, succ: NDArray[np.int64], start: int, root: int) -> NDArray[np.int64]:
+    """Edges from ``start`` to ``root`` following a reverse tree's ``succ`` (original edge ids)."""
+    return path_to(ed, 0, succ, root, start)
+
+
+@compiled
+def tree(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    limit: int,
+    targets: NDArray[np.int64],
+    queries: NDArray[np.int64],
+    ws: Workspace,
+    out_cost: NDArray[np.int64],
+) -> None:
+    """``run`` then ``unfold`` every query; ``out_cost[i]`` is query ``i``'s cost (``INF`` unreached)."""
+    run(g, ed, costs, source, limit, targets, ws)
+    for i in range(queries.shape[0]):
+        if unfold(g, ed, costs, limit, queries[i], ws):
+            out_cost[i] = resolve(g, ed, costs, limit, queries[i], ws)[0]
+        else:
+            out_cost[i] = INF
+
+
+@compiled
+def paths(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    ws: Workspace,
+    sources: NDArray[np.int64],
+    targets: NDArray[np.int64],
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The canonical path of every (source, target) pair in one call, as CSR ``(ptr, edges)``; a pair that
+    cannot be joined gets ``ptr`` -1 at its end (``ptr[i + 1] == -1``)."""
+    n = sources.shape[0]
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    flat = np.empty(max(64, 32 * n), dtype=np.int64)
+    used = 0
+    tgt = np.empty(1, dtype=np.int64)
+    for i in range(n):
+        tgt[0] = targets[i]
+        run(g, ed, costs, sources[i], INF, tgt, ws)
+        if not unfold(g, ed, costs, INF, targets[i], ws):
+            ptr[i + 1] = -1
+            return ptr, flat[:used]
+        edges = path_to(ed, g.towards, ws.pred, sources[i], targets[i])
+        if used + edges.shape[0] > flat.shape[0]:
+            bigger = np.empty(2 * (used + edges.shape[0]), dtype=np.int64)
+            bigger[:used] = flat[:used]
+            flat = bigger
+        flat[used : used + edges.shape[0]] = edges
+        used += edges.shape[0]
+        ptr[i + 1] = used
+    return ptr, flat[:used]
+
+
+def fastest_paths(
+    graph: RoadGraph, ws: Workspace, sources: NDArray[np.int64], targets: NDArray[np.int64]
+) -> list[NDArray[np.int64]]:
+    """The canonical fastest path of every (source, target) pair (one compiled call).
+
+    Raises
+    ------
+    ValueError
+        When a target cannot be reached from its source.
+    """
+    src = np.asarray(sources, dtype=np.int64)
+    tgt = np.asarray(targets, dtype=np.int64)
+    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt)
+    bad = np.flatnonzero(ptr[1:] < 0)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"node {int(tgt[i])} cannot be reached from node {int(src[i])}")
+    return [flat[ptr[i] : ptr[i + 1]] for i in range(len(src))]
+
+
+def fastest_path(graph: RoadGraph, ws: Workspace, source: int, target: int) -> NDArray[np.int64]:
+    """Edges of the canonical fastest path from ``source`` to ``target`` (forward workspace ``ws``).
+
+    Raises
+    ------
+    ValueError
+        When ``target`` cannot be reached.
+    """
+    return path(graph, ws, graph.time_forward, source, target)
+
+
+def path(graph: RoadGraph, ws: Workspace, costs: Costs, source: int, target: int) -> NDArray[np.int64]:
+    """Edges of the canonical shortest path from ``source`` to ``target`` under ``costs`` (forward).
+
+    Raises
+    ------
+    ValueError
+        When ``target`` cannot be reached.
+    """
+    ed = graph.edges
+    tgt = np.array([target], dtype=np.int64)
+    out = np.zeros(1, dtype=np.int64)
+    tree(graph.forward, ed, costs, int(source), int(INF), tgt, tgt, ws, out)
+    if out[0] >= INF:
+        raise ValueError(f"node {target} cannot be reached from node {source}")
+    edges: NDArray[np.int64] = path_to(ed, 1, ws.pred, int(source), int(target))
+    return edges

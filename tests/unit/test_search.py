@@ -1,0 +1,147 @@
+"""Canonical shortest paths: the contracted search against a plain lexicographic Dijkstra written here.
+
+The reference settles every original node with labels (cost, tie1, tie2) compared in order, so its tree
+is *the* canonical one; the compiled search must give the same label and the same path to every node,
+forward and reverse, from kept and interior sources, with and without a limit or early-exit targets.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from services import search
+from services.citydata import load_city
+from services.graph import INF, RoadGraph, prepare, road_graph
+from tests.citymaker import make_city
+from tests.reference import canonical_tree as reference_tree
+from tests.reference import tree_path
+
+BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"
+
+
+def chain_city():
+    """A ring of degree-2 nodes with two spurs, a one-way chain and a dead end: every contraction case."""
+    nodes = {
+        i: (100.0 * np.cos(i / 12 * 2 * np.pi) * 10, 100.0 * np.sin(i / 12 * 2 * np.pi) * 10)
+        for i in range(12)
+    }
+    nodes.update(
+        {20: (2500.0, 0.0), 21: (3500.0, 0.0), 22: (3500.0, 900.0), 23: (2500.0, 900.0), 30: (4500.0, 0.0)}
+    )
+    edges = [(i, (i + 1) % 12) for i in range(12)] + [
+        (0, 20),
+        (20, 21),
+        (21, 22),
+        (22, 23),
+        (23, 20),
+        (21, 30),
+    ]
+    city = make_city(nodes, edges)
+    return city
+
+
+CITIES = {
+    "chain": chain_city,
+    "chengdu": lambda: load_city(BUNDLES / "chengdu"),
+    "manhattan": lambda: load_city(BUNDLES / "manhattan"),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(CITIES))
+def graph(request):
+    return road_graph(CITIES[request.param]())
+
+
+def _costs(graph: RoadGraph, kind: str) -> np.ndarray:
+    if kind == "time":
+        return graph.edges.time_us
+    rng = np.random.default_rng(7)
+    # utility-discounted costs (Algorithm 1) and a grid-like case with massive ties (all costs equal)
+    if kind == "discounted":
+        return np.maximum(1, (graph.edges.time_us * (1 - 0.9 * rng.random(graph.n_edges))).astype(np.int64))
+    if kind == "spread":  # too spread for the bucket queue: the heap takes over
+        cost = (10.0 ** rng.uniform(3, 9, size=graph.n_edges)).astype(np.int64)
+        cost[rng.integers(graph.n_edges, size=3)] = 1
+        return cost
+    return np.full(graph.n_edges, 1000, dtype=np.int64)
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+@pytest.mark.parametrize("kind", ["time", "discounted", "equal", "spread"])
+def test_every_node_gets_the_reference_label_and_path(graph, reverse, kind):
+    g = graph.reverse if reverse else graph.forward
+    cost = _costs(graph, kind)
+    costs = prepare(g, cost)
+    assert (costs.span > search.RING) == (kind == "spread")
+    ws = search.workspace(graph, reverse)
+    rng = np.random.default_rng(3)
+    interior = np.flatnonzero(g.kept_of < 0)
+    sources = list(rng.choice(graph.n_nodes, size=3, replace=False))
+    if interior.size:
+        sources += list(rng.choice(interior, size=min(3, interior.size), replace=False))
+    everyone = np.arange(graph.n_nodes, dtype=np.int64)
+    out = np.zeros(graph.n_nodes, dtype=np.int64)
+    for s in sources:
+        label, pred = reference_tree(graph, cost, int(s), reverse)
+        search.tree(g, graph.edges, costs, int(s), int(INF), np.zeros(0, np.int64), everyone, ws, out)
+        for v in range(graph.n_nodes):
+            if label[v] is None:
+                assert out[v] >= INF
+                continue
+            got = search.resolve(g, graph.edges, costs, int(INF), v, ws)
+            assert got[:3] == label[v]
+            path = search.path_to(graph.edges, g.towards, ws.pred, int(s), v).tolist()
+            assert path == tree_path(graph, pred, int(s), v, reverse)
+
+
+def test_targets_and_limit_give_the_same_paths(graph):
+    g = graph.forward
+    cost = graph.edges.time_us
+    costs = prepare(g, cost)
+    ws = search.workspace(graph)
+    rng = np.random.default_rng(11)
+    for s in rng.choice(graph.n_nodes, size=5, replace=False):
+        label, pred = reference_tree(graph, cost, int(s))
+        reached = [v for v in range(graph.n_nodes) if label[v] is not None]
+        targets = rng.choice(reached, size=min(7, len(reached)), replace=False).astype(np.int64)
+        out = np.zeros(len(targets), dtype=np.int64)
+        search.tree(g, graph.edges, costs, int(s), int(INF), targets, targets, ws, out)
+        for t, c in zip(targets, out, strict=True):
+            assert c == label[int(t)][0]
+            assert search.path_to(graph.edges, 1, ws.pred, int(s), int(t)).tolist() == tree_path(
+                graph, pred, int(s), int(t), False
+            )
+        limit = int(np.median([label[v][0] for v in reached]))
+        every = np.arange(graph.n_nodes, dtype=np.int64)
+        out = np.zeros(graph.n_nodes, dtype=np.int64)
+        search.tree(g, graph.edges, costs, int(s), limit, np.zeros(0, np.int64), every, ws, out)
+        for v in range(graph.n_nodes):
+            if label[v] is not None and label[v][0] <= limit:
+                assert out[v] == label[v][0]
+            else:
+                assert out[v] >= INF
+
+
+def test_forward_and_reverse_trees_give_one_path(graph):
+    """The point of canonical labels: the path from a to b is the same searched from either end."""
+    rng = np.random.default_rng(5)
+    cost = _costs(graph, "equal")  # the worst case for ties
+    fw = search.workspace(graph)
+    rv = search.workspace(graph, reverse=True)
+    cf = prepare(graph.forward, cost)
+    cr = prepare(graph.reverse, cost)
+    pairs = rng.choice(graph.n_nodes, size=(10, 2))
+    for a, b in pairs.tolist():
+        one = np.array([b], dtype=np.int64)
+        out = np.zeros(1, dtype=np.int64)
+        search.tree(graph.forward, graph.edges, cf, a, int(INF), one, one, fw, out)
+        if out[0] >= INF:
+            continue
+        p1 = search.path_to(graph.edges, 1, fw.pred, a, b)
+        src = np.array([a], dtype=np.int64)
+        search.tree(graph.reverse, graph.edges, cr, b, int(INF), src, src, rv, out)
+        p2 = search.walk(graph.edges, rv.pred, a, b)
+        assert p1.tolist() == p2.tolist()
