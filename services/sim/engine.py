@@ -47,7 +47,9 @@ __all__ = [
     "simulate",
 ]
 
-SIM_VERSION = "1"
+# Part of every cached run's key: bump it whenever a decision of the core can change, so no run simulated
+# by older code is reused. 2: the rebuilt routing room (exact Step 1 at every size, canonical tie-breaks).
+SIM_VERSION = "2"
 
 
 class Dispatcher(Protocol):
