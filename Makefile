@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 		py=$$(command -v python3.11 || command -v python3) && \
 		$$py -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' && \
 		$$py -m venv .venv; } || { echo "make: Python 3.11 is required" >&2; exit 1; }
-	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[dev,research]'
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[dev,research,cluster]'
 	@touch $(STAMP)
 
 test:
