@@ -29,23 +29,11 @@ from app.simulation import (
 from app.simulation.bundles import BundleFiles, install_shipped, shipped_copy
 from app.simulation.localcluster import free_port
 from tests.api.fakes import CITY, build_bundle
+from tests.unit.pool_tasks import exit_on_2, square_unless_3
 from tests.unit.test_worker_parts import result
 
 T = TypeVar("T")
 R = TypeVar("R")
-
-
-def square_unless_3(x: int) -> int:
-    """Module level: the pool processes import it by name."""
-    if x == 3:
-        raise ValueError("three")
-    return x * x
-
-
-def exit_on_2(x: int) -> int:
-    if x == 2:
-        os._exit(7)  # the process dies without a word, as a killed one would
-    return x
 
 
 def test_inline_reports_each_start_before_its_outcome_and_goes_on_after_a_failure() -> None:
