@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-sim bench-dro openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-sim bench-dro bench-cluster openapi dashboard
 
 install: $(STAMP)
 
@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 		py=$$(command -v python3.11 || command -v python3) && \
 		$$py -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' && \
 		$$py -m venv .venv; } || { echo "make: Python 3.11 is required" >&2; exit 1; }
-	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[dev,research]'
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[dev,research,cluster]'
 	@touch $(STAMP)
 
 test:
@@ -51,7 +51,7 @@ fleet-experiment: $(STAMP)
 	$(PY) -m research fleet-experiment $(ARGS)
 
 # Every benchmark; each writes its own section of docs/PERFORMANCE.md.
-bench: bench-epoch bench-sim bench-dro
+bench: bench-epoch bench-sim bench-dro bench-cluster
 
 bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
@@ -61,6 +61,10 @@ bench-sim: $(STAMP)
 
 bench-dro: $(STAMP)
 	$(PY) -m bench.bench_dro
+
+# The re-solve on 2 local processes vs a Dask cluster of 1 and 2 workers (small by default; ARGS=--full).
+bench-cluster: $(STAMP)
+	$(PY) -m bench.bench_cluster $(ARGS)
 
 # Rebuild the dashboard's static files (app/static/dashboard/) from frontend/ with npm; commit the result.
 dashboard:

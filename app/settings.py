@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from services.parallel import default_workers
@@ -99,7 +99,29 @@ class Settings(BaseSettings):
     worker_vary_tasks: bool = Field(
         default=False, description="Redraw synthetic POI tasks every simulated day (default: one set)."
     )
-    worker_jobs: int = Field(default=2, ge=1, le=256, description="Processes simulating (size, day) runs.")
+    worker_jobs: int = Field(
+        default=2, ge=1, le=256, description="Local processes simulating (size, day) runs (executor local)."
+    )
+    worker_executor: Literal["local", "dask"] = Field(
+        default="local",
+        description="Where runs execute: local processes, or the Dask cluster at SD_DASK_SCHEDULER.",
+    )
+    worker_run_cache: Literal["auto", "disk", "redis"] = Field(
+        default="auto",
+        description="Finished runs: under SD_VAR_DIR, or in Redis shared by every worker (auto: redis "
+        "when SD_STORE=redis).",
+    )
+    dask_scheduler: str | None = Field(
+        default=None,
+        pattern=r"^(tcp|tls|inproc|ucx)://\S+$",
+        description="Address of the Dask scheduler when SD_WORKER_EXECUTOR=dask, e.g. tcp://scheduler:8786.",
+    )
+    dask_timeout_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=600.0,
+        description="Connecting to the Dask scheduler and waiting for a worker.",
+    )
     worker_n0: int = Field(default=60, ge=0, description="Ordinary (not instrumented) taxis in every run.")
     worker_tasks: int = Field(default=85, ge=0, description="POI monitoring tasks in every run.")
     worker_rate_per_hour: float | None = Field(
@@ -127,6 +149,18 @@ class Settings(BaseSettings):
             if len(token) < 8 or any(c.isspace() for c in token):
                 raise ValueError("tokens must be at least 8 characters without whitespace")
         return value
+
+    @model_validator(mode="after")
+    def _executor_reachable(self) -> Settings:
+        if self.worker_executor == "dask" and self.dask_scheduler is None:
+            raise ValueError("SD_WORKER_EXECUTOR=dask needs SD_DASK_SCHEDULER (e.g. tcp://scheduler:8786)")
+        return self
+
+    def run_cache_kind(self) -> Literal["disk", "redis"]:
+        """Where the worker keeps finished runs (``auto``: Redis when the store is)."""
+        if self.worker_run_cache == "auto":
+            return "redis" if self.store == "redis" else "disk"
+        return self.worker_run_cache
 
     @field_validator("worker_sizes")
     @classmethod

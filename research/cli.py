@@ -73,6 +73,7 @@ def experiment_main(argv: Sequence[str]) -> int:
     ap.add_argument("--no-passive", action="store_true", help="skip the runs without active sensing")
     ap.add_argument("--no-baseline", action="store_true", help="skip the wait-only runs (price of sensing)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    ap.add_argument("--scheduler", default=None, help="run on the Dask cluster at this address (tcp://...)")
     ap.add_argument("--out", type=Path, default=ROOT / "var" / "experiment", help="run cache (resumable)")
     ap.add_argument("--report-dir", type=Path, default=ROOT / "docs" / "results", help="CSV, figures, report")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -86,8 +87,9 @@ def experiment_main(argv: Sequence[str]) -> int:
         ap.error(str(exc))
     try:
         manifest = run_experiment(
-            cfg, args.out, args.report_dir, jobs=args.jobs, quiet=args.quiet, registry=_registry()
-        )
+            cfg, args.out, args.report_dir, jobs=args.jobs, quiet=args.quiet, registry=_registry(),
+            scheduler=args.scheduler,
+        )  # fmt: skip
     except RunFailed as exc:
         print(f"experiment: {exc}", file=sys.stderr)
         return 1
@@ -131,6 +133,7 @@ def fleet_experiment_main(argv: Sequence[str]) -> int:
     ap.add_argument("--target", type=float, default=None, help="worst-case completion target (default off)")
     ap.add_argument("--sweep-alphas", type=_floats, default=(0.01, 0.05, 0.1, 0.25))
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--scheduler", default=None, help="run on the Dask cluster at this address (tcp://...)")
     ap.add_argument("--out", type=Path, default=ROOT / "var" / "experiment", help="run cache (resumable)")
     ap.add_argument("--report-dir", type=Path, default=ROOT / "docs" / "results")
     ap.add_argument("--quiet", action="store_true")
@@ -144,8 +147,9 @@ def fleet_experiment_main(argv: Sequence[str]) -> int:
             sweep_alphas=args.sweep_alphas,
         )  # fmt: skip
         manifest = run_fleet_experiment(
-            cfg, args.out, args.report_dir, jobs=args.jobs, quiet=args.quiet, registry=_registry()
-        )
+            cfg, args.out, args.report_dir, jobs=args.jobs, quiet=args.quiet, registry=_registry(),
+            scheduler=args.scheduler,
+        )  # fmt: skip
     except (ValueError, FleetInputError) as exc:
         ap.error(str(exc))
     except RunFailed as exc:

@@ -26,12 +26,19 @@ def run_experiment(
     jobs: int = 2,
     quiet: bool = False,
     registry: CityRegistry | None = None,
+    scheduler: str | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the experiment, then write the CSV, manifest, figures and report."""
     started = time.perf_counter()
     all_specs = specs(cfg)
     results = run_all(
-        all_specs, out_dir, jobs=jobs, desc=f"experiment ({cfg.city})", quiet=quiet, registry=registry
+        all_specs,
+        out_dir,
+        jobs=jobs,
+        desc=f"experiment ({cfg.city})",
+        quiet=quiet,
+        registry=registry,
+        scheduler=scheduler,
     )
     wall_s = time.perf_counter() - started
     table = rows(results)
@@ -50,6 +57,7 @@ def run_experiment(
         "wall_s_this_invocation": wall_s,
         "run_s_sum": float(sum(r.elapsed_s for r in results.values())),
         "jobs": jobs,
+        "executor": "local" if scheduler is None else f"dask {scheduler}",
         "versions": versions(),
         "seeds": {"runs": list(range(cfg.seeds)), "rule": "demand, taxis, tasks and drift all derive from (seed, day)"},
         "city": {"name": city.name, "source": city.source, "params": dataclasses.asdict(city.params),

@@ -240,6 +240,7 @@ def run_fleet_experiment(
     jobs: int = 2,
     quiet: bool = False,
     registry: CityRegistry | None = None,
+    scheduler: str | None = None,
 ) -> dict[str, Any]:
     """Simulate (or resume) every run, decide, evaluate, and write tables, samples, figure and report."""
     from research.fleet_report import write_fleet_report
@@ -251,6 +252,7 @@ def run_fleet_experiment(
         desc=f"fleet sizing ({cfg.city})",
         quiet=quiet,
         registry=registry,
+        scheduler=scheduler,
     )
     amb = Ambiguity(cfg.divergence, cfg.alpha)
     hz = city_of(cfg.city, registry).horizon

@@ -15,7 +15,17 @@ import scipy
 from tqdm import tqdm
 
 from app.cities import CityRegistry
-from app.simulation import Progress, RunCache, RunJob, Runner, RunResult, RunSpec, make_executor, open_bundle
+from app.simulation import (
+    ExecutorUnavailable,
+    Progress,
+    RunCache,
+    RunJob,
+    Runner,
+    RunResult,
+    RunSpec,
+    make_executor,
+    open_bundle,
+)
 from services.city import City
 from services.sim.demand import DEMAND_VERSION
 from services.sim.engine import SIM_VERSION
@@ -24,7 +34,8 @@ __all__ = ["RunFailed", "run_all", "city_of", "git_commit", "versions"]
 
 
 class RunFailed(RuntimeError):
-    """Some runs raised; the others are saved and a rerun only redoes the failed ones."""
+    """Some runs raised (or none could start); the others are saved and a rerun only redoes the failed
+    ones."""
 
 
 def city_of(name: str, registry: CityRegistry | None = None) -> City:
@@ -40,18 +51,21 @@ def run_all(
     desc: str = "runs",
     quiet: bool = False,
     registry: CityRegistry | None = None,
+    scheduler: str | None = None,
 ) -> dict[str, RunResult]:
-    """Run every spec not already in ``out_dir/runs``; return all results by spec key.
+    """Run every spec not already in ``out_dir/runs`` on ``jobs`` local processes, or on the Dask cluster
+    whose scheduler is at ``scheduler``; return all results by spec key.
 
     Raises
     ------
     RunFailed
-        Naming the runs that raised (the finished ones are cached).
+        Naming the runs that raised (the finished ones are cached), or saying why none could start.
     """
     reg = registry or CityRegistry()
     bundles = {name: reg.bundle_dir(name) for name in {s.city for s in specs}}
     by_spec = {s.key: RunJob(s, bundles[s.city]) for s in specs}
-    runner = Runner(RunCache(out_dir / "runs"), make_executor(jobs))
+    executor = make_executor(jobs, "local" if scheduler is None else "dask", scheduler=scheduler)
+    runner = Runner(RunCache(out_dir / "runs"), executor)
     with tqdm(desc=desc, unit="run", disable=quiet, file=sys.stderr, dynamic_ncols=True) as bar:
 
         def progress(p: Progress) -> None:
@@ -60,6 +74,8 @@ def run_all(
 
         try:
             batch = runner.run(list(by_spec.values()), progress)
+        except ExecutorUnavailable as exc:
+            raise RunFailed(f"no run could start: {exc}") from exc
         finally:
             runner.close()
     if batch.failures:

@@ -31,7 +31,7 @@ fi
 # (Re)install when never done here or when pyproject.toml changed since.
 if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ]; then
     echo "scripts/test.sh: installing the package into $VENV" >&2
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e '.[dev,research]'
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e '.[dev,research,cluster]'
     touch "$STAMP"
 fi
 # Debian's chromium for the dashboard's browser test (installed with apt-get when missing; never skipped).

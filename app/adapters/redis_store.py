@@ -7,12 +7,9 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, cast
 
-import redis
-from redis.backoff import ExponentialBackoff
 from redis.exceptions import ConnectionError as RedisConnectionError
 from redis.exceptions import TimeoutError as RedisTimeoutError
 from redis.exceptions import WatchError
-from redis.retry import Retry
 
 from app.adapters.codec import (
     check_fleet_record,
@@ -27,6 +24,7 @@ from app.adapters.codec import (
     task_to_json,
     utc_day,
 )
+from app.adapters.redis_client import describe, redis_client
 from app.ports import (
     CityState,
     CommitResult,
@@ -161,18 +159,8 @@ class RedisStore:
         if not prefix or "{" in prefix or "}" in prefix:
             raise ValueError(f"invalid key prefix {prefix!r}")
         self._prefix = prefix
-        # One quick retry covers a pooled connection the server dropped; no long backoff on a dead server.
-        self._client: redis.Redis = redis.Redis.from_url(
-            url,
-            decode_responses=True,
-            socket_timeout=socket_timeout_s,
-            socket_connect_timeout=socket_timeout_s,
-            retry=Retry(ExponentialBackoff(cap=0.05, base=0.01), 1),
-            health_check_interval=30,
-        )
-        kwargs = self._client.connection_pool.connection_kwargs
-        where = kwargs.get("path") or f"{kwargs.get('host', '?')}:{kwargs.get('port', '?')}"
-        self._where = f"redis://{where}/{kwargs.get('db', 0)}"  # no password in messages
+        self._client = redis_client(url, socket_timeout_s=socket_timeout_s)
+        self._where = describe(self._client)  # no password in messages
         self._commit_script = self._client.register_script(COMMIT_EPOCH_LUA)
         self._publish_script = self._client.register_script(PUBLISH_RECOMMENDATION_LUA)
         self._release_script = self._client.register_script(RELEASE_LOCK_LUA)

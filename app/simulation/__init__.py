@@ -1,20 +1,25 @@
 """Simulation runs, built once and shared by the fleet-sizing worker and the research experiments.
 
 A run is a pure function of its ``RunJob`` (spec, city bundle, recorded demand); ``Runner`` answers a batch
-of jobs from its ``RunCache`` or by running the rest on an ``Executor`` (this process, or local processes),
-reporting ``Progress`` as runs finish.
+of jobs from its ``ResultCache`` (on disk, ``RunCache``, or in Redis, ``app.adapters.run_cache``) or by
+running the rest on an ``Executor`` (this process, local processes, or a Dask cluster:
+``app.simulation.dask_executor``), reporting ``Progress`` as runs start and finish.
 """
 
+from app.simulation.cache import ResultCache, RunCache
 from app.simulation.executor import (
+    Event,
     Executor,
     ExecutorName,
+    ExecutorUnavailable,
     Finished,
     InlineExecutor,
     ProcessExecutor,
+    Started,
     make_executor,
 )
 from app.simulation.result import RouteRecord, RunResult
-from app.simulation.runner import Progress, ProgressFn, RunBatch, RunCache, RunFn, Runner
+from app.simulation.runner import Progress, ProgressFn, RunBatch, RunFn, Runner
 from app.simulation.spec import CACHE_FORMAT, RunJob, RunSpec, TaskTemplate, demand_digest, tasks_digest
 from app.simulation.workload import Bundle, demand_for, open_bundle, run_job, simulate_spec, tasks_for
 
@@ -35,6 +40,9 @@ __all__ = [
     "run_job",
     "Executor",
     "ExecutorName",
+    "ExecutorUnavailable",
+    "Event",
+    "Started",
     "Finished",
     "InlineExecutor",
     "ProcessExecutor",
@@ -42,6 +50,7 @@ __all__ = [
     "Progress",
     "ProgressFn",
     "RunBatch",
+    "ResultCache",
     "RunCache",
     "Runner",
     "RunFn",

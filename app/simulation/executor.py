@@ -1,22 +1,48 @@
 """Where runs execute: the seam between the runner (cache, order, progress) and the machinery that runs
-them. ``InlineExecutor`` runs in this process, ``ProcessExecutor`` on local worker processes; a distributed
-engine plugs in behind the same ``Executor`` protocol (``make_executor`` picks one by name)."""
+them. ``InlineExecutor`` runs in this process, ``ProcessExecutor`` on local worker processes and
+``DaskExecutor`` (``app.simulation.dask_executor``) on a Dask distributed cluster reached by address;
+``make_executor`` picks one by name. Each reports when an item starts (``Started``, again when the engine
+reruns it elsewhere) and when it finishes (``Finished``)."""
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
+import os
+import queue
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from typing import Generic, Literal, Protocol, TypeVar
+from pathlib import Path
+from typing import Any, Generic, Literal, Protocol, TypeVar
 
-__all__ = ["Finished", "Executor", "InlineExecutor", "ProcessExecutor", "ExecutorName", "make_executor"]
+__all__ = [
+    "Started",
+    "Finished",
+    "Event",
+    "Executor",
+    "ExecutorUnavailable",
+    "InlineExecutor",
+    "ProcessExecutor",
+    "ExecutorName",
+    "make_executor",
+]
 
 T = TypeVar("T")
 R = TypeVar("R")
 
-ExecutorName = Literal["local"]
+ExecutorName = Literal["local", "dask"]
+
+
+@dataclass(frozen=True, slots=True)
+class Started:
+    """An item began on a worker (``worker`` names it: a Dask worker's address, else ``pid N``). An item
+    the engine reruns after its worker died starts again."""
+
+    index: int
+    worker: str
+    pid: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -28,21 +54,37 @@ class Finished(Generic[R]):
     error: str | None = None
 
 
+Event = Started | Finished[R]
+
+
+class ExecutorUnavailable(RuntimeError):
+    """The executor cannot run anything now (e.g. its cluster's scheduler is unreachable)."""
+
+
 class Executor(Protocol):
-    """Runs a function over items and yields each outcome as it finishes (in any order)."""
+    """Runs a function over items and yields each item's start and outcome as they happen (in any order)."""
 
     @property
     def workers(self) -> int:
         """How many items run at once."""
 
-    def map_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[Finished[R]]:
-        """``fn(item)`` for every item; an item that raises yields its error, the others go on."""
+    def ship(self, bundle: Path) -> None:
+        """Make the city bundle at ``bundle`` (an absolute path) readable by every worker under that path."""
+
+    def map_unordered(
+        self, fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str] | None = None
+    ) -> Iterator[Event[R]]:
+        """``fn(item)`` for every item; an item that raises yields its error, the others go on. ``keys``
+        name the items (unique; an engine shares one computation among the clients that submit a key).
+
+        Raises ``ExecutorUnavailable`` when nothing can run."""
 
     def close(self) -> None:
         """Release the workers (the executor may be used again afterwards)."""
 
 
-def _reason(exc: BaseException) -> str:
+def reason(exc: BaseException) -> str:
+    """How a failure reads in a batch's failures."""
     return f"{type(exc).__name__}: {exc}"
 
 
@@ -51,13 +93,20 @@ class InlineExecutor:
 
     workers = 1
 
-    def map_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[Finished[R]]:
+    def ship(self, bundle: Path) -> None:
+        """Nothing to ship: this process reads the bundle itself."""
+
+    def map_unordered(
+        self, fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str] | None = None
+    ) -> Iterator[Event[R]]:
         """Call ``fn`` on each item in order."""
+        pid = os.getpid()
         for i, item in enumerate(items):
+            yield Started(i, f"pid {pid}", pid)
             try:
                 value = fn(item)
             except Exception as exc:  # noqa: BLE001 - one failed item is reported, the others go on
-                yield Finished(i, error=_reason(exc))
+                yield Finished(i, error=reason(exc))
             else:
                 yield Finished(i, value)
 
@@ -65,12 +114,27 @@ class InlineExecutor:
         """Nothing to release."""
 
 
+_started: Any = None  # in a pool process: the queue it reports starts on (set by _init_pool_process)
+
+
+def _init_pool_process(started: Any) -> None:
+    global _started
+    _started = started
+
+
+def _report_then(fn: Callable[[T], R], tag: tuple[int, int], item: T) -> R:
+    """In a pool process: say that item ``tag`` = (batch, index) starts, then run it."""
+    if _started is not None:
+        _started.put((*tag, os.getpid()))
+    return fn(item)
+
+
 class ProcessExecutor:
     """Runs items on ``workers`` local processes (forkserver: no state of this process leaks into them).
 
     The pool starts on the first call that needs it and is kept for later ones; a broken pool (a worker
     process died) fails the items it held and is started again next time. ``fn`` must be a module-level
-    function (it is sent to the processes by name).
+    function (it is sent to the processes by name). The processes read bundles from this machine's disk.
     """
 
     def __init__(self, workers: int = 2) -> None:
@@ -78,32 +142,59 @@ class ProcessExecutor:
             raise ValueError(f"workers must be at least 1, got {workers}")
         self._workers = workers
         self._pool: ProcessPoolExecutor | None = None
+        self._started: Any = None
+        self._batches = itertools.count()
 
     @property
     def workers(self) -> int:
         """The number of processes."""
         return self._workers
 
-    def map_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[Finished[R]]:
-        """Submit every item, yield them as they finish."""
+    def ship(self, bundle: Path) -> None:
+        """Nothing to ship: the processes read this machine's disk."""
+
+    def map_unordered(
+        self, fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str] | None = None
+    ) -> Iterator[Event[R]]:
+        """Submit every item, yield their starts and outcomes as they happen."""
         if not items:
             return
         if self._pool is None:
             ctx = multiprocessing.get_context("forkserver")
-            self._pool = ProcessPoolExecutor(max_workers=self._workers, mp_context=ctx)
-        futures: dict[Future[R], int] = {self._pool.submit(fn, item): i for i, item in enumerate(items)}
+            self._started = ctx.Queue()
+            self._pool = ProcessPoolExecutor(
+                max_workers=self._workers,
+                mp_context=ctx,
+                initializer=_init_pool_process,
+                initargs=(self._started,),
+            )
+        batch = next(self._batches)
+        pool, started = self._pool, self._started
+        futures: dict[Future[R], int] = {
+            pool.submit(_report_then, fn, (batch, i), item): i for i, item in enumerate(items)
+        }
+        pending = set(futures)
         broken = False
         try:
-            for fut in as_completed(futures):
-                try:
-                    value = fut.result()
-                except BrokenProcessPool as exc:
-                    broken = True
-                    yield Finished(futures[fut], error=_reason(exc))
-                except Exception as exc:  # noqa: BLE001 - as in InlineExecutor
-                    yield Finished(futures[fut], error=_reason(exc))
-                else:
-                    yield Finished(futures[fut], value)
+            while pending:
+                done, pending = wait(pending, timeout=0.05, return_when=FIRST_COMPLETED)
+                while True:  # the starts so far, before the outcomes that follow them
+                    try:
+                        b, i, pid = started.get_nowait()
+                    except queue.Empty:
+                        break
+                    if b == batch:
+                        yield Started(i, f"pid {pid}", pid)
+                for fut in done:
+                    try:
+                        value = fut.result()
+                    except BrokenProcessPool as exc:
+                        broken = True
+                        yield Finished(futures[fut], error=reason(exc))
+                    except Exception as exc:  # noqa: BLE001 - as in InlineExecutor
+                        yield Finished(futures[fut], error=reason(exc))
+                    else:
+                        yield Finished(futures[fut], value)
         finally:
             if broken:
                 self.close()
@@ -113,11 +204,26 @@ class ProcessExecutor:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+            self._started.close()
+            self._started = None
 
 
-def make_executor(workers: int, name: ExecutorName = "local") -> Executor:
+def make_executor(
+    workers: int,
+    name: ExecutorName = "local",
+    *,
+    scheduler: str | None = None,
+    timeout_s: float = 10.0,
+) -> Executor:
     """The executor a configuration names: ``local`` runs in this process with one worker, else on
-    ``workers`` local processes."""
+    ``workers`` local processes; ``dask`` on the Dask cluster whose scheduler is at ``scheduler`` (the
+    connection is made by the first batch that has something to run)."""
+    if name == "dask":
+        if not scheduler:
+            raise ValueError("the dask executor needs the scheduler's address (SD_DASK_SCHEDULER)")
+        from app.simulation.dask_executor import DaskExecutor
+
+        return DaskExecutor(scheduler, timeout_s=timeout_s)
     if name != "local":
         raise ValueError(f"unknown executor {name!r}")
     return InlineExecutor() if workers == 1 else ProcessExecutor(workers)

@@ -1,22 +1,20 @@
-"""The runner: every job's result from the cache or from the executor, with progress as runs finish."""
+"""The runner: every job's result from the cache or from the executor, with progress as runs start and
+finish."""
 
 from __future__ import annotations
 
-import logging
-import os
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from app.simulation.executor import Executor, InlineExecutor
+from app.simulation.cache import ResultCache
+from app.simulation.executor import Executor, InlineExecutor, Started
 from app.simulation.result import RunResult
 from app.simulation.spec import RunJob
 from app.simulation.workload import run_job
 
-__all__ = ["RunFn", "Progress", "ProgressFn", "RunBatch", "RunCache", "Runner"]
-
-log = logging.getLogger(__name__)
+__all__ = ["RunFn", "Progress", "ProgressFn", "RunBatch", "Runner"]
 
 RunFn = Callable[[RunJob], RunResult]
 
@@ -24,12 +22,20 @@ RunFn = Callable[[RunJob], RunResult]
 @dataclass(frozen=True, slots=True)
 class Progress:
     """Where a batch stands: ``done`` of ``total`` jobs finished (``cached`` of them read from the cache,
-    ``failed`` of them raised)."""
+    ``failed`` of them raised), ``running`` on a worker now; ``retried`` counts the restarts of runs whose
+    worker was lost (the engine ran them again elsewhere)."""
 
     total: int
     done: int
     cached: int
     failed: int
+    running: int = 0
+    retried: int = 0
+
+    @property
+    def queued(self) -> int:
+        """Jobs neither finished nor running yet."""
+        return self.total - self.done - self.running
 
 
 ProgressFn = Callable[[Progress], None]
@@ -45,45 +51,15 @@ class RunBatch:
     wall_s: float = 0.0
 
 
-class RunCache:
-    """Finished runs as ``<dir>/<key>.json`` (written to a temporary file, then renamed)."""
-
-    def __init__(self, directory: Path) -> None:
-        """Cache under ``directory`` (created on the first write)."""
-        self.directory = directory
-
-    def _path(self, key: str) -> Path:
-        return self.directory / f"{key}.json"
-
-    def get(self, key: str) -> RunResult | None:
-        """The cached run, or ``None`` (an unreadable file counts as missing and is logged)."""
-        path = self._path(key)
-        try:
-            return RunResult.from_json(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            return None
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            log.warning("ignoring unreadable cached run %s: %r", path, exc)
-            return None
-
-    def put(self, result: RunResult) -> None:
-        """Store a run atomically."""
-        self.directory.mkdir(parents=True, exist_ok=True)
-        path = self._path(result.key)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(result.to_json(), encoding="utf-8")
-        tmp.replace(path)
-
-
 class Runner:
     """Runs jobs on an executor, reading and filling a cache; a job is never run twice for one key.
 
     ``run_fn`` (default ``app.simulation.workload.run_job``) must be a module-level function when the
-    executor sends work to other processes.
+    executor sends work to other processes. A batch whose jobs are all cached never touches the executor.
     """
 
     def __init__(
-        self, cache: RunCache, executor: Executor | None = None, run_fn: RunFn | None = None
+        self, cache: ResultCache, executor: Executor | None = None, run_fn: RunFn | None = None
     ) -> None:
         self.cache = cache
         self.executor: Executor = executor or InlineExecutor()
@@ -96,9 +72,16 @@ class Runner:
 
     def run(self, jobs: Sequence[RunJob], progress: ProgressFn | None = None) -> RunBatch:
         """Every job's result (cached or computed) or the reason it failed; ``progress`` is called once
-        before any run and after each finished one."""
+        before any run and whenever a run starts or finishes.
+
+        Raises ``ExecutorUnavailable`` when the executor cannot run anything (nothing is cached then).
+        """
         started = time.perf_counter()
-        unique = list({j.key: j for j in jobs}.values())
+        # bundle paths travel with the jobs to other processes and machines: make them absolute here
+        unique = [
+            j if j.bundle.is_absolute() else dataclasses.replace(j, bundle=j.bundle.absolute())
+            for j in {j.key: j for j in jobs}.values()
+        ]
         results: dict[str, RunResult] = {}
         failures: dict[str, str] = {}
         todo: list[RunJob] = []
@@ -111,20 +94,35 @@ class Runner:
         cached = len(results)
         todo.sort(key=lambda j: j.cost, reverse=True)  # the longest first: the workers finish together
 
+        running: set[int] = set()
+        starts = [0] * len(todo)
+
         def report() -> None:
             if progress is not None:
-                progress(Progress(len(unique), len(results) + len(failures), cached, len(failures)))
+                done = len(results) + len(failures)
+                retried = sum(max(0, n - 1) for n in starts)
+                progress(Progress(len(unique), done, cached, len(failures), len(running), retried))
 
         report()
-        fn = self.run_fn or run_job  # looked up per batch (a test may replace it)
-        for out in self.executor.map_unordered(fn, todo):
-            job = todo[out.index]
-            if out.value is None:
-                failures[job.key] = out.error or "failed without a reason"
-            else:
-                self.cache.put(out.value)
-                results[job.key] = out.value
-            report()
+        if todo:
+            for bundle in dict.fromkeys(j.bundle for j in todo):
+                self.executor.ship(bundle)
+            fn = self.run_fn or run_job  # looked up per batch (a test may replace it)
+            for event in self.executor.map_unordered(fn, todo, [j.key for j in todo]):
+                job = todo[event.index]
+                if job.key in results or job.key in failures:
+                    continue  # a late start report of a finished run
+                if isinstance(event, Started):
+                    starts[event.index] += 1
+                    running.add(event.index)
+                else:
+                    running.discard(event.index)
+                    if event.value is None:
+                        failures[job.key] = event.error or "failed without a reason"
+                    else:
+                        self.cache.put(event.value)
+                        results[job.key] = event.value
+                report()
         return RunBatch(results, failures, cached, time.perf_counter() - started)
 
     def close(self) -> None:

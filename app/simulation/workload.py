@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from app.simulation.bundles import shipped_copy
 from app.simulation.result import RouteRecord, RunResult
 from app.simulation.spec import RunJob, RunSpec, TaskTemplate
 from services.city import City
@@ -74,10 +75,15 @@ class Bundle:
         return np.unique(np.asarray(nodes, dtype=np.int64))
 
 
-@lru_cache(maxsize=8)
 def open_bundle(directory: Path) -> Bundle:
-    """The bundle in ``directory`` (kept per process; the kernels are warmed up on first load)."""
-    bundle = Bundle(Path(directory))
+    """The bundle in ``directory``, or its copy shipped to this process (``app.simulation.bundles``); kept
+    per process, the kernels warmed up on first load."""
+    return _open(shipped_copy(Path(directory)))
+
+
+@lru_cache(maxsize=8)
+def _open(directory: Path) -> Bundle:
+    bundle = Bundle(directory)
     warm_up(bundle.city)
     return bundle
 

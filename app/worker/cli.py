@@ -15,11 +15,11 @@ from pydantic import ValidationError
 from app.cities import CityRegistry
 from app.schemas.fleet import render_recommendation
 from app.settings import DivergenceName, Settings
-from app.simulation import RunCache, Runner, make_executor
+from app.simulation import ResultCache, RunCache, Runner, make_executor
 from app.worker.service import FleetWorker, WorkerMetrics
 from app.worker.sizing import FleetSizing, SizingConfig
 
-__all__ = ["main", "parser", "settings_from_args"]
+__all__ = ["main", "parser", "settings_from_args", "make_runner"]
 
 log = logging.getLogger("app.worker")
 
@@ -57,7 +57,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--days", type=int, default=None, help="M, days of demand history (default 10)")
     p.add_argument("--divergence", choices=get_args(DivergenceName), default=None, help="default kl")
     p.add_argument("--alpha", type=float, default=None, help="significance level (default 0.05)")
-    p.add_argument("--jobs", type=int, default=None, help="simulation processes (default 2)")
+    p.add_argument("--jobs", type=int, default=None, help="local simulation processes (default 2)")
+    p.add_argument(
+        "--executor", choices=("local", "dask"), default=None, help="where runs execute (default local)"
+    )
+    p.add_argument("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://127.0.0.1:8786")
     p.add_argument(
         "--target",
         type=_target,
@@ -83,6 +87,8 @@ _FIELDS = {
     "divergence": "worker_divergence",
     "alpha": "worker_alpha",
     "jobs": "worker_jobs",
+    "executor": "worker_executor",
+    "scheduler": "dask_scheduler",
     "target": "worker_completion_target",
     "subsidy": "worker_subsidy_cny_per_vehicle_hour",
     "rolling_days": "worker_rolling_days",
@@ -101,6 +107,26 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
         if hasattr(args, option) and (getattr(args, option) is not None or option == "target"):
             given[name] = getattr(args, option)
     return Settings(**given)
+
+
+def make_runner(settings: Settings) -> Runner:
+    """The runner the settings describe: its run cache (disk or Redis) and its executor."""
+    cache: ResultCache
+    if settings.run_cache_kind() == "redis":
+        from app.adapters.redis_client import redis_client
+        from app.adapters.run_cache import RedisRunCache
+
+        client = redis_client(settings.redis_url)
+        cache = RedisRunCache(client, settings.redis_prefix, ttl_s=settings.retention_s)
+    else:
+        cache = RunCache(settings.var_dir / "fleet-runs")
+    executor = make_executor(
+        settings.worker_jobs,
+        settings.worker_executor,
+        scheduler=settings.dask_scheduler,
+        timeout_s=settings.dask_timeout_s,
+    )
+    return Runner(cache, executor)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -135,14 +161,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     from app.main import make_store
 
     store = make_store(settings)
-    runner = Runner(RunCache(settings.var_dir / "fleet-runs"), make_executor(settings.worker_jobs))
+    runner = make_runner(settings)
+    if settings.worker_executor == "dask":
+        log.info("simulation runs go to the Dask scheduler at %s", settings.dask_scheduler)
     metrics = WorkerMetrics()
     if settings.worker_metrics_port is not None and not args.once:
         from prometheus_client import start_http_server
 
         start_http_server(settings.worker_metrics_port, registry=metrics.registry)
     sizing = FleetSizing(
-        store, runner, SizingConfig.from_settings(settings), render=render_recommendation, cities=registry
+        store,
+        runner,
+        SizingConfig.from_settings(settings),
+        render=render_recommendation,
+        cities=registry,
+        progress=metrics.progress,
     )
     worker = FleetWorker(
         sizing, cities, lead_s=settings.worker_lead_s, poll_s=settings.worker_poll_s, metrics=metrics

@@ -14,9 +14,10 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
-from prometheus_client import CollectorRegistry, Counter, Histogram
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
 from app.ports import StoreUnavailable
+from app.simulation import Progress
 from app.worker.schedule import coming_interval, due_interval
 from app.worker.sizing import FleetSizing, SolveOutcome
 from services.city import Horizon
@@ -24,6 +25,8 @@ from services.city import Horizon
 __all__ = ["WorkerMetrics", "FleetWorker"]
 
 log = logging.getLogger(__name__)
+
+_RUN_STATES = ("queued", "running", "done", "cached", "failed", "retried")
 
 
 class WorkerMetrics:
@@ -45,6 +48,21 @@ class WorkerMetrics:
         )
         for outcome in ("published", "failed", "skipped", "busy"):
             self.solves.labels(outcome=outcome)
+        self.runs = Gauge(
+            "sd_fleet_runs",
+            "Simulation runs of the current (else the last) solve by state: queued, running, done (cached "
+            "included), cached, failed, and retried (restarts after a lost engine worker).",
+            ["state"],
+            registry=self.registry,
+        )
+        for state in _RUN_STATES:
+            self.runs.labels(state=state)
+
+    def progress(self, p: Progress) -> None:
+        """Show where the current solve's runs stand (the runner calls this as runs start and finish)."""
+        values = (p.queued, p.running, p.done, p.cached, p.failed, p.retried)
+        for state, value in zip(_RUN_STATES, values, strict=True):
+            self.runs.labels(state=state).set(value)
 
     def observe(self, outcome: SolveOutcome) -> None:
         """Count one attempt."""

@@ -21,7 +21,7 @@ from typing import Literal
 from app.cities import CityRegistry
 from app.ports import FleetRecord, SolveRequest, Store
 from app.settings import Settings
-from app.simulation import RunJob, Runner, RunResult, RunSpec, TaskTemplate
+from app.simulation import ExecutorUnavailable, ProgressFn, RunJob, Runner, RunResult, RunSpec, TaskTemplate
 from app.simulation.outcomes import day_outcomes, hourly_volumes
 from app.worker.recorded import demand_from_records, local_day_records, recorded_days
 from services.city import City
@@ -238,14 +238,17 @@ class FleetSizing:
         render: RecommendationRenderer,
         cities: CityRegistry | None = None,
         clock: Callable[[], float] = time.time,
+        progress: ProgressFn | None = None,
     ) -> None:
-        """``cities`` defaults to the bundled cities (``CityRegistry.from_settings`` in a deployment)."""
+        """``cities`` defaults to the bundled cities (``CityRegistry.from_settings`` in a deployment);
+        ``progress`` sees the runs of every solve start and finish (the worker's metrics)."""
         self.store = store
         self.runner = runner
         self.config = config
         self.render = render
         self.cities = cities if cities is not None else CityRegistry()
         self.clock = clock
+        self.progress = progress
 
     def load_city(self, name: str) -> City:
         """The city (``UnknownCity`` when the registry does not serve it)."""
@@ -335,7 +338,10 @@ class FleetSizing:
         tasks = self.task_set(city, target)
         observed = observed_today(self.store, city, target, self.clock())
         jobs = self.jobs(city, window, tasks)
-        batch = self.runner.run(list(jobs.values()))
+        try:
+            batch = self.runner.run(list(jobs.values()), self.progress)
+        except ExecutorUnavailable as exc:
+            raise SolveFailed(f"no run could start: {exc}") from exc
         if batch.failures:
             shown = "; ".join(f"{k}: {v}" for k, v in sorted(batch.failures.items())[:3])
             raise SolveFailed(f"{len(batch.failures)} of {len(jobs)} runs failed (partial solve): {shown}")

@@ -363,12 +363,23 @@ def test_runner_uses_the_cache_and_reports_failures_without_caching_them(tmp_pat
 
     runner = Runner(RunCache(tmp_path), run_fn=fake)
     jobs = [RunJob(RunSpec(n1=x, day=1), BUNDLE) for x in (10, 20, 30)]
-    seen: list[tuple[int, int, int, int]] = []
-    batch = runner.run([*jobs, jobs[0]], lambda p: seen.append((p.total, p.done, p.cached, p.failed)))
+    seen: list[tuple[int, int, int, int, int, int]] = []
+    batch = runner.run(
+        [*jobs, jobs[0]], lambda p: seen.append((p.total, p.done, p.cached, p.failed, p.running, p.queued))
+    )
     assert sorted(calls) == [10, 20, 30] and batch.cached == 0
     assert set(batch.results) == {jobs[0].key, jobs[1].key}
     assert batch.failures == {jobs[2].key: "ValueError: no taxis left"}
-    assert seen[0] == (3, 0, 0, 0) and seen[-1] == (3, 3, 0, 1) and len(seen) == 4  # a repeated job runs once
+    # a repeated job runs once; one at a time in this process, the costliest (N1 = 30) first
+    assert seen == [
+        (3, 0, 0, 0, 0, 3),
+        (3, 0, 0, 0, 1, 2),
+        (3, 1, 0, 1, 0, 2),
+        (3, 1, 0, 1, 1, 1),
+        (3, 2, 0, 1, 0, 1),
+        (3, 2, 0, 1, 1, 0),
+        (3, 3, 0, 1, 0, 0),
+    ]
     again = runner.run(jobs)
     assert sorted(calls) == [10, 20, 30, 30] and again.cached == 2
     assert again.results[jobs[1].key].kpis.design_kpi == 2.0

@@ -1,0 +1,212 @@
+"""The executor seam: start and outcome events of the local executors, the runner's bookkeeping of them
+(running, queued, retried, cached), shipping city bundles, and choosing an executor by name."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+
+from app.simulation import (
+    Event,
+    ExecutorUnavailable,
+    Finished,
+    InlineExecutor,
+    ProcessExecutor,
+    Progress,
+    RunCache,
+    RunJob,
+    Runner,
+    RunSpec,
+    Started,
+    make_executor,
+    open_bundle,
+)
+from app.simulation.bundles import BundleFiles, install_shipped, shipped_copy
+from app.simulation.localcluster import free_port
+from tests.api.fakes import CITY, build_bundle
+from tests.unit.pool_tasks import exit_on_2, square_unless_3
+from tests.unit.test_worker_parts import result
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def test_inline_reports_each_start_before_its_outcome_and_goes_on_after_a_failure() -> None:
+    events = list(InlineExecutor().map_unordered(square_unless_3, [2, 3, 4]))
+    pid = os.getpid()
+    assert events == [
+        Started(0, f"pid {pid}", pid),
+        Finished(0, 4),
+        Started(1, f"pid {pid}", pid),
+        Finished(1, error="ValueError: three"),
+        Started(2, f"pid {pid}", pid),
+        Finished(2, 16),
+    ]
+
+
+@pytest.mark.slow  # starting pool processes that import the simulation takes seconds
+def test_local_processes_report_starts_from_their_own_pids_and_every_outcome() -> None:
+    executor = ProcessExecutor(2)
+    try:
+        for _ in range(2):  # the pool is kept between batches; starts of one batch never leak into the next
+            events = list(executor.map_unordered(square_unless_3, list(range(8))))
+            starts = [e for e in events if isinstance(e, Started)]
+            outcomes = {e.index: (e.value, e.error) for e in events if isinstance(e, Finished)}
+            assert sorted(s.index for s in starts) == list(range(8))
+            pids = {s.pid for s in starts}
+            assert len(pids) <= 2 and os.getpid() not in pids
+            assert all(s.worker == f"pid {s.pid}" for s in starts)
+            assert outcomes == {
+                i: ((None, "ValueError: three") if i == 3 else (i * i, None)) for i in range(8)
+            }
+    finally:
+        executor.close()
+
+
+@pytest.mark.slow
+def test_a_dead_process_fails_the_items_it_held_and_the_next_batch_gets_a_new_pool() -> None:
+    executor = ProcessExecutor(2)
+    try:
+        events = list(executor.map_unordered(exit_on_2, [0, 1, 2]))
+        errors = {e.index: e.error for e in events if isinstance(e, Finished) and e.error}
+        assert 2 in errors and "BrokenProcessPool" in str(errors[2])
+        again = [e for e in executor.map_unordered(exit_on_2, [5, 6]) if isinstance(e, Finished)]
+        assert sorted((e.index, e.value) for e in again) == [(0, 5), (1, 6)]
+    finally:
+        executor.close()
+
+
+class Scripted:
+    """An executor that plays a fixed sequence of events (and records what it was asked)."""
+
+    workers = 2
+
+    def __init__(self, script: Callable[[Sequence[Any]], list[Event[Any]]]) -> None:
+        self.script = script
+        self.shipped: list[Path] = []
+        self.batches: list[tuple[list[Any], list[str] | None]] = []
+
+    def ship(self, bundle: Path) -> None:
+        self.shipped.append(bundle)
+
+    def map_unordered(
+        self, fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str] | None = None
+    ) -> Iterator[Event[R]]:
+        self.batches.append((list(items), None if keys is None else list(keys)))
+        yield from self.script(items)
+
+    def close(self) -> None:
+        pass
+
+
+def jobs_of(*sizes: int, bundle: Path = Path("/bundles/chengdu")) -> list[RunJob]:
+    return [RunJob(RunSpec(n1=x, day=1), bundle) for x in sizes]
+
+
+def test_the_runner_counts_running_queued_and_retried_runs_from_the_events(tmp_path: Path) -> None:
+    """Job 0 starts on w1, job 1 on w2; w1 dies and the engine restarts job 0 on w2 (a retry); a late start
+    report of a finished job changes nothing."""
+    jobs = jobs_of(40, 20, 10)  # the costliest first: items 0, 1, 2 are these jobs in this order
+
+    def script(items: Sequence[RunJob]) -> list[Event[Any]]:
+        return [
+            Started(0, "w1", 11),
+            Started(1, "w2", 12),
+            Finished(1, result(items[1].key, 20)),
+            Started(0, "w2", 12),
+            Started(2, "w3", 13),
+            Finished(0, result(items[0].key, 40)),
+            Started(1, "w9", 19),
+            Finished(2, error="KilledWorker: lost thrice"),
+        ]
+
+    seen: list[Progress] = []
+    executor = Scripted(script)
+    batch = Runner(RunCache(tmp_path), executor).run(jobs, seen.append)
+    states = [(p.queued, p.running, p.done, p.failed, p.retried) for p in seen]
+    assert states == [
+        (3, 0, 0, 0, 0),
+        (2, 1, 0, 0, 0),
+        (1, 2, 0, 0, 0),
+        (1, 1, 1, 0, 0),
+        (1, 1, 1, 0, 1),  # job 0 again: one retry, still one running
+        (0, 2, 1, 0, 1),
+        (0, 1, 2, 0, 1),
+        (0, 0, 3, 1, 1),
+    ]
+    assert set(batch.results) == {jobs[0].key, jobs[1].key}
+    assert batch.failures == {jobs[2].key: "KilledWorker: lost thrice"}
+    assert executor.batches[0][1] == [j.key for j in jobs]  # the engine gets the job keys as task names
+
+
+def test_a_batch_whose_runs_are_all_cached_never_touches_the_executor(tmp_path: Path) -> None:
+    class Unreachable(Scripted):
+        def ship(self, bundle: Path) -> None:
+            raise ExecutorUnavailable("cannot reach the Dask scheduler at tcp://nowhere:1")
+
+    cache = RunCache(tmp_path)
+    jobs = jobs_of(10, 20)
+    for j in jobs:
+        cache.put(result(j.key, j.spec.n1))
+    runner = Runner(cache, Unreachable(lambda items: []))
+    batch = runner.run(jobs)
+    assert batch.cached == 2 and set(batch.results) == {j.key for j in jobs} and batch.failures == {}
+    with pytest.raises(ExecutorUnavailable, match="cannot reach the Dask scheduler"):
+        runner.run(jobs_of(10, 30))
+
+
+def test_the_runner_ships_each_bundle_once_and_sends_absolute_paths(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    relative = jobs_of(10, 20, bundle=Path("cities/a")) + jobs_of(30, bundle=Path("/srv/cities/b"))
+
+    def ok(items: Sequence[RunJob]) -> list[Event[Any]]:
+        return [Finished(i, result(j.key, j.spec.n1)) for i, j in enumerate(items)]
+
+    executor = Scripted(ok)
+    batch = Runner(RunCache(tmp_path / "runs"), executor).run(relative)
+    assert len(batch.results) == 3
+    assert sorted(executor.shipped) == sorted([tmp_path / "cities" / "a", Path("/srv/cities/b")])
+    assert {j.bundle for j in executor.batches[0][0]} == {tmp_path / "cities" / "a", Path("/srv/cities/b")}
+
+
+def test_a_shipped_bundle_is_read_where_a_job_names_the_original(tmp_path: Path) -> None:
+    original = build_bundle(tmp_path / "submitter") / CITY
+    files = BundleFiles.read(original)
+    assert {name for name, _ in files.files} == {p.name for p in original.iterdir()}
+    assert files.size_bytes == sum(p.stat().st_size for p in original.iterdir())
+    copy = install_shipped(files, tmp_path / "worker")
+    assert install_shipped(files, tmp_path / "worker") == copy  # installed once per digest
+    shutil.rmtree(original)  # the worker's machine does not have the submitter's path
+    assert shipped_copy(original) == copy
+    bundle = open_bundle(original)
+    assert bundle.directory == copy and bundle.city.name == CITY
+    assert shipped_copy(tmp_path / "elsewhere") == tmp_path / "elsewhere"
+
+    changed = build_bundle(tmp_path / "submitter2") / CITY
+    (changed / "city.json").write_text((changed / "city.json").read_text() + "\n")
+    assert BundleFiles.read(changed).digest != files.digest
+    with pytest.raises(ValueError, match="absolute"):
+        BundleFiles.read(Path("relative/tiny"))
+
+
+def test_executors_by_name() -> None:
+    assert isinstance(make_executor(1), InlineExecutor)
+    pool = make_executor(3)
+    assert isinstance(pool, ProcessExecutor) and pool.workers == 3
+    with pytest.raises(ValueError, match="SD_DASK_SCHEDULER"):
+        make_executor(2, "dask")
+    with pytest.raises(ValueError, match="unknown executor"):
+        make_executor(2, "ray")  # type: ignore[arg-type]
+    nobody = f"tcp://127.0.0.1:{free_port()}"
+    dask = make_executor(2, "dask", scheduler=nobody, timeout_s=1.0)  # connects on first use only
+    assert dask.workers == 0
+    with pytest.raises(ExecutorUnavailable, match=f"cannot reach the Dask scheduler at {nobody}"):
+        list(dask.map_unordered(square_unless_3, [1]))
+    dask.close()
