@@ -8,9 +8,13 @@ route kept is the one with the largest phi = gain / time (Eq. 12), ties to the s
 per (taxi, kappa) serves every POI at once (the straight-line A* heuristic would only prune the search:
 the canonical path it returns is the same). Every candidate route is evaluated exactly (``gains``).
 
-The kappa = 0 cost is the travel time whatever the taxi, so when an epoch has fewer POIs than taxis the
-fastest paths come from one in-tree per POI instead of one tree per taxi; paths are canonical
-(``services.graph``), so both give the same routes, and the tests check it.
+The kappa = 0 cost is the travel time whatever the taxi, and a taxi's kappa > 0 cost is the base cost (no
+cell zeroed) except on the edges entering a cell it is counted in, where it is higher. So when an epoch has
+fewer POIs than taxis, the routes come from one in-tree per POI and kappa instead of one tree per taxi and
+kappa, and a taxi searches on its own only for a kappa whose in-tree route to some POI enters one of its
+counted cells: the canonical path (``services.graph``) under the base costs avoids every edge where the
+taxi's costs differ and those are nowhere lower, so it is the taxi's canonical path too. Both ways give the
+same routes, and the tests check it.
 """
 
 from __future__ import annotations
@@ -110,8 +114,10 @@ def kappa_metric(
 @compiled
 def _eval_walk(
     ed: Edges, gn: Gains, sc: Scratch, succ: NDArray[np.int64], start: int, root: int, depart_s: float
-) -> tuple[float, float, float, int]:
-    """``gains.eval_path`` along the in-tree path from ``start`` to ``root`` (same operations, same order)."""
+) -> tuple[float, float, float, int, bool]:
+    """``gains.eval_path`` along the in-tree path from ``start`` to ``root`` (same operations, same order),
+    and whether the path enters a cell the taxi is counted in during the first slot (its zero mask's row 0):
+    only on such an edge can the taxi's own kappa metric differ from the base one (``_patch``)."""
     n_slots = gn.term.shape[0]
     sid = sc.next_stamp[0]
     sc.next_stamp[0] = sid + 1
@@ -119,17 +125,21 @@ def _eval_walk(
     g = 0.0
     length = 0.0
     max_slot = 0
+    touched = False
     x = start
     while x != root:
         e = succ[x]
         te = ed.time_s[e]
-        for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
+        first = ed.ec_ptr[e]
+        for j in range(first, ed.ec_ptr[e + 1]):
+            c = ed.ec_cell[j]
+            if j > first and sc.zmask[0, c]:
+                touched = True
             slot = int(np.floor((t + ed.ec_frac[j] * te + gn.shift_s) / gn.interval_s)) - gn.k0
             if slot > max_slot:
                 max_slot = slot
             if slot >= n_slots:
                 continue
-            c = ed.ec_cell[j]
             if sc.stamp[slot, c] == sid:
                 continue
             sc.stamp[slot, c] = sid
@@ -138,42 +148,52 @@ def _eval_walk(
         t += te
         length += ed.length_m[e]
         x = ed.head[e]
-    return g, t - depart_s, length, max_slot
+    return g, t - depart_s, length, max_slot, touched
 
 
 @compiled
-def _fastest_to_root(
+def _to_root(
     ed: Edges,
     rg: SearchGraph,
     ws: search.Workspace,
-    time_costs: Costs,
+    costs: Costs,
     gn: Gains,
     sc: Scratch,
     counted: Counted,
     sources: NDArray[np.int64],
     root: int,
     depart_s: float,
+    q: int,
+    j: int,
     out_g: NDArray[np.float64],
     out_t: NDArray[np.float64],
     out_l: NDArray[np.float64],
+    out_ms: NDArray[np.int64],
+    touched: NDArray[np.int64],
+    whole: bool,
 ) -> int:
-    """The fastest path from every source to ``root`` (one in-tree), each evaluated for its taxi; time is
-    NaN for a source that cannot reach the root. Returns the largest slot reached."""
-    search.run(rg, ed, time_costs, root, INF, sources, ws)
-    max_slot = 0
+    """The shortest path under ``costs`` (a metric shared by every taxi) from every source to ``root``
+    (one in-tree; grown whole, or until every source is settled), each evaluated for its taxi into
+    ``out_*[a, q, j]``; time NaN for a source that cannot reach the root; the largest slot the path
+    reaches in ``out_ms[a, q, j]``. Lists in ``touched`` the sources whose path enters a cell their taxi
+    is counted in, and returns how many."""
+    search.run(rg, ed, costs, root, INF, np.empty(0, dtype=np.int64) if whole else sources, ws)
+    n = 0
     for a in range(sources.shape[0]):
-        if not search.unfold(rg, ed, time_costs, INF, sources[a], ws):
-            out_t[a] = np.nan
+        if not search.unfold(rg, ed, costs, INF, sources[a], ws):
+            out_t[a, q, j] = np.nan
             continue
         mark(sc.zmask, counted, a, True)
-        g, t, length, ms = _eval_walk(ed, gn, sc, ws.pred, sources[a], root, depart_s)
+        g, t, length, ms, touch = _eval_walk(ed, gn, sc, ws.pred, sources[a], root, depart_s)
         mark(sc.zmask, counted, a, False)
-        out_g[a] = g
-        out_t[a] = t
-        out_l[a] = length
-        if ms > max_slot:
-            max_slot = ms
-    return max_slot
+        out_g[a, q, j] = g
+        out_t[a, q, j] = t
+        out_l[a, q, j] = length
+        out_ms[a, q, j] = ms
+        if touch:
+            touched[n] = a
+            n += 1
+    return n
 
 
 class KappaBase(NamedTuple):
@@ -219,6 +239,30 @@ def _kappa_base(
             width[q] = c.width
             span[q] = time_max // c.width + 2
     return KappaBase(u, umax, n_top, edge, se, width, span)
+
+
+class ReverseKappa(NamedTuple):
+    """The base kappa metrics (``KappaBase``, no cell zeroed) prepared for the reverse graph: the POIs'
+    in-trees under them (row q: kappa ``kappas[q]``; rows of kappa = 0 unused)."""
+
+    se: NDArray[np.int64]  # (kappas, S reverse)
+    width: NDArray[np.int64]
+    span: NDArray[np.int64]
+
+
+@compiled
+def _reverse_kappa(ed: Edges, rg: SearchGraph, base: KappaBase, kappas: NDArray[np.float64]) -> ReverseKappa:
+    nk = kappas.shape[0]
+    se = np.zeros((nk, rg.se_tail.shape[0]), dtype=np.int64)
+    width = np.ones(nk, dtype=np.int64)
+    span = np.ones(nk, dtype=np.int64)
+    edge = np.zeros(ed.time_s.shape[0], dtype=np.int64)  # equals base.edge[q]: the same edge costs
+    for q in range(nk):
+        if kappas[q] != 0.0 and base.umax > 0.0:
+            c = kappa_metric(ed, rg, base.u, base.umax, kappas[q], edge, se[q])
+            width[q] = c.width
+            span[q] = c.span
+    return ReverseKappa(se, width, span)
 
 
 class KappaWork(NamedTuple):
@@ -331,7 +375,11 @@ def _plan_taxi(
     source: int,
     targets: NDArray[np.int64],
     depart_s: float,
-    fastest_given: bool,
+    have: NDArray[np.bool_],
+    given_g: NDArray[np.float64],
+    given_t: NDArray[np.float64],
+    given_l: NDArray[np.float64],
+    given_ms: NDArray[np.int64],
     out_k: NDArray[np.int64],
     out_g: NDArray[np.float64],
     out_t: NDArray[np.float64],
@@ -340,11 +388,12 @@ def _plan_taxi(
     work: KappaWork,
     patched: bool,
 ) -> int:
-    """Algorithm 1 from one taxi (its zero mask set in ``sc``) to every target. With ``fastest_given`` the
-    kappa = 0 results are already in ``out_g/out_t/out_l`` (NaN time: unreachable) and only the other kappas
-    are searched. With ``patched`` the taxi's kappa metrics are ``work``'s rows (``_patch``), else they are
-    built whole. Writes the chosen kappa's index (-1: unreachable), gain, time and length per target;
-    returns the largest slot reached, or -1 when a target cannot be reached."""
+    """Algorithm 1 from one taxi (its zero mask set in ``sc``) to every target. Where ``have[q]`` the
+    routes of kappa ``q`` are given (``given_*[q]``, from the targets' in-trees; NaN time: unreachable;
+    ``given_ms``: the largest slot each reaches)
+    and only the other kappas are searched. With ``patched`` the taxi's kappa metrics are ``work``'s rows
+    (``_patch``), else they are built whole. Writes the chosen kappa's index (-1: unreachable), gain, time
+    and length per target; returns the largest slot reached, or -1 when a target cannot be reached."""
     k = targets.shape[0]
     umax = base.umax if patched else entered_utility(ed, gn, sc.zmask, sc.u)
     best = np.full(k, -np.inf)
@@ -354,30 +403,31 @@ def _plan_taxi(
     max_slot = 0
     for ki in range(kappas.shape[0]):
         kappa = kappas[ki]
-        if kappa == 0.0 and fastest_given:
-            for i in range(k):
-                if np.isnan(out_t[i]):
-                    return -1
-                phi = out_g[i] / out_t[i] if out_t[i] > 0 else 0.0
-                if phi > best[i]:
-                    best[i] = phi
-                    out_k[i] = ki
-            continue
-        if kappa == 0.0:
-            costs = time_costs
-        elif umax <= 0.0:
+        if kappa != 0.0 and umax <= 0.0:
             continue  # no edge enters a cell of positive gain: every kappa gives the fastest path
-        elif patched:
-            costs = Costs(work.edge[ki], work.se[ki], base.width[ki], base.span[ki])
+        if have[ki]:
+            for i in range(k):
+                if np.isnan(given_t[ki, i]):
+                    return -1
+                g[i] = given_g[ki, i]
+                t[i] = given_t[ki, i]
+                length[i] = given_l[ki, i]
+                if given_ms[ki, i] > max_slot:
+                    max_slot = given_ms[ki, i]
         else:
-            costs = kappa_metric(ed, fg, sc.u, umax, kappa, sc.edge_cost, sc.se_cost)
-        search.run(fg, ed, costs, source, INF, targets, ws)
-        for i in range(k):
-            if not search.unfold(fg, ed, costs, INF, targets[i], ws):
-                return -1
-        ms = eval_tree(ed, gn, sc.zmask, ws.pred, source, targets, depart_s, sc.tree, g, t, length)
-        if ms > max_slot:
-            max_slot = ms
+            if kappa == 0.0:
+                costs = time_costs
+            elif patched:
+                costs = Costs(work.edge[ki], work.se[ki], base.width[ki], base.span[ki])
+            else:
+                costs = kappa_metric(ed, fg, sc.u, umax, kappa, sc.edge_cost, sc.se_cost)
+            search.run(fg, ed, costs, source, INF, targets, ws)
+            for i in range(k):
+                if not search.unfold(fg, ed, costs, INF, targets[i], ws):
+                    return -1
+            ms = eval_tree(ed, gn, sc.zmask, ws.pred, source, targets, depart_s, sc.tree, g, t, length)
+            if ms > max_slot:
+                max_slot = ms
         for i in range(k):
             phi = g[i] / t[i] if t[i] > 0 else 0.0
             if phi > best[i]:
@@ -390,14 +440,35 @@ def _plan_taxi(
 
 
 @compiled
+def _potential(
+    ed: Edges, fg: SearchGraph, rg: SearchGraph, costs: Costs, ws: search.Workspace, pot: NDArray[np.int64]
+) -> None:
+    """Each forward kept node's label to the root of the in-tree in ``ws`` (grown whole under ``costs``;
+    cost ``INF``: it cannot reach the root): ``search.run_guided``'s potential."""
+    for k in range(fg.kept.shape[0]):
+        c, a, b, _s, _start = search.resolve(rg, ed, costs, INF, fg.kept[k], ws)
+        pot[0, k] = c
+        pot[1, k] = a
+        pot[2, k] = b
+
+
+@compiled
 def _roots_chunk(
     ed: Edges,
+    fg: SearchGraph,
     rg: SearchGraph,
-    ws: search.Workspace,
+    wsf: search.Workspace,
+    wsr: search.Workspace,
     time_costs: Costs,
+    entering: CellEdges,
+    se_of: NDArray[np.int64],
+    base: KappaBase,
+    rev: ReverseKappa,
+    work: KappaWork,
     gn: Gains,
     sc: Scratch,
     counted: Counted,
+    kappas: NDArray[np.float64],
     sources: NDArray[np.int64],
     targets: NDArray[np.int64],
     chunk: NDArray[np.int64],
@@ -405,25 +476,62 @@ def _roots_chunk(
     out_g: NDArray[np.float64],
     out_t: NDArray[np.float64],
     out_l: NDArray[np.float64],
+    out_ms: NDArray[np.int64],
 ) -> int:
-    """``_fastest_to_root`` for the targets ``chunk`` (columns of the (sources, targets) outputs) in one
-    compiled call; returns the largest slot reached."""
-    f = sources.shape[0]
-    col_g = np.zeros(f)
-    col_t = np.zeros(f)
-    col_l = np.zeros(f)
-    max_slot = 0
-    for j in chunk:
-        ms = _fastest_to_root(
-            ed, rg, ws, time_costs, gn, sc, counted, sources, targets[j], depart_s, col_g, col_t, col_l
-        )
-        for a in range(f):
-            out_g[a, j] = col_g[a]
-            out_t[a, j] = col_t[a]
-            out_l[a, j] = col_l[a]
-        if ms > max_slot:
-            max_slot = ms
-    return max_slot
+    """The routes of every source under the in-trees ``chunk`` (item ``q * P + j``: kappa ``q``, target
+    ``j``) in one compiled call, into the (sources, kappas, targets) outputs; returns the number of
+    goal-directed searches made.
+
+    Kappa = 0 is the travel time for every taxi: its in-tree routes are every taxi's. For kappa > 0 the
+    in-tree is grown under the base metric (no cell zeroed); a taxi whose route in it enters a cell the
+    taxi is counted in has costs of its own there (``_patch``), higher, so its route is searched again
+    under its own costs, goal-directed by the in-tree's labels (a lower bound that never drops by more than
+    an edge's own label: ``search.run_guided`` finds the same canonical path as a plain search). A taxi
+    whose largest utility is not the base's (``_patch`` -1) gets its kappa > 0 routes in ``_taxis_chunk``.
+    """
+    p = targets.shape[0]
+    todo = np.empty(sources.shape[0], dtype=np.int64)
+    pot = np.empty((3, fg.kept.shape[0]), dtype=np.int64)
+    guided = 0
+    for item in chunk:
+        q, j = item // p, item % p
+        root = targets[j]
+        if kappas[q] == 0.0:
+            _to_root(
+                ed, rg, wsr, time_costs, gn, sc, counted, sources, root, depart_s, q, j, out_g, out_t, out_l,
+                out_ms, todo, False,
+            )  # fmt: skip
+            continue
+        costs = Costs(base.edge[q], rev.se[q], rev.width[q], rev.span[q])
+        n = _to_root(
+            ed, rg, wsr, costs, gn, sc, counted, sources, root, depart_s, q, j, out_g, out_t, out_l, out_ms,
+            todo, True,
+        )  # fmt: skip
+        if n == 0:
+            continue
+        _potential(ed, fg, rg, costs, wsr, pot)
+        for r in range(n):
+            a = todo[r]
+            mark(sc.zmask, counted, a, True)
+            patched = _patch(ed, entering, se_of, gn, sc, counted, a, kappas, base, work)
+            if patched >= 0:
+                own = Costs(work.edge[q], work.se[q], base.width[q], base.span[q])
+                search.run_guided(fg, ed, own, sources[a], root, pot, wsf)
+                guided += 1
+                if search.unfold(fg, ed, own, INF, root, wsf):
+                    edges = search.path_to(ed, 1, wsf.pred, sources[a], root)
+                    sid = sc.next_stamp[0]
+                    sc.next_stamp[0] = sid + 1
+                    g, _gq, t, length, ms = eval_path(ed, gn, sc.zmask, sc.stamp, sid, edges, depart_s)
+                    out_g[a, q, j] = g
+                    out_t[a, q, j] = t
+                    out_l[a, q, j] = length
+                    out_ms[a, q, j] = ms
+                else:
+                    out_t[a, q, j] = np.nan
+            _unpatch(se_of, base, work, patched)
+            mark(sc.zmask, counted, a, False)
+    return guided
 
 
 @compiled
@@ -442,32 +550,46 @@ def _taxis_chunk(
     targets: NDArray[np.int64],
     chunk: NDArray[np.int64],
     depart_s: float,
-    fastest_given: bool,
+    from_roots: bool,
+    root_g: NDArray[np.float64],
+    root_t: NDArray[np.float64],
+    root_l: NDArray[np.float64],
+    root_ms: NDArray[np.int64],
     out_k: NDArray[np.int64],
     out_g: NDArray[np.float64],
     out_t: NDArray[np.float64],
     out_l: NDArray[np.float64],
     base: KappaBase,
     work: KappaWork,
-) -> tuple[int, int]:
+) -> tuple[int, int, int]:
     """Algorithm 1 for the taxis ``chunk`` (rows of the outputs) in one compiled call: each taxi's zero mask
-    and patched metrics set, its targets planned, both undone. Returns the largest slot reached and -1, or
-    (0, the first taxi that cannot reach a target)."""
+    and patched metrics set, its targets planned, both undone. With ``from_roots`` the routes
+    ``root_*[i]`` (``_roots_chunk``) are taken for kappa = 0 always, and for another kappa when the taxi's
+    metric is the base one patched; a taxi whose largest utility is not the base's searches those itself.
+    Returns the largest slot reached, -1 or the first taxi that cannot reach a target, and how many
+    (taxi, kappa) searches were run."""
     max_slot = 0
+    nk = kappas.shape[0]
+    have = np.zeros(nk, dtype=np.bool_)
+    searched = 0
     for i in chunk:
         mark(sc.zmask, counted, i, True)
         n = _patch(ed, entering, se_of, gn, sc, counted, i, kappas, base, work)
+        for q in range(nk):
+            have[q] = from_roots and (kappas[q] == 0.0 or n >= 0)
+            if not have[q] and (kappas[q] == 0.0 or base.umax > 0.0):
+                searched += 1
         ms = _plan_taxi(
-            ed, fg, ws, time_costs, gn, sc, kappas, sources[i], targets, depart_s, fastest_given,
-            out_k[i], out_g[i], out_t[i], out_l[i], base, work, n >= 0,
+            ed, fg, ws, time_costs, gn, sc, kappas, sources[i], targets, depart_s, have, root_g[i], root_t[i],
+            root_l[i], root_ms[i], out_k[i], out_g[i], out_t[i], out_l[i], base, work, n >= 0,
         )  # fmt: skip
         _unpatch(se_of, base, work, n)
         mark(sc.zmask, counted, i, False)
         if ms < 0:
-            return 0, i
+            return 0, i, searched
         if ms > max_slot:
             max_slot = ms
-    return max_slot, -1
+    return max_slot, -1, searched
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -481,6 +603,9 @@ class Plans:
     time_s: NDArray[np.float64]
     length_m: NDArray[np.float64]
     max_slot: int
+    in_trees: int = 0  # searches from the targets (one per kappa and target)
+    guided_searches: int = 0  # goal-directed searches of taxis whose in-tree route enters a counted cell
+    taxi_searches: int = 0  # searches from the taxis (one per taxi and kappa not served by the in-trees)
 
     @property
     def phi(self) -> NDArray[np.float64]:
@@ -504,8 +629,12 @@ def plan_routes(
 ) -> Plans:
     """Algorithm 1 from every source (taxi ``i``'s counted pairs in ``counted``) to every target.
 
-    The fastest paths come from one in-tree per target when there are fewer than half as many targets as
-    sources (``fastest_from_targets`` forces the choice; the routes are the same either way).
+    When there are fewer than half as many targets as sources (``fastest_from_targets`` forces the choice),
+    the routes come from one in-tree per target and kappa under the metric every taxi shares (the travel
+    time; the base kappa metric, no cell zeroed); a taxi whose in-tree route enters a cell it is counted in
+    is searched again to that target under its own costs, goal-directed by the in-tree, and a taxi whose
+    normalization is its own searches its kappa > 0 trees itself. The routes are the same either way:
+    docs/DISPATCH.md proves it and the tests check it.
 
     Raises
     ------
@@ -515,41 +644,61 @@ def plan_routes(
     ed = graph.edges
     f, p = len(sources), len(targets)
     kap = np.asarray(kappas, dtype=np.float64)
+    nk = len(kap)
     out_k = np.full((f, p), -1, dtype=np.int64)
     out_g = np.zeros((f, p))
     out_t = np.full((f, p), np.nan)
     out_l = np.zeros((f, p))
-    slots: list[int] = []
     from_roots = (0 < 2 * p < f) if fastest_from_targets is None else (fastest_from_targets and p > 0)
+    base = _kappa_base(ed, graph.forward, graph.time_forward, gn, kap)
+    pr = p if from_roots else 0  # the in-tree results (sources, kappas, targets), when there are any
+    root_g = np.zeros((f, nk, pr))
+    root_t = np.full((f, nk, pr), np.nan)
+    root_l = np.zeros((f, nk, pr))
+    root_ms = np.zeros((f, nk, pr), dtype=np.int64)
+    guided = 0
     if from_roots:
+        rev = _reverse_kappa(ed, graph.reverse, base, kap)
+        trees = [q * p + j for q in range(nk) if kap[q] == 0.0 or base.umax > 0.0 for j in range(p)]
 
         def roots(chunk: Sequence[int]) -> list[int]:
             with pads.take() as pad:
-                sc = scratch(pad, gn)
-                ms = _roots_chunk(
-                    ed, graph.reverse, pad.reverse, graph.time_reverse, gn, sc, counted, sources, targets,
-                    np.asarray(chunk, dtype=np.int64), depart_s, out_g, out_t, out_l,
+                n = _roots_chunk(
+                    ed, graph.forward, graph.reverse, pad.forward, pad.reverse, graph.time_reverse,
+                    graph.entering, graph.se_of, base, rev, kappa_work(pad, base), gn, scratch(pad, gn),
+                    counted, kap, sources, targets, np.asarray(chunk, dtype=np.int64), depart_s, root_g,
+                    root_t, root_l, root_ms,
                 )  # fmt: skip
-            return [ms] * len(chunk)
+            return [n] + [0] * (len(chunk) - 1)
 
-        slots += parallel_map(roots, range(p), workers)
+        guided = sum(parallel_map(roots, trees, workers))
 
-    base = _kappa_base(ed, graph.forward, graph.time_forward, gn, kap)
-
-    def taxis(chunk: Sequence[int]) -> list[int]:
+    def taxis(chunk: Sequence[int]) -> list[tuple[int, int]]:
         with pads.take() as pad:
-            ms, failed = _taxis_chunk(
+            ms, failed, searched = _taxis_chunk(
                 ed, graph.forward, pad.forward, graph.time_forward, graph.entering, graph.se_of, gn,
                 scratch(pad, gn), counted, kap, sources, targets, np.asarray(chunk, dtype=np.int64), depart_s,
-                from_roots, out_k, out_g, out_t, out_l, base, kappa_work(pad, base),
+                from_roots, root_g, root_t, root_l, root_ms, out_k, out_g, out_t, out_l, base,
+                kappa_work(pad, base),
             )  # fmt: skip
         if failed >= 0:
-            missing = targets[np.isnan(out_t[failed]) | (out_k[failed] < 0)]
+            lost = np.isnan(root_t[failed]).any(axis=0) if from_roots else out_k[failed] < 0
+            missing = targets[lost]
             raise ValueError(f"targets unreachable from node {int(sources[failed])}: {missing[:5].tolist()}")
-        return [ms] * len(chunk)
+        return [(ms, searched)] + [(0, 0)] * (len(chunk) - 1)
 
-    slots += parallel_map(taxis, range(f), workers)
-    return Plans(kap, out_k, out_g, out_t, out_l, max(slots, default=0))
+    done = parallel_map(taxis, range(f), workers)
+    return Plans(
+        kap,
+        out_k,
+        out_g,
+        out_t,
+        out_l,
+        max((ms for ms, _ in done), default=0),
+        len(trees) if from_roots else 0,
+        guided,
+        sum(n for _, n in done),
+    )
 
 
 def scratch(pad: Pad, gn: Gains) -> Scratch:

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from services.graph import INF, Costs, Edges, RoadGraph, SearchGraph
+from services.graph import INF, Costs, Edges, Geo, RoadGraph, SearchGraph
 from services.jit import compiled, compiled_inline
 
 __all__ = [
@@ -34,6 +34,8 @@ __all__ = [
     "Workspace",
     "workspace",
     "run",
+    "run_guided",
+    "geo_potential",
     "resolve",
     "unfold",
     "path_to",
@@ -244,6 +246,77 @@ def _offset_on(pos_se: NDArray[np.int64], pos_off: NDArray[np.int64], v: int, s:
     return -1
 
 
+@compiled_inline
+def _reset(ws: Workspace) -> None:
+    """Forget what the last search touched (the ring is left empty by every search)."""
+    for i in range(ws.info[2]):
+        k = ws.touched[i]
+        ws.cost[k] = INF
+        ws.state[k] = -1
+        ws.need[k] = False
+        ws.unfolded[k] = False
+
+
+@compiled_inline
+def _need_targets(g: SearchGraph, source: int, targets: NDArray[np.int64], ws: Workspace) -> tuple[int, int]:
+    """Mark the kept nodes a search must settle before every target can be resolved: a kept target itself,
+    for an interior target the tails of its super-edges (unless the source lies before it on one). Returns
+    the number of nodes touched so far and of nodes to settle."""
+    sk = g.kept_of[source]
+    n_touched = 0
+    remaining = 0
+    for t in targets:
+        if t == source:
+            continue
+        kt = g.kept_of[t]
+        if kt >= 0:
+            if not ws.need[kt]:
+                ws.need[kt] = True
+                ws.touched[n_touched] = kt
+                n_touched += 1
+                remaining += 1
+            continue
+        for j in range(2):
+            s = g.pos_se[t, j]
+            if s < 0:
+                continue
+            if sk < 0:
+                os = _offset_on(g.pos_se, g.pos_off, source, s)
+                if os >= 0 and os < g.pos_off[t, j]:
+                    continue  # reached from the source along this very super-edge
+            kt = g.se_tail[s]
+            if not ws.need[kt]:
+                ws.need[kt] = True
+                ws.touched[n_touched] = kt
+                n_touched += 1
+                remaining += 1
+    return n_touched, remaining
+
+
+@compiled_inline
+def _seed(
+    g: SearchGraph, ed: Edges, edge_cost: NDArray[np.int64], source: int, sk: int, j: int
+) -> tuple[int, int, int, int, int, int]:
+    """The ``j``-th first label of a search from ``source``: ``(kept node, cost, tie1, tie2, super-edge,
+    start offset)``; the source itself when it is kept (j = 0), else the head of the ``j``-th super-edge it
+    lies on with the cost of the rest of that super-edge (kept node -1: no such super-edge)."""
+    if sk >= 0:
+        return sk, 0, 0, 0, -1, 0
+    s = g.pos_se[source, j]
+    if s < 0:
+        return -1, 0, 0, 0, -1, 0
+    os = g.pos_off[source, j]
+    c = 0
+    a = 0
+    b = 0
+    for p in range(g.se_ptr[s] + os, g.se_ptr[s + 1]):
+        e = g.se_edges[p]
+        c += edge_cost[e]
+        a += ed.tie1[e]
+        b += ed.tie2[e]
+    return g.se_head[s], c, a, b, s, os
+
+
 @compiled
 def run(
     g: SearchGraph,
@@ -277,14 +350,7 @@ def run(
     bits = ws.bits
     need = ws.need
     touched = ws.touched
-    # reset what the last search touched (the ring is left empty by every search)
-    for i in range(ws.info[2]):
-        k = touched[i]
-        cost[k] = INF
-        state[k] = -1
-        need[k] = False
-        ws.unfolded[k] = False
-    n_touched = 0
+    _reset(ws)
     width = costs.width
     span = costs.span
     use_ring = span <= ring.shape[0]
@@ -292,61 +358,16 @@ def run(
     edge_cost = costs.edge
     ws.info[0] = source
     sk = g.kept_of[source]
-    remaining = 0
-    for t in targets:
-        if t == source:
-            continue
-        kt = g.kept_of[t]
-        if kt >= 0:
-            if not need[kt]:
-                need[kt] = True
-                touched[n_touched] = kt
-                n_touched += 1
-                remaining += 1
-            continue
-        for j in range(2):
-            s = g.pos_se[t, j]
-            if s < 0:
-                continue
-            if sk < 0:
-                os = _offset_on(g.pos_se, g.pos_off, source, s)
-                if os >= 0 and os < g.pos_off[t, j]:
-                    continue  # reached from the source along this very super-edge
-            kt = g.se_tail[s]
-            if not need[kt]:
-                need[kt] = True
-                touched[n_touched] = kt
-                n_touched += 1
-                remaining += 1
+    n_touched, remaining = _need_targets(g, source, targets, ws)
     early = targets.shape[0] > 0
     size = 0  # queued nodes
     pos = 0  # ring: the bucket being emptied
     if not (early and remaining == 0):
         n_seeds = 1 if sk >= 0 else 2
         for j in range(n_seeds):
-            if sk >= 0:
-                h = sk
-                c = 0
-                a = 0
-                b = 0
-                s = -1
-                os = 0
-            else:
-                s = g.pos_se[source, j]
-                if s < 0:
-                    continue
-                os = g.pos_off[source, j]
-                c = 0
-                a = 0
-                b = 0
-                for p in range(g.se_ptr[s] + os, g.se_ptr[s + 1]):
-                    e = g.se_edges[p]
-                    c += edge_cost[e]
-                    a += ed.tie1[e]
-                    b += ed.tie2[e]
-                if c > limit:
-                    continue
-                h = g.se_head[s]
+            h, c, a, b, s, os = _seed(g, ed, edge_cost, source, sk, j)
+            if h < 0 or c > limit:
+                continue
             if not _less(c, a, b, cost[h], tie1[h], tie2[h]):
                 continue
             if cost[h] == INF and not need[h]:
@@ -456,6 +477,191 @@ def run(
             bits[b >> 6] = 0
     ws.info[1] = complete
     ws.info[2] = n_touched
+
+
+@compiled_inline
+def _before(
+    cost: NDArray[np.int64],
+    tie1: NDArray[np.int64],
+    tie2: NDArray[np.int64],
+    pot: NDArray[np.int64],
+    x: int,
+    y: int,
+) -> bool:
+    """Node ``x`` is taken before node ``y``: label plus potential, compared lexicographically."""
+    fx = int(cost[x] + pot[0, x])
+    fy = int(cost[y] + pot[0, y])
+    if fx != fy:
+        return fx < fy
+    ax = int(tie1[x] + pot[1, x])
+    ay = int(tie1[y] + pot[1, y])
+    if ax != ay:
+        return ax < ay
+    return int(tie2[x] + pot[2, x]) < int(tie2[y] + pot[2, y])
+
+
+@compiled_inline
+def _guided_up(
+    heap: NDArray[np.int64],
+    state: NDArray[np.int64],
+    cost: NDArray[np.int64],
+    tie1: NDArray[np.int64],
+    tie2: NDArray[np.int64],
+    pot: NDArray[np.int64],
+    i: int,
+) -> None:
+    k = heap[i]
+    while i > 0:
+        parent = (i - 1) >> 1
+        w = heap[parent]
+        if not _before(cost, tie1, tie2, pot, k, w):
+            break
+        heap[i] = w
+        state[w] = i
+        i = parent
+    heap[i] = k
+    state[k] = i
+
+
+@compiled_inline
+def _guided_pop(
+    heap: NDArray[np.int64],
+    state: NDArray[np.int64],
+    cost: NDArray[np.int64],
+    tie1: NDArray[np.int64],
+    tie2: NDArray[np.int64],
+    pot: NDArray[np.int64],
+    size: int,
+) -> int:
+    """Remove the root of the binary heap (``heap[0]`` before the call); new size."""
+    size -= 1
+    if size == 0:
+        return 0
+    k = heap[size]
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= size:
+            break
+        if c + 1 < size and _before(cost, tie1, tie2, pot, heap[c + 1], heap[c]):
+            c += 1
+        w = heap[c]
+        if not _before(cost, tie1, tie2, pot, w, k):
+            break
+        heap[i] = w
+        state[w] = i
+        i = c
+    heap[i] = k
+    state[k] = i
+    return size
+
+
+@compiled
+def run_guided(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    target: int,
+    pot: NDArray[np.int64],
+    ws: Workspace,
+) -> None:
+    """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*).
+
+    ``pot`` (3, kept nodes) is a potential on labels, ``(cost, tie1, tie2)`` per kept node (cost ``INF``:
+    the node cannot reach the target), that never drops by more than a super-edge's label along it:
+    ``pot[:, u] <= label(u, v) + pot[:, v]`` lexicographically. The labels to the target under any metric no
+    dearer on any edge are one (a lexicographic shortest-path label obeys the triangle inequality). Nodes
+    are taken in the order of label + potential, compared lexicographically: along a super-edge that key
+    never decreases, so the order is a plain Dijkstra's on those keys, and since the potential is the
+    same for every path to a node, each node's label -- read with ``resolve`` and ``unfold`` as after
+    ``run`` -- is the one ``run`` gives it. With the labels of the cheaper metric as potential, a search
+    whose metric differs from it nowhere on the canonical path goes straight along that path. The search
+    stops when the target can be resolved and settles no node that cannot reach it.
+    """
+    cost = ws.cost
+    tie1 = ws.tie1
+    tie2 = ws.tie2
+    state = ws.state
+    heap = ws.nxt
+    _reset(ws)
+    ws.info[0] = source
+    sk = g.kept_of[source]
+    tgt = np.empty(1, dtype=np.int64)
+    tgt[0] = target
+    n_touched, remaining = _need_targets(g, source, tgt, ws)
+    size = 0
+    if remaining > 0:
+        for j in range(1 if sk >= 0 else 2):
+            h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
+            if h < 0 or pot[0, h] >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
+                continue
+            if cost[h] == INF and not ws.need[h]:
+                ws.touched[n_touched] = h
+                n_touched += 1
+            cost[h] = c
+            tie1[h] = a
+            tie2[h] = b
+            ws.pse[h] = s
+            ws.pstart[h] = os
+            if state[h] < 0:
+                heap[size] = h
+                size += 1
+                _guided_up(heap, state, cost, tie1, tie2, pot, size - 1)
+            else:
+                _guided_up(heap, state, cost, tie1, tie2, pot, state[h])
+    complete = 1
+    while size > 0:
+        k = heap[0]
+        size = _guided_pop(heap, state, cost, tie1, tie2, pot, size)
+        state[k] = -2
+        if ws.need[k]:
+            remaining -= 1
+            if remaining == 0:
+                complete = 0
+                break
+        d = cost[k]
+        a0 = tie1[k]
+        b0 = tie2[k]
+        for s in range(g.indptr[k], g.indptr[k + 1]):
+            h = g.se_head[s]
+            st = state[h]
+            if st == -2 or pot[0, h] >= INF:
+                continue
+            c = d + costs.se[s]
+            a = a0 + g.se_tie1[s]
+            b = b0 + g.se_tie2[s]
+            if _less(c, a, b, cost[h], tie1[h], tie2[h]):
+                if cost[h] == INF and not ws.need[h]:
+                    ws.touched[n_touched] = h
+                    n_touched += 1
+                cost[h] = c
+                tie1[h] = a
+                tie2[h] = b
+                ws.pse[h] = s
+                ws.pstart[h] = 0
+                if st < 0:
+                    heap[size] = h
+                    size += 1
+                    _guided_up(heap, state, cost, tie1, tie2, pot, size - 1)
+                else:
+                    _guided_up(heap, state, cost, tie1, tie2, pot, st)
+    ws.info[1] = complete
+    ws.info[2] = n_touched
+
+
+@compiled
+def geo_potential(g: SearchGraph, geo: Geo, target: int, pot: NDArray[np.int64]) -> None:
+    """``run_guided``'s potential toward ``target`` under the travel time, from straight-line distances
+    (``graph.Geo``): cost ``floor(us_per_m * |v target|)`` per kept node ``v``, ties 0."""
+    tx = geo.x_m[target]
+    ty = geo.y_m[target]
+    for k in range(g.kept.shape[0]):
+        v = g.kept[k]
+        d = np.sqrt((geo.x_m[v] - tx) ** 2 + (geo.y_m[v] - ty) ** 2)
+        pot[0, k] = int(np.floor(geo.us_per_m * d))
+        pot[1, k] = 0
+        pot[2, k] = 0
 
 
 @compiled
@@ -608,17 +814,26 @@ def paths(
     ws: Workspace,
     sources: NDArray[np.int64],
     targets: NDArray[np.int64],
+    geo: Geo,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The canonical path of every (source, target) pair in one call, as CSR ``(ptr, edges)``; a pair that
-    cannot be joined gets ``ptr`` -1 at its end (``ptr[i + 1] == -1``)."""
+    cannot be joined gets ``ptr`` -1 at its end (``ptr[i + 1] == -1``). With a travel-time floor in ``geo``
+    (``costs`` must be the travel time, or dearer) each search is goal-directed (``run_guided``; the same
+    paths)."""
     n = sources.shape[0]
     ptr = np.zeros(n + 1, dtype=np.int64)
     flat = np.empty(max(64, 32 * n), dtype=np.int64)
     used = 0
     tgt = np.empty(1, dtype=np.int64)
+    guided = geo.us_per_m > 0.0
+    pot = np.empty((3, g.kept.shape[0] if guided else 0), dtype=np.int64)
     for i in range(n):
-        tgt[0] = targets[i]
-        run(g, ed, costs, sources[i], INF, tgt, ws)
+        if guided:
+            geo_potential(g, geo, targets[i], pot)
+            run_guided(g, ed, costs, sources[i], targets[i], pot, ws)
+        else:
+            tgt[0] = targets[i]
+            run(g, ed, costs, sources[i], INF, tgt, ws)
         if not unfold(g, ed, costs, INF, targets[i], ws):
             ptr[i + 1] = -1
             return ptr, flat[:used]
@@ -645,7 +860,7 @@ def fastest_paths(
     """
     src = np.asarray(sources, dtype=np.int64)
     tgt = np.asarray(targets, dtype=np.int64)
-    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt)
+    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt, graph.geo)
     bad = np.flatnonzero(ptr[1:] < 0)
     if bad.size:
         i = int(bad[0])

@@ -115,6 +115,45 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
             )
 
 
+def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_cells_lie() -> None:
+    """From the POIs' in-trees, a taxi is searched again (goal-directed) only for a (kappa, POI) whose
+    in-tree route enters a cell it is counted in: over these instances that happens, most routes come
+    from the in-trees, and the routes equal one tree per taxi and kappa bit for bit (the check above, here
+    on many taxis and cells)."""
+    own, guided, forward, trees = 0, 0, 0, 0
+    for seed in range(6):
+        rng, city, now, k0, _counts, _ = instance(seed)
+        graph = road_graph(city)
+        taxis = [TaxiId(f"t{i}") for i in range(24)]
+        cells = city.grid.n_cells
+        visited = {
+            t: frozenset((IntervalKey(k0), int(c)) for c in rng.integers(0, cells, int(rng.integers(1, 4))))
+            for t in taxis[::2]
+        }
+        counts = CountsView({IntervalKey(k0): rng.integers(0, 3, cells)}, visited)
+        gn = gain_table(city, counts.counts, k0, 2, now)
+        counted = counted_csr(counts.visited, taxis, k0)
+        sources = rng.choice(graph.n_nodes, len(taxis), replace=False).astype(np.int64)
+        targets = rng.choice(graph.n_nodes, 5, replace=False).astype(np.int64)
+        got = {
+            how: plan_routes(
+                graph, gn, counted, sources, targets, now, KAPPAS, 2, Pads(graph), fastest_from_targets=how
+            )
+            for how in (True, False)
+        }
+        for name in ("kappa_index", "gain", "time_s", "length_m"):
+            assert np.array_equal(getattr(got[True], name), getattr(got[False], name)), name
+        assert got[True].max_slot == got[False].max_slot
+        own += got[True].taxi_searches
+        guided += got[True].guided_searches
+        forward += got[False].taxi_searches
+        trees += got[True].in_trees
+        assert got[False].in_trees == got[False].guided_searches == 0
+    assert trees == 6 * 5 * len(KAPPAS) and forward == 6 * 24 * len(KAPPAS)
+    assert 0 < guided < 6 * 24 * 5 * (len(KAPPAS) - 1) // 2
+    assert own < forward // 10
+
+
 def test_a_taxi_counted_where_utility_peaks_gets_its_own_normalization() -> None:
     """Every cell but one heavily counted: the edges entering that cell carry the largest utility. A taxi
     counted there has a lower largest utility, so its costs are not the others' patched: they are built

@@ -145,3 +145,78 @@ def test_forward_and_reverse_trees_give_one_path(graph):
         search.tree(graph.reverse, graph.edges, cr, b, int(INF), src, src, rv, out)
         p2 = search.walk(graph.edges, rv.pred, a, b)
         assert p1.tolist() == p2.tolist()
+
+
+@pytest.mark.parametrize("kind", ["discounted", "equal"])
+def test_a_goal_directed_search_finds_the_same_path(graph, kind):
+    """``run_guided`` under a metric raised on some edges, guided by the exact distances to the target
+    under the lower metric (what Algorithm 1's in-trees give), labels and unfolds the target exactly as
+    ``run`` does -- ties included -- while settling fewer nodes; nodes that cannot reach the target
+    (potential INF) are never settled. A zero potential is a plain Dijkstra on the same keys."""
+    rng = np.random.default_rng(17)
+    low = _costs(graph, kind)
+    high = low.copy()
+    raised = rng.random(graph.n_edges) < 0.2
+    high[raised] += rng.integers(0, 3, int(raised.sum())) * low[raised]
+    fw, rv = search.workspace(graph), search.workspace(graph, reverse=True)
+    c_high = prepare(graph.forward, high)
+    c_low_rev = prepare(graph.reverse, low)
+    interior = np.flatnonzero(graph.forward.kept_of < 0)
+    ends = list(rng.choice(graph.n_nodes, size=(6, 2)))
+    if interior.size:
+        ends += [(int(rng.choice(interior)), int(rng.choice(graph.n_nodes))) for _ in range(3)]
+        ends += [(int(rng.choice(graph.n_nodes)), int(rng.choice(interior))) for _ in range(3)]
+    kept = graph.forward.kept
+    fewer = 0
+    for a, b in ends:
+        a, b = int(a), int(b)
+        search.run(graph.reverse, graph.edges, c_low_rev, b, int(INF), np.zeros(0, np.int64), rv)
+        pot = np.array(
+            [search.resolve(graph.reverse, graph.edges, c_low_rev, int(INF), int(v), rv)[:3] for v in kept],
+            dtype=np.int64,
+        ).T.copy()
+        zero = np.zeros_like(pot)
+        zero[0] = np.where(pot[0] < INF, 0, INF)
+
+        one = np.array([b], dtype=np.int64)
+        search.run(graph.forward, graph.edges, c_high, a, int(INF), one, fw)
+        want = search.resolve(graph.forward, graph.edges, c_high, int(INF), b, fw)
+        plain_settled = int((fw.state[fw.touched[: fw.info[2]]] == -2).sum())
+        reached = search.unfold(graph.forward, graph.edges, c_high, int(INF), b, fw)
+        want_path = search.path_to(graph.edges, 1, fw.pred, a, b).tolist() if reached else None
+        for p in (pot, zero):
+            search.run_guided(graph.forward, graph.edges, c_high, a, b, p, fw)
+            assert search.resolve(graph.forward, graph.edges, c_high, int(INF), b, fw)[:3] == want[:3]
+            touched = fw.touched[: fw.info[2]]
+            settled = touched[fw.state[touched] == -2]
+            assert (p[0, settled] < INF).all()
+            if p is pot:
+                fewer += int(len(settled) < plain_settled)
+            assert search.unfold(graph.forward, graph.edges, c_high, int(INF), b, fw) == reached
+            if reached:
+                assert search.path_to(graph.edges, 1, fw.pred, a, b).tolist() == want_path
+    assert fewer > 0
+
+
+def test_fastest_paths_guided_by_straight_lines_are_the_plain_ones(graph):
+    """Riders' trips and pickup legs search goal-directed toward the target by straight-line distance
+    (``graph.Geo``): the same canonical paths as plain searches, on every city -- interior ends included --
+    and the straight-line bound holds on every edge."""
+    ed, geo = graph.edges, graph.geo
+    straight = np.hypot(geo.x_m[ed.head] - geo.x_m[ed.tail], geo.y_m[ed.head] - geo.y_m[ed.tail])
+    assert geo.us_per_m > 0
+    assert (geo.us_per_m * straight + 1 <= ed.time_us).all()
+    rng = np.random.default_rng(23)
+    interior = np.flatnonzero(graph.forward.kept_of < 0)
+    src = rng.choice(graph.n_nodes, 40)
+    dst = rng.choice(graph.n_nodes, 40)
+    if interior.size:
+        src[:10] = rng.choice(interior, 10)
+        dst[5:15] = rng.choice(interior, 10)
+    plain = geo._replace(us_per_m=0.0)
+    ws = search.workspace(graph)
+    for a, b in zip(src.tolist(), dst.tolist(), strict=True):
+        one, other = np.array([a]), np.array([b])
+        got = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, geo)
+        want = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, plain)
+        assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
