@@ -11,6 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from app.errors import (
     BadRequest,
@@ -87,6 +88,21 @@ def from_validation_errors(errors: ValidationError | Sequence[Any]) -> ServiceEr
     return InvalidInput(f"{first.loc}: {first.msg}{more}", issues)
 
 
+_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
+
+
+def _allowed(request: Request) -> str:
+    """The methods some route fully matches on this path (one route per method, and Starlette names only
+    the first route's), for the ``Allow`` header of a 405."""
+    routes = request.app.router.routes
+    allowed = []
+    for method in _METHODS:
+        scope = {**request.scope, "method": method}
+        if any(route.matches(scope)[0] is Match.FULL for route in routes):
+            allowed.append(method)
+    return ", ".join(allowed)
+
+
 def install_error_handlers(app: FastAPI, metrics: Metrics) -> None:
     """Route every exception type through ``error_response``."""
 
@@ -98,13 +114,13 @@ def install_error_handlers(app: FastAPI, metrics: Metrics) -> None:
         assert isinstance(exc, RequestValidationError)
         return error_response(from_validation_errors(list(exc.errors())), metrics)
 
-    async def http_error(_: Request, exc: Exception) -> JSONResponse:
+    async def http_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, StarletteHTTPException)
         err: ServiceError
         if exc.status_code == 404:
             err = NotFound("no such route")
         elif exc.status_code == 405:
-            allow = (exc.headers or {}).get("Allow", "")
+            allow = _allowed(request) or (exc.headers or {}).get("Allow", "")
             err = MethodNotAllowed(f"method not allowed on this route (allowed: {allow})", allow=allow)
         elif 400 <= exc.status_code < 500:
             err = BadRequest(str(exc.detail))
