@@ -51,7 +51,7 @@ def make_app(registry: CityRegistry) -> MakeApp:
     def make(store: Store | None = None, clock: Clock | None = None, **overrides: Any) -> TestClient:
         from app.settings import Settings
 
-        settings = Settings(tokens=TOKENS | {ADMIN: ["admin"]}, **overrides)
+        settings = Settings.model_validate({"tokens": TOKENS | {ADMIN: ["admin"]}} | overrides)
         app = create_app(
             settings,
             registry=registry,
