@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 
@@ -502,3 +503,84 @@ def test_commit_is_apply_decision(
     assert sorted(store.list_tasks(CITY), key=lambda t: t.id) == sorted(listed.values(), key=lambda t: t.id)
     # an epoch reads the open tasks only: a completed task has left the set
     assert sorted(state.tasks, key=lambda t: t.id) == sorted(ledger.tasks.values(), key=lambda t: t.id)
+
+
+# -- issue 9: a re-sent commit, rewinding and resetting the epoch stream -------------------------------------
+
+
+def test_commit_sent_again_with_its_nonce_is_committed_once(case: StoreCase) -> None:
+    store = case.store
+    first = dataclasses.replace(commit("e1", version=0, visits=[visit(A, K1, 5)]), nonce="n-1")
+    assert store.commit_epoch(CITY, first).status == "committed"
+    after = case.raw()
+    # the same attempt arriving again (its reply was lost): committed, and nothing applied twice
+    again = store.commit_epoch(CITY, first)
+    assert again.status == "committed"
+    assert case.raw() == after
+    # another attempt with the same id (another process, a client retry): a duplicate, as ever
+    other = dataclasses.replace(first, nonce="n-2")
+    dup = store.commit_epoch(CITY, other)
+    assert dup.status == "duplicate" and dup.stored is not None and dup.stored.body_hash == first.body_hash
+    no_nonce = dataclasses.replace(first, nonce="")
+    assert store.commit_epoch(CITY, no_nonce).status == "duplicate"
+    assert store.load_state(CITY, [K1], [A]).version == 1
+    assert case.raw() == after
+
+
+def test_rewind_sets_the_last_time_back_and_keeps_the_rest(case: StoreCase) -> None:
+    store = case.store
+    assert store.rewind_epochs(CITY, T0).status == "empty"
+    store.commit_epoch(CITY, commit("e1", version=0, time_s=T0, visits=[visit(A, K1, 5)]))
+    store.commit_epoch(CITY, commit("e2", version=1, time_s=T0 + 1e9))  # the typo: 31 years ahead
+    assert store.commit_epoch(CITY, commit("e3", version=2, time_s=T0 + 60)).status == "stale"
+    before = full_state(store)
+    ahead = store.rewind_epochs(CITY, T0 + 2e9)
+    assert (ahead.status, ahead.previous_time_s, ahead.version) == ("ahead", T0 + 1e9, 2)
+    assert full_state(store) == before
+    done = store.rewind_epochs(CITY, T0 + 30)
+    assert (done.status, done.previous_time_s, done.version) == ("rewound", T0 + 1e9, 2)
+    state = store.load_state(CITY, [K1], [A])
+    assert (state.version, state.last_epoch_id, state.last_epoch_time_s) == (2, "e2", T0 + 30)
+    assert state.counts == {K1: {5: 1}}
+    assert store.commit_epoch(CITY, commit("e0", version=2, time_s=T0 + 29)).status == "stale"
+    assert store.commit_epoch(CITY, commit("e3", version=2, time_s=T0 + 60)).status == "committed"
+
+
+def test_reset_forgets_the_stream_but_not_the_fleet(case: StoreCase) -> None:
+    from app.ports import FleetRecord
+
+    store = case.store
+    assert store.reset_epochs(CITY) == 0
+    store.put_tasks(CITY, [task("p1"), task("p2")])
+    store.commit_epoch(
+        CITY,
+        commit("e1", version=0, visits=[visit(A, K1, 5)], tasks=[task("p1", status="completed")],
+               demand_json="{}"),
+    )  # fmt: skip
+    store.commit_epoch("other", commit("e1", version=0, visits=[visit(A, K1, 5)]))
+    record = FleetRecord("published", T0, 1, version=1, body_json="{}")
+    assert store.publish_recommendation(CITY, record, 10).status == "published"
+    lock = store.acquire_lock(CITY, "solve", 60)
+    assert store.reset_epochs(CITY) > 0
+    state = store.load_state(CITY, [K1], [A])
+    assert (state.version, state.last_epoch_id, state.counts, state.tasks) == (0, None, {K1: {}}, [])
+    assert store.get_epoch(CITY, "e1") is None and store.list_tasks(CITY) == []
+    assert store.list_intervals(CITY) == [] and store.recorded_demand(CITY, utc_day(T0)) == []
+    # the fleet records, the lock and the other city stay
+    assert store.current_recommendation(CITY) == record
+    assert lock is not None and store.acquire_lock(CITY, "solve", 60) is None
+    assert store.load_state("other", [K1], [A]).counts == {K1: {5: 1}}
+    # the stream starts again, with an id used before
+    assert store.commit_epoch(CITY, commit("e1", version=0)).status == "committed"
+
+
+def test_redis_meta_lives_for_the_retention(redis_store: RedisStore, redis_url: str) -> None:
+    import redis
+
+    redis_store.commit_epoch(CITY, commit("e1", version=0, retention_s=5000))
+    client = redis.Redis.from_url(url=redis_url, decode_responses=True)
+    try:
+        ttl = client.ttl(f"{redis_store.prefix}:{{{CITY}}}:meta")
+    finally:
+        client.close()
+    assert 4990 <= ttl <= 5000
