@@ -13,6 +13,7 @@ from fastapi import FastAPI
 from fastapi.routing import APIRoute
 from starlette.types import ASGIApp
 
+from app.adapters.bounded import BoundedStore
 from app.api import admin, cities, dashboard, dispatch, dro, epochs, fleet, ops
 from app.api.bodies import openapi_components
 from app.api.handlers import error_response, install_error_handlers
@@ -52,8 +53,6 @@ def make_store(settings: Settings) -> Store:
             prefix=settings.redis_prefix,
             socket_timeout_s=settings.store_timeout_s,
             mode=settings.redis_mode,
-            concurrency=settings.store_concurrency,
-            queue_s=settings.store_queue_s,
         )
     from app.adapters.memory_store import MemoryStore
 
@@ -78,7 +77,11 @@ def create_app(
     ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window."""
     settings = settings or Settings()
     owns_store = store is None
-    the_store = store if store is not None else make_store(settings)
+    the_store = BoundedStore(
+        store if store is not None else make_store(settings),
+        settings.store_concurrency,
+        settings.store_queue_s,
+    )
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
     service = DispatchService(

@@ -208,13 +208,10 @@ class RedisStore:
         *,
         socket_timeout_s: float = 2.0,
         mode: RedisMode = "standalone",
-        concurrency: int = 64,
-        queue_s: float = 0.1,
     ) -> None:
         """Connect lazily to ``url`` (in cluster mode: any node of the cluster); keys are
-        ``<prefix>:{<city>}:...``. ``socket_timeout_s`` bounds every connect, read and write; at most
-        ``concurrency`` calls are in flight at once, and a call that finds none free within ``queue_s``
-        raises ``StoreUnavailable`` (a frozen server ties up that many threads, never all of them)."""
+        ``<prefix>:{<city>}:...``. ``socket_timeout_s`` bounds every connect, read and write (the API also
+        bounds how many calls are in flight: ``app.adapters.bounded``)."""
         if not prefix or "{" in prefix or "}" in prefix:
             raise ValueError(f"invalid key prefix {prefix!r}")
         self._prefix = prefix
@@ -227,9 +224,6 @@ class RedisStore:
         self._connect_lock = threading.Lock()
         self._conn: redis.Redis | RedisCluster | None = None
         self._scripts: dict[str, Script] = {}
-        self._slots = threading.BoundedSemaphore(concurrency)
-        self._concurrency = concurrency
-        self._queue_s = queue_s
         if mode == "standalone":
             self._connect()  # redis.Redis connects on first use anyway
 
@@ -290,16 +284,10 @@ class RedisStore:
 
     @contextmanager
     def _guard(self, doing: str) -> Iterator[None]:
-        if not self._slots.acquire(timeout=self._queue_s):
-            raise StoreUnavailable(
-                f"{self._where}: all {self._concurrency} store slots busy for {self._queue_s} s while {doing}"
-            )
         try:
             yield
         except _UNREACHABLE as exc:
             raise StoreUnavailable(f"{self._where} is unreachable while {doing}: {exc}") from exc
-        finally:
-            self._slots.release()
 
     # -- the port -------------------------------------------------------------------------------------
 
