@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import httpx
 
@@ -41,14 +41,16 @@ class FrozenStore(MemoryStore):
         self._wait()
         return super().interval_counts(city, interval)
 
-    def load_state(self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]) -> object:  # type: ignore[override]
+    def load_state(
+        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+    ) -> CityState:
         self._wait()
         return super().load_state(city, intervals, taxi_ids)
 
 
-def _until(what: str, ok: object, timeout_s: float = 60.0) -> None:
+def _until(what: str, ok: Callable[[], bool], timeout_s: float = 60.0) -> None:
     deadline = time.monotonic() + timeout_s
-    while not ok():  # type: ignore[operator]
+    while not ok():
         if time.monotonic() > deadline:
             raise AssertionError(f"not within {timeout_s:.0f} s: {what}")
         time.sleep(0.02)
