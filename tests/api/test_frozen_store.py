@@ -14,6 +14,7 @@ import httpx
 from app.adapters import MemoryStore
 from app.cities import CityRegistry
 from app.main import create_app
+from app.ports import CityState
 from app.serve import serve_app_in_thread
 from services.model import IntervalKey, TaxiId
 from tests.api.conftest import CITY, READ, auth, settings
