@@ -103,4 +103,6 @@ def _require(scope: Scope) -> Callable[[Principal], Awaitable[Principal]]:
 ReadAccess = Annotated[Principal, Depends(_require("read"))]
 DispatchAccess = Annotated[Principal, Depends(_require("dispatch"))]
 AdminAccess = Annotated[Principal, Depends(_require("admin"))]
-CityName = Annotated[str, Path(min_length=1, max_length=64, description="City name, e.g. chengdu.")]
+CityName = Annotated[
+    str, Path(min_length=1, max_length=64, description="City name, e.g. chengdu.", examples=["chengdu"])
+]
