@@ -17,7 +17,7 @@ import scipy
 
 ROOT = Path(__file__).resolve().parents[1]
 PERFORMANCE = ROOT / "docs" / "PERFORMANCE.md"
-ORDER = ("epoch", "sim", "experiment", "dro", "worker")  # section order in the document
+ORDER = ("epoch", "sim", "experiment", "dro", "worker", "hardening")  # section order in the document
 _HEAD = "# Performance\n\nEach section below is written by one benchmark (`make bench` runs them all).\n"
 
 
