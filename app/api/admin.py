@@ -1,5 +1,5 @@
 """Admin routes (scope `admin`): rewind or reset a city's epoch stream, with the city's name repeated in the
-body as confirmation. docs/OPERATIONS.md says when and how."""
+body as confirmation. When and how: the README ("Rewind or reset") and docs/DESIGN.md."""
 
 from __future__ import annotations
 
