@@ -35,15 +35,11 @@ import httpx
 
 from bench.report import ROOT, stamp, write_section
 
+sys.path.insert(0, str(ROOT))  # the probes reuse the tests' process helpers
+
 TOKEN = "bench-hardening-token-01"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 MiB = 1 << 20
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _kib(path: str, field: str) -> int:
@@ -56,37 +52,14 @@ def _kib(path: str, field: str) -> int:
 @contextmanager
 def service(**env: str) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
     """``python -m app run`` with the bundled cities on a free port, ready when /readyz answers."""
-    port = _free_port()
-    full = {
-        **os.environ,
-        "SD_PORT": str(port),
-        "SD_TOKENS": json.dumps({TOKEN: ["read", "dispatch", "admin"]}),
-        "SD_LOG_LEVEL": "warning",
-        **env,
-    }
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app", "run"],
-        cwd=ROOT,
-        env=full,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    url = f"http://127.0.0.1:{port}"
+    from tests.e2e.service import start_process, stop, wait_ready
+
+    proc, url = start_process(env, {TOKEN: ["read", "dispatch", "admin"]})
     try:
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError("the service did not start")
-            time.sleep(0.2)
+        wait_ready(url, proc, timeout_s=120)
         yield url, proc
     finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+        stop(proc)
 
 
 class HealthPoller:
@@ -188,7 +161,6 @@ def probe_stalled_header() -> dict[str, Any]:
 
 
 def probe_frozen_redis() -> dict[str, Any]:
-    sys.path.insert(0, str(ROOT))
     from tests.faults import AofRedis
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -21,6 +21,7 @@ import pytest
 import redis
 
 from app.adapters import MemoryStore, RedisStore
+from app.adapters.redis_store import RedisMode
 
 _START_TIMEOUT_S = 15.0
 
@@ -139,18 +140,22 @@ def memory_store() -> MemoryStore:
 @pytest.fixture
 def make_redis_store(redis_url: str) -> Iterator[Callable[[], RedisStore]]:
     """Factory of ``RedisStore``s, each under its own fresh prefix; all closed and cleaned afterwards."""
+    yield from _store_factory(redis_url, "standalone")
+
+
+def _store_factory(url: str, mode: RedisMode) -> Iterator[Callable[[], RedisStore]]:
     made: list[tuple[RedisStore, str]] = []
 
     def make() -> RedisStore:
         prefix = f"sdtest-{uuid.uuid4().hex[:12]}"
-        store = RedisStore(redis_url, prefix=prefix)
+        store = RedisStore(url, prefix=prefix, mode=mode)
         made.append((store, prefix))
         return store
 
     yield make
     for store, prefix in made:
         store.close()
-        delete_prefix(redis_url, prefix)
+        (delete_prefix_cluster if mode == "cluster" else delete_prefix)(url, prefix)
 
 
 def _free_cluster_port() -> int:
@@ -249,18 +254,7 @@ def delete_prefix_cluster(url: str, prefix: str) -> None:
 @pytest.fixture
 def make_cluster_store(redis_cluster_url: str) -> Iterator[Callable[[], RedisStore]]:
     """Factory of cluster-mode ``RedisStore``s, each under its own fresh prefix; closed and cleaned after."""
-    made: list[tuple[RedisStore, str]] = []
-
-    def make() -> RedisStore:
-        prefix = f"sdtest-{uuid.uuid4().hex[:12]}"
-        store = RedisStore(redis_cluster_url, prefix=prefix, mode="cluster")
-        made.append((store, prefix))
-        return store
-
-    yield make
-    for store, prefix in made:
-        store.close()
-        delete_prefix_cluster(redis_cluster_url, prefix)
+    yield from _store_factory(redis_cluster_url, "cluster")
 
 
 _E2E = Path(__file__).resolve().parent / "e2e"

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import redis
 
+from tests.e2e.service import stop
+
 __all__ = ["LoseReplyProxy", "AofRedis", "free_port"]
 
 
@@ -141,9 +143,4 @@ class AofRedis:
     def stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
             self.thaw()
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=5)
+            stop(self.proc)

@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 import uuid
@@ -36,7 +35,7 @@ from services.model import Snapshot
 from services.sim.engine import RunTrace
 from services.sim.local import LocalDispatcher, Outcome
 from tests.conftest import delete_prefix
-from tests.e2e.service import ROOT, wait_ready
+from tests.e2e.service import ROOT, start_service, stop, wait_ready
 from tests.e2e.test_replay import _compare, _run
 from tests.faults import AofRedis, free_port
 
@@ -120,28 +119,16 @@ def test_redis_killed_mid_replay_counts_like_an_unfaulted_run(
 class ApiProcess:
     """``python -m app run`` on a fixed port, on Redis under ``prefix``; SIGKILL and start again."""
 
-    def __init__(self, redis_url: str, prefix: str, port: int | None = None) -> None:
-        self.port = port or free_port()
+    def __init__(self, redis_url: str, prefix: str) -> None:
+        self.redis_url, self.prefix = redis_url, prefix
+        self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        self.env = {
-            **os.environ,
-            "SD_STORE": "redis",
-            "SD_REDIS_URL": redis_url,
-            "SD_REDIS_PREFIX": prefix,
-            "SD_PORT": str(self.port),
-            "SD_TOKENS": f'{{"{TOKEN}": ["read", "dispatch"]}}',
-            "SD_LOG_LEVEL": "warning",
-        }
         self.proc: subprocess.Popen[bytes] | None = None
         self.kills = 0
 
     def start(self) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "app", "run"],
-            cwd=ROOT,
-            env=self.env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
+        self.proc, _ = start_service(
+            self.redis_url, self.prefix, {TOKEN: ["read", "dispatch"]}, port=self.port
         )
 
     def ready(self) -> None:
@@ -155,13 +142,8 @@ class ApiProcess:
             self.kills += 1
 
     def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=5)
+        if self.proc is not None:
+            stop(self.proc)
 
 
 @pytest.fixture

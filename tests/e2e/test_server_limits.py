@@ -5,10 +5,7 @@ string never reaches the access log."""
 
 from __future__ import annotations
 
-import os
 import socket
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 
@@ -16,8 +13,7 @@ import httpx
 import pytest
 
 from app.serve import serve_in_thread
-from tests.e2e.service import ROOT
-from tests.faults import free_port
+from tests.e2e.service import start_process, stop, wait_ready
 
 CAP = 8
 
@@ -102,43 +98,20 @@ def test_connections_beyond_the_cap_are_refused_at_once(served: tuple[str, int, 
 
 
 def test_query_token_not_in_the_access_log() -> None:
-    port = free_port()
     secret = "sd-secret-in-the-query-0123456789"
-    env = {
-        **os.environ,
-        "SD_STORE": "memory",
-        "SD_PORT": str(port),
-        "SD_TOKENS": '{"tok-log-test-0001": ["read"]}',
-        "SD_LOG_LEVEL": "info",
-        "SD_HEADER_TIMEOUT_S": "1",
-    }
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app", "run"],
-        cwd=ROOT,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )
+    env = {"SD_STORE": "memory", "SD_LOG_LEVEL": "info", "SD_HEADER_TIMEOUT_S": "1"}
+    proc, url = start_process(env, {"tok-log-test-0001": ["read"]}, log=True)
     try:
-        deadline = time.monotonic() + 90
-        while True:
-            try:
-                if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            assert proc.poll() is None and time.monotonic() < deadline, "service did not start"
-            time.sleep(0.2)
-        r = httpx.get(f"http://127.0.0.1:{port}/v1/cities?token={secret}&x=1", timeout=10)
+        wait_ready(url, proc)
+        r = httpx.get(f"{url}/v1/cities?token={secret}&x=1", timeout=10)
         assert r.status_code == 401
         # the CLI's server has the header deadline too
-        with socket.create_connection(("127.0.0.1", port)) as s:
-            s.settimeout(30)
+        with _connect(int(url.rsplit(":", 1)[1])) as s:
             s.sendall(b"GET /healthz HTTP/1.1\r\n")
             assert _read_all(s).startswith(b"HTTP/1.1 408 ")
     finally:
-        proc.terminate()
-        out, _ = proc.communicate(timeout=30)
-    log = out.decode(errors="replace")
+        stop(proc)
+    assert proc.stdout is not None
+    log = proc.stdout.read().decode(errors="replace")
     assert "GET /v1/cities?token=***&x=1 HTTP/1.1" in log, log[-2000:]
     assert secret not in log
