@@ -40,7 +40,8 @@ def run_schemathesis(max_examples: int, report: Path | None = None) -> tuple[int
                "--request-timeout", "60", "--warnings", "off", "--no-color"]  # fmt: skip
         if report is not None:
             cmd += ["--report", "junit", "--report-junit-path", str(report)]
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=900, check=False)
+        with tempfile.TemporaryDirectory() as scratch:  # schemathesis keeps a cache in its working directory
+            done = subprocess.run(cmd, capture_output=True, text=True, timeout=900, check=False, cwd=scratch)
     return done.returncode, done.stdout + done.stderr
 
 
