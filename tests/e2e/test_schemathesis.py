@@ -29,9 +29,7 @@ MAX_EXAMPLES = 10  # per operation and phase: about 800 requests, a minute on tw
 
 def run_schemathesis(max_examples: int) -> tuple[int, str]:
     """Run ``st run`` against a fresh in-thread service; its exit code and output."""
-    binary = shutil.which(
-        "st", path=str(Path(__file__).resolve().parents[2] / ".venv" / "bin")
-    ) or shutil.which("st")
+    binary = shutil.which("st", path=str(Path(sys.executable).parent))
     assert binary is not None, "schemathesis is a dev dependency: pip install -e '.[dev]'"
     settings = Settings(tokens={TOKEN: ["read", "dispatch", "admin"]}, store="memory", log_level="error")
     app = create_app(settings, store=MemoryStore())
