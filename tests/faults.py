@@ -17,7 +17,16 @@ import redis
 
 from tests.e2e.service import stop
 
-__all__ = ["LoseReplyProxy", "AofRedis", "free_port"]
+__all__ = ["LoseReplyProxy", "AofRedis", "free_port", "sigkill"]
+
+
+def sigkill(proc: subprocess.Popen[bytes] | None) -> int:
+    """SIGKILL ``proc`` if it runs and reap it; 1 if it was killed, else 0."""
+    if proc is None or proc.poll() is not None:
+        return 0
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=10)
+    return 1
 
 
 def free_port() -> int:
@@ -126,10 +135,7 @@ class AofRedis:
 
     def kill(self) -> None:
         """SIGKILL: no shutdown, no final save; what the AOF holds is what comes back."""
-        if self.proc is not None and self.proc.poll() is None:
-            os.kill(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(timeout=10)
-            self.kills += 1
+        self.kills += sigkill(self.proc)
 
     def freeze(self) -> None:
         """SIGSTOP: the server holds its connections and answers nothing."""

@@ -12,8 +12,6 @@ Real redis-server and ``python -m app run`` processes, all on 127.0.0.1; each te
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import threading
 import time
@@ -37,7 +35,7 @@ from services.sim.local import LocalDispatcher, Outcome
 from tests.conftest import delete_prefix
 from tests.e2e.service import ROOT, start_service, stop, wait_ready
 from tests.e2e.test_replay import _compare, _run
-from tests.faults import AofRedis, free_port
+from tests.faults import AofRedis, free_port, sigkill
 
 TOKEN = "fault-token-00000001"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -136,10 +134,7 @@ class ApiProcess:
         wait_ready(self.url, self.proc)
 
     def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            os.kill(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(timeout=10)
-            self.kills += 1
+        self.kills += sigkill(self.proc)
 
     def stop(self) -> None:
         if self.proc is not None:
