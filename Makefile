@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-sim bench-dro bench-cluster openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-sim bench-dro bench-cluster bench-hardening openapi dashboard
 
 install: $(STAMP)
 
@@ -51,7 +51,7 @@ fleet-experiment: $(STAMP)
 	$(PY) -m research fleet-experiment $(ARGS)
 
 # Every benchmark; each writes its own section of docs/PERFORMANCE.md.
-bench: bench-epoch bench-sim bench-dro bench-cluster
+bench: bench-epoch bench-sim bench-dro bench-cluster bench-hardening
 
 bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
@@ -65,6 +65,10 @@ bench-dro: $(STAMP)
 # The re-solve on 2 local processes vs a Dask cluster of 1 and 2 workers (small by default; ARGS=--full).
 bench-cluster: $(STAMP)
 	$(PY) -m bench.bench_cluster $(ARGS)
+
+# Issue 9's probes: hostile body, stalled connection, frozen Redis, schemathesis, Redis Cluster replay.
+bench-hardening: $(STAMP)
+	$(PY) -m bench.bench_hardening
 
 # Rebuild the dashboard's static files (app/static/dashboard/) from frontend/ with npm; commit the result.
 dashboard:

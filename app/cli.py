@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import secrets
 import sys
 from collections.abc import Sequence
@@ -58,9 +57,13 @@ def write_openapi(path: Path = OPENAPI_PATH) -> Path:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    import logging.config
+
     import uvicorn
 
+    from app.logs import log_config
     from app.main import create_app
+    from app.server import server_config
 
     settings = Settings()
     if args.host is not None or args.port is not None:
@@ -69,9 +72,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         )
     requested_host = settings.host
     settings, token = dev_settings(settings)
-    logging.basicConfig(
-        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
+    logging.config.dictConfig(log_config(settings.log_level))
     if token is not None:
         if requested_host not in _LOOPBACK:
             print(
@@ -82,7 +83,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.port}/v1/cities",
             flush=True,
         )
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=settings.log_level)
+    uvicorn.Server(server_config(create_app(settings), settings)).run()
     return 0
 
 

@@ -22,6 +22,7 @@ __all__ = [
     "EpochConflict",
     "StaleEpoch",
     "TaskConflict",
+    "RequestTimeout",
     "PayloadTooLarge",
     "UnsupportedMediaType",
     "Unavailable",
@@ -62,6 +63,10 @@ class ServiceError(Exception):
         super().__init__(detail)
         self.detail = detail
         self.fields = list(fields)
+
+    def response_headers(self) -> dict[str, str]:
+        """The headers of this error's response."""
+        return dict(self.headers)
 
     def body(self) -> dict[str, Any]:
         """The JSON body of this error."""
@@ -132,10 +137,18 @@ class UnknownEpoch(NotFound):
 
 
 class MethodNotAllowed(ServiceError):
-    """The route exists with other methods."""
+    """The route exists with other methods (named in the ``Allow`` header)."""
 
     status = 405
     kind = "method_not_allowed"
+
+    def __init__(self, detail: str, fields: Sequence[FieldIssue] = (), *, allow: str = "") -> None:
+        super().__init__(detail, fields)
+        self.allow = allow
+
+    def response_headers(self) -> dict[str, str]:
+        """``Allow`` with the route's methods (RFC 9110: a 405 must carry it)."""
+        return {"Allow": self.allow} if self.allow else {}
 
 
 class Conflict(ServiceError):
@@ -161,6 +174,14 @@ class TaskConflict(Conflict):
     """Tasks with these ids exist with different content."""
 
     kind = "task_conflict"
+
+
+class RequestTimeout(ServiceError):
+    """The client did not send the whole request in time; the connection is closed."""
+
+    status = 408
+    kind = "request_timeout"
+    headers = {"Connection": "close"}
 
 
 class PayloadTooLarge(ServiceError):

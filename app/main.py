@@ -5,15 +5,19 @@ from __future__ import annotations
 import functools
 import logging
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
+from typing import Any
 
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 from starlette.types import ASGIApp
 
-from app.api import cities, dashboard, dispatch, dro, epochs, fleet, ops
+from app.adapters.bounded import BoundedStore
+from app.api import admin, cities, dashboard, dispatch, dro, epochs, fleet, ops
+from app.api.bodies import openapi_components
 from app.api.handlers import error_response, install_error_handlers
+from app.api.inputs import Limits
 from app.api.limits import BodyLimit
 from app.cities import CityRegistry
 from app.errors import ServiceError
@@ -44,7 +48,12 @@ def make_store(settings: Settings) -> Store:
     if settings.store == "redis":
         from app.adapters.redis_store import RedisStore
 
-        return RedisStore(settings.redis_url, prefix=settings.redis_prefix)
+        return RedisStore(
+            settings.redis_url,
+            prefix=settings.redis_prefix,
+            socket_timeout_s=settings.store_timeout_s,
+            mode=settings.redis_mode,
+        )
     from app.adapters.memory_store import MemoryStore
 
     return MemoryStore()
@@ -62,11 +71,17 @@ def create_app(
     store: Store | None = None,
     *,
     decide: DecideFn | None = None,
+    clock: Callable[[], float] | None = None,
 ) -> FastAPI:
-    """Build the FastAPI app; a store passed in is the caller's to close, one built here is closed here."""
+    """Build the FastAPI app; a store passed in is the caller's to close, one built here is closed here.
+    ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window."""
     settings = settings or Settings()
     owns_store = store is None
-    the_store = store if store is not None else make_store(settings)
+    the_store = BoundedStore(
+        store if store is not None else make_store(settings),
+        settings.store_concurrency,
+        settings.store_queue_s,
+    )
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
     service = DispatchService(
@@ -77,6 +92,8 @@ def create_app(
         read_epoch=read_epoch,
         retention_s=settings.retention_s,
         commit_attempts=settings.commit_attempts,
+        max_ahead_s=settings.epoch_max_ahead_s,
+        **({} if clock is None else {"clock": clock}),
     )
 
     @asynccontextmanager
@@ -104,16 +121,35 @@ def create_app(
     def render(err: ServiceError) -> ASGIApp:
         return error_response(err, metrics)
 
-    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes, render=render)
+    app.add_middleware(
+        BodyLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s, render=render
+    )
     app.include_router(ops.router)
     app.include_router(cities.router)
     app.include_router(dispatch.router)
     app.include_router(dro.router)
     app.include_router(fleet.router)
     app.include_router(epochs.router)
+    app.include_router(admin.router)
     app.include_router(dashboard.router)
     dashboard.mount_assets(app)
+    _declare_request_bodies(app, Limits.from_settings(settings))
     return app
+
+
+def _declare_request_bodies(app: FastAPI, limits: Limits) -> None:
+    """Add the request bodies' schemas (read off the event loop by ``app.api.bodies``, so FastAPI does not
+    see them) to the document's components, with the configured array limits."""
+    build = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            doc = build()
+            doc.setdefault("components", {}).setdefault("schemas", {}).update(openapi_components(limits))
+            app.openapi_schema = doc
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def _operation_id(route: APIRoute) -> str:

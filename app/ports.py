@@ -16,6 +16,7 @@ __all__ = [
     "CityState",
     "EpochCommit",
     "CommitResult",
+    "RewindResult",
     "PutTasksResult",
     "FleetRecordStatus",
     "FleetRecord",
@@ -33,10 +34,13 @@ class StoreUnavailable(RuntimeError):
 
 @dataclass(frozen=True, slots=True)
 class StoredEpoch:
+    """A committed epoch's record; ``nonce`` is the commit attempt's (see ``EpochCommit``), when kept."""
+
     epoch_id: str
     body_hash: str
     time_s: float
     response_json: str
+    nonce: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +73,10 @@ class EpochCommit:
     response_json: str
     retention_s: int = 8 * 86400  # how long counts, visits and epoch records are kept
     demand_json: str | None = None  # the epoch's requests, recorded for the fleet-sizing worker (issue 4)
+    # Unique per commit attempt and stored with the record: when the store applied this very commit but
+    # its reply was lost and the client library sent it again, the store finds its own nonce and answers
+    # ``committed`` (not ``duplicate``), so the caller reports the commit it made.
+    nonce: str = ""
 
 
 CommitStatus = Literal["committed", "duplicate", "version_mismatch", "stale"]
@@ -83,6 +91,20 @@ class CommitResult:
     status: CommitStatus
     stored: StoredEpoch | None = None
     new_version: int | None = None
+
+
+RewindStatus = Literal["rewound", "empty", "ahead"]
+
+
+@dataclass(frozen=True, slots=True)
+class RewindResult:
+    """``rewound``: the last epoch time is now the requested one. ``empty``: no epoch committed (nothing
+    changed). ``ahead``: the requested time is later than the last epoch time (nothing changed).
+    ``previous_time_s`` is the last epoch time before the call; ``version`` the committed epochs."""
+
+    status: RewindStatus
+    previous_time_s: float | None
+    version: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,9 +181,19 @@ class Store(Protocol):
     ) -> CityState: ...
 
     def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
-        """Atomically: check id unseen, version == expected, time >= last; then apply visits (each
-        (taxi, interval, cell) counted at most once ever: Lambda += 1 only for a new member), upsert the
-        task updates, store the epoch record and bump the version."""
+        """Atomically: check id unseen (or seen with this commit's nonce: ``committed`` again, nothing
+        applied twice), version == expected, time >= last; then apply visits (each (taxi, interval, cell)
+        counted at most once ever: Lambda += 1 only for a new member), upsert the task updates, store the
+        epoch record and bump the version. The city's meta (version, last epoch) lives as long as the
+        retention after the last commit, like everything else the commit writes."""
+
+    def rewind_epochs(self, city: str, time_s: float) -> RewindResult:
+        """Atomically set the city's last epoch time back to ``time_s`` (epochs at or after it are accepted
+        again); what committed epochs wrote stays."""
+
+    def reset_epochs(self, city: str) -> int:
+        """Delete the city's epoch stream (meta, epoch records, counts, visits, intervals, recorded demand,
+        tasks); fleet-sizing records and locks stay. Returns how many entries were deleted."""
 
     def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
         """Register tasks, idempotent per id (same content: unchanged; different content: conflict)."""

@@ -23,7 +23,29 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="SD_", env_file=None, extra="forbid", frozen=True)
 
     store: Literal["memory", "redis"] = Field(default="memory", description="State backend.")
-    redis_url: str = Field(default="redis://localhost:6379/0", description="Redis URL when store=redis.")
+    redis_url: str = Field(
+        default="redis://localhost:6379/0",
+        description="Redis URL when store=redis (in cluster mode: any node of the cluster).",
+    )
+    redis_mode: Literal["standalone", "cluster"] = Field(
+        default="standalone", description="One Redis server, or a Redis Cluster (redis-py's cluster client)."
+    )
+    store_timeout_s: float = Field(
+        default=1.0,
+        gt=0.0,
+        le=60.0,
+        description="Bound on every connect, read and write of the Redis store (a frozen Redis: 503).",
+    )
+    store_concurrency: int = Field(
+        default=16,
+        ge=1,
+        le=1024,
+        description="Store calls in flight at once per process; a request finding all taken waits at most "
+        "store_queue_s, then gets 503 (a frozen store never ties up every worker thread).",
+    )
+    store_queue_s: float = Field(
+        default=0.1, ge=0.0, le=60.0, description="How long a store call waits for a free slot (then 503)."
+    )
     redis_prefix: str = Field(
         default="sd", pattern=r"^[A-Za-z0-9_.-]{1,40}$", description="Redis key prefix (one per deployment)."
     )
@@ -43,6 +65,30 @@ class Settings(BaseSettings):
     max_riders: int = Field(default=2000, ge=1, description="Most riders in one epoch.")
     max_taxis: int = Field(default=5000, ge=1, description="Most taxis in one epoch.")
     max_tasks: int = Field(default=1000, ge=1, description="Most tasks in one POST.")
+    epoch_max_ahead_s: int = Field(
+        default=86400,
+        ge=0,
+        description="Latest accepted epoch time, in seconds after the service clock (422 beyond; older "
+        "epochs are always accepted).",
+    )
+    header_timeout_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=3600.0,
+        description="A connection must deliver a request's headers within this time (then 408 and closed).",
+    )
+    body_timeout_s: float = Field(
+        default=30.0,
+        gt=0.0,
+        le=3600.0,
+        description="A request must deliver its whole body within this time after its headers (then 408).",
+    )
+    max_connections: int | None = Field(
+        default=None,
+        ge=1,
+        description="Open connections per process; one more is answered 503 and closed at once (default: "
+        "the file descriptor limit minus 64, at most 4096).",
+    )
     dispatch_workers: int = Field(
         default_factory=default_workers,
         ge=1,

@@ -9,6 +9,7 @@ import json
 import logging
 import math
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -20,6 +21,7 @@ from app.errors import (
     Busy,
     EpochConflict,
     FieldIssue,
+    InvalidInput,
     NoData,
     StaleEpoch,
     TaskConflict,
@@ -32,6 +34,7 @@ from app.ports import (
     EpochCommit,
     FleetRecord,
     PutTasksResult,
+    RewindResult,
     SolveRequest,
     Store,
     StoredEpoch,
@@ -64,6 +67,7 @@ __all__ = [
     "EpochRoutes",
     "Coverage",
     "DispatchService",
+    "StreamChange",
     "LOOKAHEAD_INTERVALS",
 ]
 
@@ -172,6 +176,18 @@ class EpochRoutes:
 
 
 @dataclass(frozen=True, slots=True)
+class StreamChange:
+    """What a rewind or a reset did to a city's epoch stream (times are POSIX seconds, None when unset)."""
+
+    city: City
+    action: str
+    previous_time_s: float | None
+    time_s: float | None
+    committed: int
+    deleted: int
+
+
+@dataclass(frozen=True, slots=True)
 class Coverage:
     """The grid counts of one sensing interval: ``counts`` is Lambda over every cell; ``gamma_so_far`` is
     Gamma over that day's horizon intervals as counted so far."""
@@ -213,6 +229,8 @@ class DispatchService:
         read_epoch: EpochReader,
         retention_s: int = 8 * 86400,
         commit_attempts: int = 8,
+        max_ahead_s: float = 86400.0,
+        clock: Callable[[], float] = time.time,
     ) -> None:
         self.cities = cities
         self.store = store
@@ -221,6 +239,8 @@ class DispatchService:
         self.read_epoch = read_epoch
         self.retention_s = retention_s
         self.commit_attempts = commit_attempts
+        self.max_ahead_s = max_ahead_s
+        self.clock = clock
 
     # ------------------------------------------------------------------ cities
 
@@ -288,10 +308,24 @@ class DispatchService:
                 keep.append(t)
         return keep, expired
 
+    def _check_window(self, city: City, time_s: float) -> None:
+        """422 on ``time`` when the epoch lies more than ``max_ahead_s`` after the service clock: one typo
+        (year 2962) would otherwise make every later, correct epoch of the city stale. Older epochs are
+        fine (replays of history)."""
+        now_s = self.clock()
+        if time_s > now_s + self.max_ahead_s:
+            latest = format_time(now_s + self.max_ahead_s, city.horizon.timezone)
+            raise InvalidInput.at(
+                "time",
+                f"more than {self.max_ahead_s:.0f} s after the service clock: at most {latest} "
+                "(SD_EPOCH_MAX_AHEAD_S)",
+            )
+
     def submit_epoch(self, name: str, epoch: EpochCommand) -> EpochOutcome:
         """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs")."""
         city = self.city(name)
         snapshot = epoch.snapshot
+        self._check_window(city, snapshot.time_s)
         stored = self.store.get_epoch(name, snapshot.epoch_id)
         if stored is not None:
             return self._replay(stored, epoch.body_hash)
@@ -329,6 +363,7 @@ class DispatchService:
                     response_json=response,
                     retention_s=self.retention_s,
                     demand_json=_demand_json(city, epoch),
+                    nonce=uuid.uuid4().hex,  # per attempt: a resent commit finds it, knows it was its own
                 ),
             )
             if commit.status == "committed":
@@ -354,6 +389,30 @@ class DispatchService:
         raise Busy(
             f"city {name!r} is busy: {self.commit_attempts} commit attempts lost to concurrent epochs; retry"
         )
+
+    # ------------------------------------------------------------------ admin: rewind and reset
+
+    def rewind(self, name: str, time_s: float) -> StreamChange:
+        """Set the city's last epoch time back to ``time_s`` (404 ``no_data`` with no epoch committed; 422
+        on ``to`` when it is later than the last epoch time)."""
+        city = self.city(name)
+        result: RewindResult = self.store.rewind_epochs(name, time_s)
+        if result.status == "empty":
+            raise NoData(f"no epoch committed for {name!r}: nothing to rewind")
+        if result.status == "ahead":
+            assert result.previous_time_s is not None
+            last = format_time(result.previous_time_s, city.horizon.timezone)
+            raise InvalidInput.at("to", f"later than the last epoch time {last}: nothing to rewind")
+        log.warning("epoch stream of %s rewound from %s to %s", name, result.previous_time_s, time_s)
+        return StreamChange(city, "rewind", result.previous_time_s, time_s, result.version, 0)
+
+    def reset(self, name: str) -> StreamChange:
+        """Delete the city's epoch stream and tasks (fleet records stay)."""
+        city = self.city(name)
+        before = self.store.load_state(name, [], [])
+        deleted = self.store.reset_epochs(name)
+        log.warning("epoch stream of %s reset: %d entries deleted", name, deleted)
+        return StreamChange(city, "reset", before.last_epoch_time_s, None, 0, deleted)
 
     # ------------------------------------------------------------------ readiness
 

@@ -17,7 +17,15 @@ import scipy
 
 ROOT = Path(__file__).resolve().parents[1]
 PERFORMANCE = ROOT / "docs" / "PERFORMANCE.md"
-ORDER = ("epoch", "sim", "experiment", "dro", "worker", "cluster")  # section order in the document
+ORDER = (
+    "epoch",
+    "sim",
+    "experiment",
+    "dro",
+    "worker",
+    "cluster",
+    "hardening",
+)  # section order in the document
 _HEAD = "# Performance\n\nEach section below is written by one benchmark (`make bench` runs them all).\n"
 
 

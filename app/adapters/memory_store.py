@@ -18,6 +18,7 @@ from app.ports import (
     FleetRecord,
     PublishResult,
     PutTasksResult,
+    RewindResult,
     SolveRequest,
     StoredEpoch,
 )
@@ -26,7 +27,7 @@ from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
 
 __all__ = ["MemoryStore"]
 
-_Kind = Literal["count", "visit", "epoch", "demand"]
+_Kind = Literal["count", "visit", "epoch", "demand", "meta"]
 _ExpiryKey = tuple[str, _Kind, str]  # (city, kind, key within the city)
 
 
@@ -95,6 +96,8 @@ class MemoryStore:
             city.ledger.visits.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
         elif kind == "epoch":
             city.epochs.pop(name, None)
+        elif kind == "meta":
+            city.version, city.last_epoch_id, city.last_time_s = 0, None, None
         else:
             city.demand.pop(name, None)
 
@@ -145,6 +148,8 @@ class MemoryStore:
             c = self._city(city, create=True)
             stored = c.epochs.get(commit.epoch_id)
             if stored is not None:
+                if commit.nonce and stored.nonce == commit.nonce:  # this very commit, sent again
+                    return CommitResult("committed", new_version=c.version)
                 return CommitResult("duplicate", stored=stored)
             if commit.expected_version != c.version:
                 return CommitResult("version_mismatch")
@@ -161,7 +166,7 @@ class MemoryStore:
                 self._touch((city, "count", str(int(k))), ttl)
                 self._touch((city, "visit", _visit_key(k, visit.taxi_id)), ttl)
             c.epochs[commit.epoch_id] = StoredEpoch(
-                commit.epoch_id, commit.body_hash, float(commit.time_s), commit.response_json
+                commit.epoch_id, commit.body_hash, float(commit.time_s), commit.response_json, commit.nonce
             )
             self._touch((city, "epoch", commit.epoch_id), ttl)
             if commit.demand_json is not None:
@@ -171,7 +176,45 @@ class MemoryStore:
             c.version += 1
             c.last_epoch_id = commit.epoch_id
             c.last_time_s = float(commit.time_s)
+            self._touch((city, "meta", ""), ttl)
             return CommitResult("committed", new_version=c.version)
+
+    def rewind_epochs(self, city: str, time_s: float) -> RewindResult:
+        """Set the last epoch time back to ``time_s`` (see ``app.ports.Store.rewind_epochs``)."""
+        with self._lock:
+            c = self._city(city)
+            last = c.last_time_s
+            if last is None:
+                return RewindResult("empty", None, c.version)
+            if time_s > last:
+                return RewindResult("ahead", last, c.version)
+            c.last_time_s = float(time_s)
+            return RewindResult("rewound", last, c.version)
+
+    def reset_epochs(self, city: str) -> int:
+        """Forget the city's epoch stream and tasks; its fleet records, requests and locks stay."""
+        with self._lock:
+            old = self._cities.get(city)
+            if old is None:
+                return 0
+            deleted = (
+                int(old.version > 0)
+                + len(old.epochs)
+                + len(old.ledger.counts)
+                + len(old.ledger.visits)
+                + len(old.demand)
+                + len(old.ledger.tasks)
+                + len(old.ledger.done)
+            )
+            self._cities[city] = _City(
+                fleet_current=old.fleet_current,
+                fleet_history=old.fleet_history,
+                locks=old.locks,
+                solve_queue=old.solve_queue,
+            )
+            for key in [k for k in self._expires_at if k[0] == city]:
+                del self._expires_at[key]  # their heap entries no longer match: skipped when popped
+            return deleted
 
     def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
         """Register tasks, idempotent per id (finished ones included); on any conflict nothing is written."""

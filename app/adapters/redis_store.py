@@ -1,15 +1,25 @@
-"""Redis ``Store``: one Lua script commits an epoch; reads are MULTI/EXEC snapshots (keys: docs/DESIGN.md)."""
+"""Redis ``Store``: one Lua script commits an epoch; reads are MULTI/EXEC snapshots (keys: docs/DESIGN.md).
+
+Every key of a city carries the hash tag ``{city}``, so on a Redis Cluster (``mode="cluster"``, redis-py's
+cluster client) all of a city's keys share one slot: each script and transaction runs on one node."""
 
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, cast
+from typing import Any, Literal, cast
+from urllib.parse import urlsplit
 
+import redis
+from redis.backoff import ExponentialBackoff
+from redis.cluster import RedisCluster
+from redis.commands.core import Script
+from redis.exceptions import ClusterError, RedisClusterException, TryAgainError, WatchError
 from redis.exceptions import ConnectionError as RedisConnectionError
 from redis.exceptions import TimeoutError as RedisTimeoutError
-from redis.exceptions import WatchError
+from redis.retry import Retry
 
 from app.adapters.codec import (
     check_fleet_record,
@@ -24,7 +34,7 @@ from app.adapters.codec import (
     task_to_json,
     utc_day,
 )
-from app.adapters.redis_client import describe, redis_client
+from app.adapters.redis_client import redis_client
 from app.ports import (
     CityState,
     CommitResult,
@@ -33,6 +43,7 @@ from app.ports import (
     FleetRecord,
     PublishResult,
     PutTasksResult,
+    RewindResult,
     SolveRequest,
     StoredEpoch,
     StoreUnavailable,
@@ -41,7 +52,9 @@ from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
 
 __all__ = [
     "RedisStore",
+    "RedisMode",
     "COMMIT_EPOCH_LUA",
+    "REWIND_LUA",
     "PUBLISH_RECOMMENDATION_LUA",
     "RELEASE_LOCK_LUA",
     "ENQUEUE_SOLVE_LUA",
@@ -59,13 +72,18 @@ COMMIT_EPOCH_LUA = """
 -- A finished task moves from the open hash to the finished ones; finished tasks that finished before
 -- done_before (epoch time) are dropped.
 -- Cells, intervals, times and the TTL arrive as strings: no number round-trips through a Lua double.
+-- c.nonce is unique per commit attempt: finding it on the stored record means this very commit was
+-- applied already and its reply lost (the client library sent it again): answer 'committed' again.
 -- Returns {'duplicate', hash, time, response} | {'version_mismatch'} | {'stale'} | {'committed', version}.
 local meta, epoch, intervals, tasks, demand = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
 local done, done_at = KEYS[6], KEYS[7]
 local c = cjson.decode(ARGV[1])
 
-local stored = redis.call('HMGET', epoch, 'hash', 'time', 'response')
+local stored = redis.call('HMGET', epoch, 'hash', 'time', 'response', 'nonce')
 if stored[1] then
+  if c.nonce ~= '' and stored[4] == c.nonce then
+    return {'committed', redis.call('HGET', meta, 'version')}
+  end
   return {'duplicate', stored[1], stored[2], stored[3]}
 end
 local m = redis.call('HMGET', meta, 'version', 'last_time')
@@ -106,7 +124,7 @@ end
 if #old > 0 then
   redis.call('ZREMRANGEBYSCORE', done_at, '-inf', '(' .. c.done_before)
 end
-redis.call('HSET', epoch, 'hash', c.hash, 'time', c.time, 'response', c.response)
+redis.call('HSET', epoch, 'hash', c.hash, 'time', c.time, 'response', c.response, 'nonce', c.nonce)
 redis.call('EXPIRE', epoch, c.ttl)
 if c.demand ~= nil and c.demand ~= cjson.null then
   redis.call('RPUSH', demand, c.demand)
@@ -114,7 +132,23 @@ if c.demand ~= nil and c.demand ~= cjson.null then
 end
 local version = redis.call('HINCRBY', meta, 'version', 1)
 redis.call('HSET', meta, 'last_time', c.time, 'last_epoch', c.epoch_id)
+redis.call('EXPIRE', meta, c.ttl)
 return {'committed', version}
+"""
+
+REWIND_LUA = """
+-- Set the last epoch time of the meta hash KEYS[1] back to ARGV[1] (docs/DESIGN.md, "Rewind and reset").
+-- Returns {'empty', version} | {'ahead', version, last} | {'rewound', version, last}.
+local m = redis.call('HMGET', KEYS[1], 'version', 'last_time')
+local version = m[1] or '0'
+if not m[2] then
+  return {'empty', version}
+end
+if tonumber(ARGV[1]) > tonumber(m[2]) then
+  return {'ahead', version, m[2]}
+end
+redis.call('HSET', KEYS[1], 'last_time', ARGV[1])
+return {'rewound', version, m[2]}
 """
 
 PUBLISH_RECOMMENDATION_LUA = """
@@ -151,20 +185,84 @@ return {1, ARGV[1]}
 """
 
 
-class RedisStore:
-    """``Store`` on a Redis server; every connection failure surfaces as ``StoreUnavailable``."""
+RedisMode = Literal["standalone", "cluster"]
 
-    def __init__(self, url: str, prefix: str = "sd", *, socket_timeout_s: float = 2.0) -> None:
-        """Connect lazily to ``url``; keys are ``<prefix>:{<city>}:...``."""
+_SCRIPTS = {
+    "commit": COMMIT_EPOCH_LUA,
+    "rewind": REWIND_LUA,
+    "publish": PUBLISH_RECOMMENDATION_LUA,
+    "release": RELEASE_LOCK_LUA,
+    "enqueue": ENQUEUE_SOLVE_LUA,
+}
+
+_UNREACHABLE = (RedisConnectionError, RedisTimeoutError, RedisClusterException, ClusterError, TryAgainError)
+
+
+class RedisStore:
+    """``Store`` on a Redis server or a Redis Cluster; every connection failure surfaces as
+    ``StoreUnavailable``."""
+
+    def __init__(
+        self,
+        url: str,
+        prefix: str = "sd",
+        *,
+        socket_timeout_s: float = 2.0,
+        mode: RedisMode = "standalone",
+    ) -> None:
+        """Connect lazily to ``url`` (in cluster mode: any node of the cluster); keys are
+        ``<prefix>:{<city>}:...``. ``socket_timeout_s`` bounds every connect, read and write (the API also
+        bounds how many calls are in flight: ``app.adapters.bounded``)."""
         if not prefix or "{" in prefix or "}" in prefix:
             raise ValueError(f"invalid key prefix {prefix!r}")
         self._prefix = prefix
-        self._client = redis_client(url, socket_timeout_s=socket_timeout_s)
-        self._where = describe(self._client)  # no password in messages
-        self._commit_script = self._client.register_script(COMMIT_EPOCH_LUA)
-        self._publish_script = self._client.register_script(PUBLISH_RECOMMENDATION_LUA)
-        self._release_script = self._client.register_script(RELEASE_LOCK_LUA)
-        self._enqueue_script = self._client.register_script(ENQUEUE_SOLVE_LUA)
+        self._url = url
+        self._mode: RedisMode = mode
+        self._timeout_s = socket_timeout_s
+        parts = urlsplit(url)
+        # no password in messages
+        self._where = f"{mode} Redis at {parts.hostname}:{parts.port or 6379}"
+        self._connect_lock = threading.Lock()
+        self._conn: redis.Redis | RedisCluster | None = None
+        self._scripts: dict[str, Script] = {}
+        if mode == "standalone":
+            self._connect()  # redis.Redis connects on first use anyway
+
+    def _connect(self) -> redis.Redis | RedisCluster:
+        """The client (a cluster client discovers the slots when made: made on first use, retried after a
+        failure, so a cluster that is down at start-up is a 503 and not a crash)."""
+        with self._connect_lock:
+            if self._conn is not None:
+                return self._conn
+            conn: redis.Redis | RedisCluster
+            if self._mode == "cluster":  # the options of redis_client, which makes the standalone one
+                conn = RedisCluster.from_url(
+                    self._url,
+                    decode_responses=True,
+                    socket_timeout=self._timeout_s,
+                    socket_connect_timeout=self._timeout_s,
+                    retry=Retry(ExponentialBackoff(cap=0.05, base=0.01), 1),
+                )
+            else:
+                conn = redis_client(self._url, socket_timeout_s=self._timeout_s)
+            self._scripts = {name: conn.register_script(lua) for name, lua in _SCRIPTS.items()}
+            self._conn = conn
+            return conn
+
+    @property
+    def _client(self) -> Any:
+        # Any: redis.Redis and RedisCluster share the commands used here, not a typed base
+        return self._conn if self._conn is not None else self._connect()
+
+    def _eval(self, script: str, keys: Sequence[str], args: Sequence[str]) -> Any:
+        """Run one of ``_SCRIPTS`` (EVALSHA, loading it first when the server lacks it)."""
+        self._client  # noqa: B018 - connects and registers the scripts on first use
+        return self._scripts[script](keys=list(keys), args=list(args))
+
+    @property
+    def mode(self) -> RedisMode:
+        """``standalone`` or ``cluster``."""
+        return self._mode
 
     # -- keys -----------------------------------------------------------------------------------------
 
@@ -188,8 +286,8 @@ class RedisStore:
     def _guard(self, doing: str) -> Iterator[None]:
         try:
             yield
-        except (RedisConnectionError, RedisTimeoutError) as exc:
-            raise StoreUnavailable(f"Redis at {self._where} is unreachable while {doing}: {exc}") from exc
+        except _UNREACHABLE as exc:
+            raise StoreUnavailable(f"{self._where} is unreachable while {doing}: {exc}") from exc
 
     # -- the port -------------------------------------------------------------------------------------
 
@@ -278,6 +376,7 @@ class RedisStore:
             "expected_version": str(int(commit.expected_version)),
             "ttl": str(int(commit.retention_s)),
             "response": commit.response_json,
+            "nonce": commit.nonce,
             "visits": visits,
             "done_before": format_time(commit.time_s - commit.retention_s),
             "tasks": [
@@ -288,7 +387,7 @@ class RedisStore:
             doc["demand"] = commit.demand_json
         with self._guard("committing an epoch"):
             arg = json.dumps(doc, ensure_ascii=False)
-            reply = cast(list[Any], self._commit_script(keys=keys, args=[arg]))
+            reply = cast(list[Any], self._eval("commit", keys, [arg]))
         status = reply[0]
         if status == "committed":
             return CommitResult("committed", new_version=int(reply[1]))
@@ -298,6 +397,24 @@ class RedisStore:
         if status in ("version_mismatch", "stale"):
             return CommitResult(status)
         raise RuntimeError(f"unexpected reply from the commit script: {reply!r}")
+
+    def rewind_epochs(self, city: str, time_s: float) -> RewindResult:
+        """Set the last epoch time back (one script on the meta hash)."""
+        with self._guard("rewinding the epoch stream"):
+            reply = cast(list[Any], self._eval("rewind", [self._key(city, "meta")], [format_time(time_s)]))
+        previous = None if len(reply) < 3 else float(reply[2])
+        return RewindResult(reply[0], previous, int(reply[1]))
+
+    def reset_epochs(self, city: str) -> int:
+        """Delete every key of the city but its fleet records, solve requests and locks (SCAN, then DEL
+        in batches: not atomic, so stop posting the city's epochs first)."""
+        keep = (self._key(city, "fleet") + ":", self._key(city, "lock") + ":")
+        with self._guard("resetting the epoch stream"):
+            pattern = _glob_escape(self._key(city)) + ":*"
+            doomed = [k for k in self._client.scan_iter(match=pattern, count=1000) if not k.startswith(keep)]
+            for i in range(0, len(doomed), 500):
+                self._client.delete(*doomed[i : i + 500])
+        return len(doomed)
 
     def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
         """Register tasks, idempotent per id (finished ones included); on any conflict nothing is written
@@ -310,7 +427,7 @@ class RedisStore:
         with self._guard("registering tasks"), self._client.pipeline(transaction=True) as pipe:
             while True:
                 try:
-                    pipe.watch(key, done)  # type: ignore[no-untyped-call]
+                    pipe.watch(key, done)
                     raw = cast(list[str | None], pipe.hmget(key, ids))
                     old = cast(list[str | None], pipe.hmget(done, ids))
                     raw = [r if r is not None else o for r, o in zip(raw, old, strict=True)]
@@ -367,7 +484,7 @@ class RedisStore:
         keys = [self._key(city, "fleet", "current"), self._key(city, "fleet", "history")]
         args = [str(record.version), fleet_record_to_json(record), str(int(history_limit))]
         with self._guard("publishing a recommendation"):
-            reply = cast(list[Any], self._publish_script(keys=keys, args=args))
+            reply = cast(list[Any], self._eval("publish", keys, args))
         if reply[0] == "published":
             return PublishResult("published", int(reply[1]))
         return PublishResult("version_mismatch", int(reply[1]))
@@ -409,13 +526,13 @@ class RedisStore:
     def release_lock(self, city: str, name: str, token: str) -> bool:
         """Delete the lock only if ``token`` still holds it (compare-and-delete script)."""
         with self._guard("releasing a lock"):
-            return bool(self._release_script(keys=[self._key(city, "lock", name)], args=[token]))
+            return bool(self._eval("release", [self._key(city, "lock", name)], [token]))
 
     def enqueue_solve_request(self, city: str, request: SolveRequest) -> EnqueueResult:
         """Queue the request unless one is pending (one script)."""
         key = self._key(city, "fleet", "requests")
         with self._guard("queueing a solve request"):
-            reply = cast(list[Any], self._enqueue_script(keys=[key], args=[solve_request_to_json(request)]))
+            reply = cast(list[Any], self._eval("enqueue", [key], [solve_request_to_json(request)]))
         return EnqueueResult(solve_request_from_json(reply[1]), bool(int(reply[0])))
 
     def claim_solve_request(self, city: str) -> SolveRequest | None:
@@ -425,8 +542,15 @@ class RedisStore:
         return None if raw is None else solve_request_from_json(raw)
 
     def close(self) -> None:
-        """Release the connection pool."""
-        self._client.close()
+        """Release the connections."""
+        with self._connect_lock:
+            if self._conn is not None:
+                self._conn.close()
+
+
+def _glob_escape(text: str) -> str:
+    """``text`` with the glob metacharacters of SCAN MATCH escaped."""
+    return "".join("\\" + ch if ch in "*?[]\\" else ch for ch in text)
 
 
 def _int_fields(raw: dict[str, str]) -> dict[int, int]:

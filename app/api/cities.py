@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Request, Response
 
 from app.api.deps import CityName, ReadAccess, ServiceDep
 from app.api.geojson import Packed, dump, geojson_responses, pack, respond
-from app.api.inputs import interval_of
+from app.api.inputs import INTERVAL_PATTERN, interval_of
 from app.api.responses import READ_ERRORS
 from app.schemas.cities import CitiesOut, CityOut, GraphOut
 from app.schemas.coverage import CoverageOut
@@ -83,6 +83,7 @@ def get_coverage(
         str | None,
         Query(
             max_length=40,
+            pattern=INTERVAL_PATTERN,
             description="Interval label YYYY-MM-DDTHH:MM (local start) or any RFC 3339 time inside it; "
             "default: the interval of the last committed epoch.",
         ),
@@ -113,6 +114,7 @@ def get_coverage_geojson(
         str,
         Query(
             max_length=40,
+            pattern=INTERVAL_PATTERN,
             description="Interval label YYYY-MM-DDTHH:MM (local start) or any RFC 3339 time inside it.",
         ),
     ],

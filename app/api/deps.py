@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import hmac
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -24,23 +24,24 @@ __all__ = [
     "LimitsDep",
     "ReadAccess",
     "DispatchAccess",
+    "AdminAccess",
     "CityName",
 ]
 
 
-def get_service(request: Request) -> DispatchService:
+async def get_service(request: Request) -> DispatchService:
     """The app's use cases."""
     service: DispatchService = request.app.state.service
     return service
 
 
-def get_metrics(request: Request) -> Metrics:
+async def get_metrics(request: Request) -> Metrics:
     """The app's metrics."""
     metrics: Metrics = request.app.state.metrics
     return metrics
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     """The app's settings."""
     settings: Settings = request.app.state.settings
     return settings
@@ -51,7 +52,7 @@ MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 
 
-def get_limits(settings: SettingsDep) -> Limits:
+async def get_limits(settings: SettingsDep) -> Limits:
     """Items per request, from the settings."""
     return Limits.from_settings(settings)
 
@@ -61,7 +62,7 @@ LimitsDep = Annotated[Limits, Depends(get_limits)]
 _bearer = HTTPBearer(
     auto_error=False,
     description="A token from SD_TOKENS; GET /v1/... needs scope `read`, epoch and task posts `dispatch`, "
-    "POST /v1/dro/worst-case `read`, POST .../fleet/solve `admin`.",
+    "POST /v1/dro/worst-case `read`, POST .../fleet/solve and .../admin/* `admin`.",
 )
 
 
@@ -73,7 +74,7 @@ class Principal:
     scopes: frozenset[Scope]
 
 
-def _principal(
+async def _principal(
     settings: SettingsDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> Principal:
@@ -89,8 +90,8 @@ def _principal(
     return Principal(name=credentials.credentials[:4] + "…", scopes=frozenset(match))
 
 
-def _require(scope: Scope) -> Callable[[Principal], Principal]:
-    def check(principal: Annotated[Principal, Depends(_principal)]) -> Principal:
+def _require(scope: Scope) -> Callable[[Principal], Awaitable[Principal]]:
+    async def check(principal: Annotated[Principal, Depends(_principal)]) -> Principal:
         if scope not in principal.scopes:
             raise Forbidden(f"this token lacks the {scope!r} scope")
         return principal
@@ -101,4 +102,7 @@ def _require(scope: Scope) -> Callable[[Principal], Principal]:
 
 ReadAccess = Annotated[Principal, Depends(_require("read"))]
 DispatchAccess = Annotated[Principal, Depends(_require("dispatch"))]
-CityName = Annotated[str, Path(min_length=1, max_length=64, description="City name, e.g. chengdu.")]
+AdminAccess = Annotated[Principal, Depends(_require("admin"))]
+CityName = Annotated[
+    str, Path(min_length=1, max_length=64, description="City name, e.g. chengdu.", examples=["chengdu"])
+]

@@ -3,28 +3,33 @@
 from __future__ import annotations
 
 import time
-from typing import Annotated
 
-from fastapi import APIRouter, Body, Response
+from fastapi import APIRouter, Response
 
+from app.api.bodies import EpochBody, TasksBody, request_body
 from app.api.deps import CityName, DispatchAccess, LimitsDep, MetricsDep, ServiceDep
 from app.api.inputs import epoch_command, tasks_of
 from app.api.responses import WRITE_ERRORS
 from app.errors import ServiceError
 from app.ports import StoreUnavailable
 from app.schemas.dispatch import EpochIn, EpochOut
-from app.schemas.tasks import TaskIn, TasksPutOut
+from app.schemas.tasks import TasksPutOut
 
 __all__ = ["router"]
 
 router = APIRouter(prefix="/v1/cities", tags=["dispatch"], responses=WRITE_ERRORS)
 
 
-@router.post("/{city}/tasks", response_model=TasksPutOut, summary="Register monitoring tasks")
+@router.post(
+    "/{city}/tasks",
+    response_model=TasksPutOut,
+    summary="Register monitoring tasks",
+    openapi_extra=request_body("TasksIn"),
+)
 def post_tasks(
     city: CityName,
-    tasks: Annotated[list[TaskIn], Body(description="Tasks to register; idempotent per id.")],
     _: DispatchAccess,
+    tasks: TasksBody,
     service: ServiceDep,
     limits: LimitsDep,
 ) -> TasksPutOut:
@@ -47,11 +52,12 @@ def post_tasks(
             },
         }
     },
+    openapi_extra=request_body(EpochIn),
 )
 def post_epoch(
     city: CityName,
-    epoch: Annotated[EpochIn, Body()],
     _: DispatchAccess,
+    epoch: EpochBody,
     service: ServiceDep,
     metrics: MetricsDep,
     limits: LimitsDep,

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from fastapi import APIRouter
 
-from fastapi import APIRouter, Body
-
+from app.api.bodies import WorstCaseBody, request_body
 from app.api.deps import ReadAccess
 from app.api.responses import errors
 from app.errors import InvalidInput
@@ -17,8 +16,13 @@ __all__ = ["router"]
 router = APIRouter(prefix="/v1/dro", tags=["dro"], responses=errors(400, 401, 403, 413, 415, 422, 500))
 
 
-@router.post("/worst-case", response_model=WorstCaseOut, summary="Worst-case expected KPI")
-def post_worst_case(body: Annotated[WorstCaseIn, Body()], _: ReadAccess) -> WorstCaseOut:
+@router.post(
+    "/worst-case",
+    response_model=WorstCaseOut,
+    summary="Worst-case expected KPI",
+    openapi_extra=request_body(WorstCaseIn),
+)
+def post_worst_case(_: ReadAccess, body: WorstCaseBody) -> WorstCaseOut:
     """Solve sup Σ p_j f_j over {p : I_φ(p, q) <= ρ} around the samples' empirical distribution (no state)."""
     try:
         result = worst_case(

@@ -7,10 +7,10 @@ import time
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Query
 from pydantic import ValidationError
 
-from app.api.deps import CityName, Principal, ReadAccess, ServiceDep, _require
+from app.api.deps import AdminAccess, CityName, ReadAccess, ServiceDep
 from app.api.responses import READ_ERRORS, errors
 from app.errors import InternalError
 from app.ports import FleetRecord
@@ -20,8 +20,6 @@ from services.rfc3339 import format_time
 __all__ = ["router", "AdminAccess"]
 
 router = APIRouter(prefix="/v1/cities", tags=["fleet"])
-
-AdminAccess = Annotated[Principal, Depends(_require("admin"))]
 
 HISTORY_MAX = 100
 

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from app.errors import (
     BadRequest,
@@ -25,9 +28,11 @@ from app.errors import (
 from app.metrics import Metrics
 from app.ports import StoreUnavailable
 
-__all__ = ["install_error_handlers", "error_response", "from_validation_errors"]
+__all__ = ["install_error_handlers", "error_response", "from_validation_errors", "MAX_FIELDS"]
 
 log = logging.getLogger(__name__)
+
+MAX_FIELDS = 50  # field issues listed in one error; the detail gives the total
 
 _SOURCES = {"body", "query", "path", "header", "cookie"}
 
@@ -36,18 +41,28 @@ def error_response(err: ServiceError, metrics: Metrics | None = None) -> JSONRes
     """Render ``err`` (and count it)."""
     if metrics is not None:
         metrics.errors.labels(kind=err.kind).inc()
-    return JSONResponse(err.body(), status_code=err.status, headers=dict(err.headers) or None)
+    return JSONResponse(err.body(), status_code=err.status, headers=err.response_headers() or None)
 
 
-def _msg(error: dict[str, Any]) -> str:
+def _msg(error: Mapping[str, Any]) -> str:
     msg = str(error.get("msg", "invalid"))
     return msg.removeprefix("Value error, ")
 
 
-def from_validation_errors(errors: Any) -> ServiceError:
-    """Turn pydantic/FastAPI validation errors into one ``ServiceError`` (400 for unparsable JSON)."""
+def from_validation_errors(errors: ValidationError | Sequence[Any]) -> ServiceError:
+    """Turn pydantic/FastAPI validation errors into one ``ServiceError`` (400 for unparsable JSON).
+
+    Only the first ``MAX_FIELDS`` issues are listed (a hostile body can hold a million); the detail names
+    the first and counts them all.
+    """
+    items: Sequence[Any]
+    if isinstance(errors, ValidationError):
+        total = errors.error_count()
+        items = errors.errors(include_url=False, include_context=True, include_input=False)
+    else:
+        total, items = len(errors), errors
     issues: list[FieldIssue] = []
-    for error in errors:
+    for error in items[:MAX_FIELDS]:
         loc = list(error.get("loc", ()))
         if error.get("type") == "json_invalid":
             ctx = error.get("ctx") or {}
@@ -65,8 +80,27 @@ def from_validation_errors(errors: Any) -> ServiceError:
             loc = loc[1:]
         issues.append(FieldIssue(format_loc(loc) or "body", _msg(error)))
     first = issues[0] if issues else FieldIssue("body", "invalid")
-    more = f" (and {len(issues) - 1} more)" if len(issues) > 1 else ""
+    more = ""
+    if total > len(issues):
+        more = f" (and {total - 1} more; the first {len(issues)} are listed)"
+    elif total > 1:
+        more = f" (and {total - 1} more)"
     return InvalidInput(f"{first.loc}: {first.msg}{more}", issues)
+
+
+_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
+
+
+def _allowed(request: Request) -> str:
+    """The methods some route fully matches on this path (one route per method, and Starlette names only
+    the first route's), for the ``Allow`` header of a 405."""
+    routes = request.app.router.routes
+    allowed = []
+    for method in _METHODS:
+        scope = {**request.scope, "method": method}
+        if any(route.matches(scope)[0] is Match.FULL for route in routes):
+            allowed.append(method)
+    return ", ".join(allowed)
 
 
 def install_error_handlers(app: FastAPI, metrics: Metrics) -> None:
@@ -78,24 +112,26 @@ def install_error_handlers(app: FastAPI, metrics: Metrics) -> None:
 
     async def validation_error(_: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)
-        return error_response(from_validation_errors(exc.errors()), metrics)
+        return error_response(from_validation_errors(list(exc.errors())), metrics)
 
-    async def http_error(_: Request, exc: Exception) -> JSONResponse:
+    async def http_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, StarletteHTTPException)
         err: ServiceError
         if exc.status_code == 404:
             err = NotFound("no such route")
         elif exc.status_code == 405:
-            err = MethodNotAllowed("method not allowed on this route")
+            allow = _allowed(request) or (exc.headers or {}).get("Allow", "")
+            err = MethodNotAllowed(f"method not allowed on this route (allowed: {allow})", allow=allow)
         elif 400 <= exc.status_code < 500:
             err = BadRequest(str(exc.detail))
         else:
             err = InternalError(str(exc.detail))
         return error_response(err, metrics)
 
-    async def store_unavailable(_: Request, exc: Exception) -> JSONResponse:
-        log.warning("store unavailable: %s", exc)
-        return error_response(StoreUnavailableError(f"the store cannot be reached: {exc}"), metrics)
+    async def store_unavailable(request: Request, exc: Exception) -> JSONResponse:
+        # where the store is (host, port) and why it failed is for the log, never for the client
+        log.warning("store unreachable on %s %s: %s", request.method, request.url.path, exc)
+        return error_response(StoreUnavailableError("store unreachable"), metrics)
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)

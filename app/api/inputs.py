@@ -3,11 +3,12 @@ queries parsed. Every refusal is a 422 naming the offending field, raised before
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 from app.errors import InvalidInput
-from app.schemas.common import LocationIn
+from app.schemas.common import LABEL_PATTERN, RFC3339_PATTERN, LocationIn
 from app.schemas.dispatch import EpochIn, body_hash
 from app.schemas.tasks import TaskIn
 from app.settings import Settings
@@ -16,7 +17,18 @@ from services.city import City
 from services.model import IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
 from services.network import SnapError
 
-__all__ = ["Limits", "node_of", "snapshot_of", "epoch_command", "tasks_of", "interval_of"]
+__all__ = [
+    "Limits",
+    "node_of",
+    "snapshot_of",
+    "epoch_command",
+    "tasks_of",
+    "interval_of",
+    "INTERVAL_PATTERN",
+]
+
+INTERVAL_PATTERN = f"(?:{LABEL_PATTERN})|(?:{RFC3339_PATTERN})"
+_INTERVAL = re.compile(INTERVAL_PATTERN)
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,8 +129,13 @@ def tasks_of(city: City, tasks: Sequence[TaskIn], limits: Limits) -> list[Task]:
 
 
 def interval_of(city: City, text: str) -> IntervalKey:
-    """The interval of ``?interval=``: a label (``YYYY-MM-DDTHH:MM``) or an RFC 3339 time inside it."""
+    """The interval of ``?interval=``: a label (``YYYY-MM-DDTHH:MM``) or an RFC 3339 time inside it, in the
+    years 1970..2999 (``INTERVAL_PATTERN``: checked before any date arithmetic, which could overflow)."""
+    if not _INTERVAL.match(text):
+        raise InvalidInput.at(
+            "interval", "give a label YYYY-MM-DDTHH:MM or an RFC 3339 time with an offset, years 1970..2999"
+        )
     try:
         return city.horizon.parse_interval(text)
-    except ValueError as exc:
+    except (ValueError, OverflowError) as exc:
         raise InvalidInput.at("interval", str(exc)) from None

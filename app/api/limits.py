@@ -1,12 +1,15 @@
-"""ASGI middleware that refuses bodies above ``max_body_bytes`` (by Content-Length and by actual bytes)."""
+"""ASGI middleware that refuses bodies above ``max_body_bytes`` (by Content-Length and by actual bytes) and
+bodies that take longer than ``timeout_s`` to arrive (408, connection closed: a slow client cannot hold a
+connection and a worker forever)."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.errors import BadRequest, PayloadTooLarge, ServiceError
+from app.errors import BadRequest, PayloadTooLarge, RequestTimeout, ServiceError
 
 __all__ = ["BodyLimit"]
 
@@ -14,10 +17,17 @@ __all__ = ["BodyLimit"]
 class BodyLimit:
     """Buffer a request body up to ``max_bytes``; answer 413 above, without calling the app."""
 
-    def __init__(self, app: ASGIApp, max_bytes: int, render: Callable[[ServiceError], ASGIApp]) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        max_bytes: int,
+        render: Callable[[ServiceError], ASGIApp],
+        timeout_s: float | None = None,
+    ) -> None:
         self.app = app
         self.max_bytes = max_bytes
         self.render = render
+        self.timeout_s = timeout_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         """Check the declared and the actual size, then replay the buffered body to the app."""
@@ -38,8 +48,16 @@ class BodyLimit:
             return
         chunks: list[bytes] = []
         size = 0
+        loop = asyncio.get_running_loop()
+        deadline = None if self.timeout_s is None else loop.time() + self.timeout_s
         while True:
-            message = await receive()
+            try:
+                async with asyncio.timeout_at(deadline):
+                    message = await receive()
+            except TimeoutError:
+                late = RequestTimeout(f"the request body did not arrive within {self.timeout_s} s")
+                await self.render(late)(scope, receive, send)
+                return
             if message["type"] != "http.request":
                 # client went away: hand the app the disconnect
                 await self.app(scope, _replay([message], receive), send)

@@ -15,8 +15,9 @@ router = APIRouter(tags=["ops"])
 
 
 @router.get("/healthz", response_model=HealthOut, summary="The process is up")
-def healthz() -> HealthOut:
-    """Liveness: answers as long as the process serves requests."""
+async def healthz() -> HealthOut:
+    """Liveness: answers as long as the process serves requests. It touches neither the store nor the
+    threadpool (``async``), so a frozen store or busy worker threads never fail the probe."""
     return HealthOut(status="ok")
 
 
@@ -24,7 +25,8 @@ def healthz() -> HealthOut:
     "/readyz", response_model=ReadyOut, summary="Store reachable and cities loaded", responses=errors(503)
 )
 def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
-    """Readiness: the store answers a ping and every city loads (503 otherwise)."""
+    """Readiness: the store answers a ping and every city loads (503 otherwise; the error says only
+    "store unreachable", never where the store is)."""
     return ReadyOut(status="ready", store=settings.store, cities=service.ready())
 
 
@@ -34,6 +36,6 @@ def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
     response_class=Response,
     responses={200: {"content": {CONTENT_TYPE.split(";")[0]: {"schema": {"type": "string"}}}}},
 )
-def metrics(m: MetricsDep) -> Response:
+async def metrics(m: MetricsDep) -> Response:
     """Prometheus text exposition of this instance's metrics."""
     return Response(content=m.render(), media_type=CONTENT_TYPE)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, cast
 
-from pydantic import Field, Strict, StrictInt, ValidationInfo, field_validator
+from pydantic import BeforeValidator, Field, Strict, ValidationInfo, field_validator
 
-from app.schemas.common import RequestModel, ResponseModel
+from app.schemas.common import RequestModel, ResponseModel, integral
 from services.dro import WorstCase
 
 __all__ = ["MAX_SAMPLES", "MAX_BINS", "WorstCaseIn", "WorstCaseOut"]
@@ -36,7 +36,9 @@ class WorstCaseIn(RequestModel):
     support: Literal["binned", "samples"] = Field(
         default="binned", description="Equal-width bins over [min, max] (m = bins), or one cell per sample."
     )
-    bins: StrictInt = Field(default=10, ge=2, le=MAX_BINS, description="Number of bins (binned support).")
+    bins: Annotated[int, Strict(), Field(ge=2, le=MAX_BINS), BeforeValidator(integral)] = Field(
+        default=10, description="Number of bins (binned support); 4.0 is 4."
+    )
     method: Literal["exact", "box_lp"] = Field(
         default="exact", description="The exact worst case, or the paper's box LP (Eq. 28, binned only)."
     )

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import pytest
 
-from app.adapters import MemoryStore, RedisStore
+from app.adapters import MemoryStore
 from app.ports import FleetRecord, SolveRequest, Store
 
 from .conftest import StoreCase
@@ -27,23 +27,9 @@ def failed(reason: str, interval: int = 470_000, request_id: str | None = None) 
 
 
 @pytest.fixture
-def twin(case: StoreCase, request: pytest.FixtureRequest) -> Iterator[Callable[[], Store]]:
-    """Factory of more store objects on the same data: for Redis each with its own connection pool (like
-    another process), for memory the same store (one process)."""
-    if not isinstance(case.store, RedisStore):
-        yield lambda: case.store
-        return
-    url: str = request.getfixturevalue("redis_url")
-    prefix = case.store.prefix
-    made: list[RedisStore] = []
-
-    def make() -> Store:
-        made.append(RedisStore(url, prefix=prefix))
-        return made[-1]
-
-    yield make
-    for s in made:
-        s.close()
+def twin(case: StoreCase) -> Callable[[], Store]:
+    """Factory of more store objects on the same data (``StoreCase.again``)."""
+    return case.again
 
 
 def test_nothing_published_yet(store: Store) -> None:

@@ -48,11 +48,16 @@ def test_entries_expire_after_retention_and_are_refreshed_when_touched() -> None
     assert store.list_intervals(CITY) == [K2]
     state = store.load_state(CITY, [K1, K2], [A, B])
     assert state.visited == {A: set(), B: {(K2, 5)}}
-    assert state.version == 2  # the version, meta and tasks never expire
+    assert state.version == 2  # the meta lives for the retention after the last commit; tasks never expire
     assert [t.id for t in state.tasks] == ["t-e1", "t-e2"]
     assert store.recorded_demand(CITY, "20231114") == ["[]", "[]"]
     clock.now += 100
     assert store.list_intervals(CITY) == []
     assert store.recorded_demand(CITY, "20231114") == []
+    # the meta expired with the rest: the stream starts again (an epoch dated far ahead cannot block the
+    # city beyond the retention either); tasks stay
+    state = store.load_state(CITY, [], [])
+    assert (state.version, state.last_epoch_id, state.last_epoch_time_s) == (0, None, None)
+    assert [t.id for t in state.tasks] == ["t-e1", "t-e2"]
     # an expired epoch id may be committed again (Redis behaves the same once the record's key expires)
-    assert store.commit_epoch(CITY, _commit("e1", 2, [], retention_s=100)).status == "committed"
+    assert store.commit_epoch(CITY, _commit("e1", 0, [], retention_s=100)).status == "committed"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 
@@ -380,9 +381,16 @@ def test_retention_ttl_on_redis_keys(redis_store: RedisStore, redis_url: str) ->
     p = f"{redis_store.prefix}:{{{CITY}}}"
     client = redis.Redis.from_url(url=redis_url, decode_responses=True)
     try:
-        for key in (f"{p}:count:{K1}", f"{p}:visit:{K1}:{A}", f"{p}:epoch:e1", f"{p}:demand:{utc_day(T0)}"):
+        # the meta too (issue 9): an epoch dated far ahead cannot block the city beyond the retention
+        for key in (
+            f"{p}:count:{K1}",
+            f"{p}:visit:{K1}:{A}",
+            f"{p}:epoch:e1",
+            f"{p}:demand:{utc_day(T0)}",
+            f"{p}:meta",
+        ):
             assert 0 < client.ttl(key) <= retention, key
-        for key in (f"{p}:meta", f"{p}:tasks", f"{p}:intervals"):
+        for key in (f"{p}:tasks", f"{p}:intervals"):
             assert client.ttl(key) == -1, key  # exists, no expiry
         assert client.hgetall(f"{p}:meta") == {"version": "1", "last_time": repr(T0), "last_epoch": "e1"}
     finally:
@@ -502,3 +510,72 @@ def test_commit_is_apply_decision(
     assert sorted(store.list_tasks(CITY), key=lambda t: t.id) == sorted(listed.values(), key=lambda t: t.id)
     # an epoch reads the open tasks only: a completed task has left the set
     assert sorted(state.tasks, key=lambda t: t.id) == sorted(ledger.tasks.values(), key=lambda t: t.id)
+
+
+# -- issue 9: a re-sent commit, rewinding and resetting the epoch stream -------------------------------------
+
+
+def test_commit_sent_again_with_its_nonce_is_committed_once(case: StoreCase) -> None:
+    store = case.store
+    first = dataclasses.replace(commit("e1", version=0, visits=[visit(A, K1, 5)]), nonce="n-1")
+    assert store.commit_epoch(CITY, first).status == "committed"
+    after = case.raw()
+    # the same attempt arriving again (its reply was lost): committed, and nothing applied twice
+    again = store.commit_epoch(CITY, first)
+    assert again.status == "committed"
+    assert case.raw() == after
+    # another attempt with the same id (another process, a client retry): a duplicate, as ever
+    other = dataclasses.replace(first, nonce="n-2")
+    dup = store.commit_epoch(CITY, other)
+    assert dup.status == "duplicate" and dup.stored is not None and dup.stored.body_hash == first.body_hash
+    no_nonce = dataclasses.replace(first, nonce="")
+    assert store.commit_epoch(CITY, no_nonce).status == "duplicate"
+    assert store.load_state(CITY, [K1], [A]).version == 1
+    assert case.raw() == after
+
+
+def test_rewind_sets_the_last_time_back_and_keeps_the_rest(case: StoreCase) -> None:
+    store = case.store
+    assert store.rewind_epochs(CITY, T0).status == "empty"
+    store.commit_epoch(CITY, commit("e1", version=0, time_s=T0, visits=[visit(A, K1, 5)]))
+    store.commit_epoch(CITY, commit("e2", version=1, time_s=T0 + 1e9))  # the typo: 31 years ahead
+    assert store.commit_epoch(CITY, commit("e3", version=2, time_s=T0 + 60)).status == "stale"
+    before = full_state(store)
+    ahead = store.rewind_epochs(CITY, T0 + 2e9)
+    assert (ahead.status, ahead.previous_time_s, ahead.version) == ("ahead", T0 + 1e9, 2)
+    assert full_state(store) == before
+    done = store.rewind_epochs(CITY, T0 + 30)
+    assert (done.status, done.previous_time_s, done.version) == ("rewound", T0 + 1e9, 2)
+    state = store.load_state(CITY, [K1], [A])
+    assert (state.version, state.last_epoch_id, state.last_epoch_time_s) == (2, "e2", T0 + 30)
+    assert state.counts == {K1: {5: 1}}
+    assert store.commit_epoch(CITY, commit("e0", version=2, time_s=T0 + 29)).status == "stale"
+    assert store.commit_epoch(CITY, commit("e3", version=2, time_s=T0 + 60)).status == "committed"
+
+
+def test_reset_forgets_the_stream_but_not_the_fleet(case: StoreCase) -> None:
+    from app.ports import FleetRecord
+
+    store = case.store
+    assert store.reset_epochs(CITY) == 0
+    store.put_tasks(CITY, [task("p1"), task("p2")])
+    store.commit_epoch(
+        CITY,
+        commit("e1", version=0, visits=[visit(A, K1, 5)], tasks=[task("p1", status="completed")],
+               demand_json="{}"),
+    )  # fmt: skip
+    store.commit_epoch("other", commit("e1", version=0, visits=[visit(A, K1, 5)]))
+    record = FleetRecord("published", T0, 1, version=1, body_json="{}")
+    assert store.publish_recommendation(CITY, record, 10).status == "published"
+    lock = store.acquire_lock(CITY, "solve", 60)
+    assert store.reset_epochs(CITY) > 0
+    state = store.load_state(CITY, [K1], [A])
+    assert (state.version, state.last_epoch_id, state.counts, state.tasks) == (0, None, {K1: {}}, [])
+    assert store.get_epoch(CITY, "e1") is None and store.list_tasks(CITY) == []
+    assert store.list_intervals(CITY) == [] and store.recorded_demand(CITY, utc_day(T0)) == []
+    # the fleet records, the lock and the other city stay
+    assert store.current_recommendation(CITY) == record
+    assert lock is not None and store.acquire_lock(CITY, "solve", 60) is None
+    assert store.load_state("other", [K1], [A]).counts == {K1: {5: 1}}
+    # the stream starts again, with an id used before
+    assert store.commit_epoch(CITY, commit("e1", version=0)).status == "committed"

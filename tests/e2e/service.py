@@ -15,7 +15,7 @@ from pathlib import Path
 
 import httpx
 
-__all__ = ["ROOT", "start_service", "wait_ready", "stop", "running_service"]
+__all__ = ["ROOT", "start_process", "start_service", "wait_ready", "stop", "running_service"]
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -26,28 +26,35 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def start_service(
-    redis_url: str, prefix: str, tokens: Mapping[str, Sequence[str]]
+def start_process(
+    env: Mapping[str, str], tokens: Mapping[str, Sequence[str]], *, port: int | None = None, log: bool = False
 ) -> tuple[subprocess.Popen[bytes], str]:
-    """Start one service process; returns it and its base URL (not yet ready)."""
-    port = _free_port()
-    env = {
+    """Start ``python -m app run`` with ``SD_*`` settings ``env`` (on top of this environment) and the
+    tokens, on ``port`` (a free one by default); its output is captured when ``log``, else only stderr."""
+    port = port or _free_port()
+    full = {
         **os.environ,
-        "SD_STORE": "redis",
-        "SD_REDIS_URL": redis_url,
-        "SD_REDIS_PREFIX": prefix,
         "SD_PORT": str(port),
         "SD_TOKENS": json.dumps({t: list(s) for t, s in tokens.items()}),
         "SD_LOG_LEVEL": "warning",
+        **env,
     }
     proc = subprocess.Popen(
         [sys.executable, "-m", "app", "run"],
         cwd=ROOT,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
+        env=full,
+        stdout=subprocess.PIPE if log else subprocess.DEVNULL,
+        stderr=subprocess.STDOUT if log else subprocess.PIPE,
     )
     return proc, f"http://127.0.0.1:{port}"
+
+
+def start_service(
+    redis_url: str, prefix: str, tokens: Mapping[str, Sequence[str]], *, port: int | None = None
+) -> tuple[subprocess.Popen[bytes], str]:
+    """Start one service process on Redis under ``prefix``; returns it and its base URL (not yet ready)."""
+    env = {"SD_STORE": "redis", "SD_REDIS_URL": redis_url, "SD_REDIS_PREFIX": prefix}
+    return start_process(env, tokens, port=port)
 
 
 def wait_ready(url: str, proc: subprocess.Popen[bytes], timeout_s: float = 90.0) -> None:

@@ -8,7 +8,7 @@ same epoch id). All three must produce the same riders' fates, the same tasks an
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import httpx
 import numpy as np
@@ -169,3 +169,16 @@ def test_replay_over_http_redis_with_lost_responses_matches_in_process(
         remote = _run(city, dispatcher, "r-")
     assert transport.dropped >= 5 and dispatcher.retried == transport.dropped
     _compare(city, local, remote, "r-")
+
+
+def test_replay_over_http_redis_cluster_matches_in_process(
+    city: City, local: RunTrace, make_cluster_store: Callable[[], RedisStore]
+) -> None:
+    """The service on a real 3-master Redis Cluster (``SD_REDIS_MODE=cluster``) decides and counts like the
+    core in-process."""
+    with (
+        serve_in_thread(make_cluster_store()) as (url, token),
+        httpx.Client(base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=120) as client,
+    ):
+        remote = _run(city, HttpDispatcher(client, "chengdu", city), "c-")
+    _compare(city, local, remote, "c-")

@@ -1,0 +1,132 @@
+"""The HTTP server: uvicorn with the deadlines and the connection cap that uvicorn's h11 protocol lacks.
+
+Why uvicorn and a small protocol subclass: uvicorn is the stack's server and stays; its ``http=`` setting
+takes a protocol class. What it lacks: a fresh connection that never sends (or never finishes) its headers
+is held forever (its keep-alive timer only runs between requests), and ``limit_concurrency`` answers 503
+only once a request's headers arrived, so silent connections still pile up until the process runs out of
+file descriptors. Hypercorn's ``read_timeout`` is per read (a client trickling a byte every few seconds
+resets it); granian has a header deadline, but it would replace the server and its process model for one
+feature. So ``GuardedH11Protocol``:
+
+* gives every request ``header_timeout_s`` from the connection's start (or the previous response's end) to
+  deliver its headers, then answers 408 and closes;
+* refuses a connection beyond ``max_connections`` at once (503, closed) instead of holding it;
+* the body's deadline (``body_timeout_s``) is the ASGI middleware's (``app.api.limits.BodyLimit``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import resource
+from typing import Any, ClassVar
+
+import h11
+import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+from app.logs import log_config
+from app.settings import Settings
+
+__all__ = ["GuardedH11Protocol", "guarded_protocol", "server_config", "default_max_connections"]
+
+log = logging.getLogger("sensedispatch.server")
+
+
+def default_max_connections() -> int:
+    """The file descriptor limit less 64 for Redis, city files and logs (at least 16, at most 4096)."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY:
+        return 4096
+    return max(16, min(4096, int(soft) - 64))
+
+
+def _raw_response(status: int, reason: str, error: str, detail: str) -> bytes:
+    body = json.dumps({"error": error, "detail": detail, "fields": []}).encode()
+    head = (
+        f"HTTP/1.1 {status} {reason}\r\ncontent-type: application/json\r\n"
+        f"content-length: {len(body)}\r\nconnection: close\r\n\r\n"
+    )
+    return head.encode("ascii") + body
+
+
+class GuardedH11Protocol(H11Protocol):
+    """uvicorn's h11 protocol with a header deadline and a connection cap (see the module)."""
+
+    header_timeout_s: ClassVar[float] = 10.0
+    max_connections: ClassVar[int] = 1000
+
+    _header_timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        """Count the connection; refuse it when over the cap, else start its header deadline."""
+        super().connection_made(transport)
+        if len(self.connections) > self.max_connections:
+            log.warning("connection refused: %d open connections (SD_MAX_CONNECTIONS)", self.max_connections)
+            detail = f"more than {self.max_connections} open connections; retry later"
+            transport.write(_raw_response(503, "Service Unavailable", "unavailable", detail))
+            transport.close()
+            return
+        self._arm()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        """Forget the deadline with the connection."""
+        self._disarm()
+        super().connection_lost(exc)
+
+    def data_received(self, data: bytes) -> None:
+        """Feed h11; once a request's headers are complete its deadline is off."""
+        super().data_received(data)
+        if self.conn.their_state is not h11.IDLE:
+            self._disarm()
+
+    def on_response_complete(self) -> None:
+        """The next request on this connection gets the same deadline for its headers."""
+        super().on_response_complete()
+        if not self.transport.is_closing() and self.conn.their_state is h11.IDLE:
+            self._arm()
+
+    def _arm(self) -> None:
+        self._disarm()
+        self._header_timer = self.loop.call_later(self.header_timeout_s, self._headers_late)
+
+    def _disarm(self) -> None:
+        if self._header_timer is not None:
+            self._header_timer.cancel()
+            self._header_timer = None
+
+    def _headers_late(self) -> None:
+        self._header_timer = None
+        if self.transport.is_closing() or self.conn.their_state is not h11.IDLE:
+            return
+        log.info("closing a connection that sent no complete request headers in %s s", self.header_timeout_s)
+        if self.conn.our_state is h11.IDLE:
+            detail = f"the request headers did not arrive within {self.header_timeout_s} s"
+            self.transport.write(_raw_response(408, "Request Timeout", "request_timeout", detail))
+        self.transport.close()
+
+
+def guarded_protocol(header_timeout_s: float, max_connections: int) -> type[GuardedH11Protocol]:
+    """A ``GuardedH11Protocol`` class with these limits (uvicorn instantiates the class per connection)."""
+    return type(
+        "GuardedH11Protocol",
+        (GuardedH11Protocol,),
+        {"header_timeout_s": header_timeout_s, "max_connections": max_connections},
+    )
+
+
+def server_config(app: Any, settings: Settings, **overrides: Any) -> uvicorn.Config:
+    """uvicorn's configuration for ``app`` under ``settings`` (``overrides`` win, e.g. ``port=0``)."""
+    max_connections = settings.max_connections or default_max_connections()
+    options: dict[str, Any] = {
+        "host": settings.host,
+        "port": settings.port,
+        "http": guarded_protocol(settings.header_timeout_s, max_connections),
+        "log_config": log_config(settings.log_level),
+        "log_level": settings.log_level,
+        "timeout_keep_alive": 5,
+        "backlog": min(2048, max_connections),
+    }
+    options.update(overrides)
+    return uvicorn.Config(app, **options)

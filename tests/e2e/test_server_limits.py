@@ -1,0 +1,117 @@
+"""Issue 9, problem 4: slow and silent clients. A connection that never finishes its headers or its body
+is answered 408 and closed after the deadline (before: held forever); connections beyond the cap are
+refused at once with a 503 (before: held until the process ran out of descriptors); a token in a query
+string never reaches the access log."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+
+import httpx
+import pytest
+
+from app.serve import serve_in_thread
+from tests.e2e.service import start_process, stop, wait_ready
+
+CAP = 8
+
+
+@pytest.fixture(scope="module")
+def served() -> Iterator[tuple[str, int, str]]:
+    with serve_in_thread(header_timeout_s=1.0, body_timeout_s=1.0, max_connections=CAP) as (url, token):
+        yield url, int(url.rsplit(":", 1)[1]), token
+
+
+def _connect(port: int) -> socket.socket:
+    s = socket.create_connection(("127.0.0.1", port))
+    s.settimeout(30)  # the failure mode: the server holds the connection (recv times out)
+    return s
+
+
+def _read_all(s: socket.socket) -> bytes:
+    out = b""
+    while chunk := s.recv(65536):
+        out += chunk
+    return out
+
+
+def test_unfinished_headers_get_408_and_are_closed(served: tuple[str, int, str]) -> None:
+    _, port, _ = served
+    with _connect(port) as s:
+        s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")  # no blank line: the headers never end
+        reply = _read_all(s)
+    assert reply.startswith(b"HTTP/1.1 408 ") and b'"request_timeout"' in reply
+
+
+def test_silent_connection_is_closed(served: tuple[str, int, str]) -> None:
+    _, port, _ = served
+    with _connect(port) as s:
+        assert _read_all(s).startswith(b"HTTP/1.1 408 ")
+
+
+def test_trickled_headers_do_not_reset_the_deadline(served: tuple[str, int, str]) -> None:
+    _, port, _ = served
+    with _connect(port) as s:
+        s.sendall(b"GET /healthz HTTP/1.1\r\n")
+        got = b""
+        for i in range(12):  # a header line every 0.25 s: 3 s in all, the deadline is 1 s
+            try:
+                s.sendall(f"X-Slow-{i}: 1\r\n".encode())
+            except OSError:
+                break
+            time.sleep(0.25)
+        got = _read_all(s)
+    assert got.startswith(b"HTTP/1.1 408 ")
+
+
+def test_unfinished_body_gets_408(served: tuple[str, int, str]) -> None:
+    _, port, token = served
+    with _connect(port) as s:
+        s.sendall(
+            b"POST /v1/dro/worst-case HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            b"Authorization: Bearer " + token.encode() + b"\r\nContent-Length: 100\r\n\r\n"
+            b'{"samples": [1'
+        )
+        reply = _read_all(s)
+    assert reply.startswith(b"HTTP/1.1 408 ") and b'"request_timeout"' in reply
+
+
+def test_connections_beyond_the_cap_are_refused_at_once(served: tuple[str, int, str]) -> None:
+    url, port, _ = served
+    held = [_connect(port) for _ in range(CAP)]
+    try:
+        time.sleep(0.2)
+        with _connect(port) as extra:
+            reply = _read_all(extra)  # answered and closed before the header deadline
+        assert reply.startswith(b"HTTP/1.1 503 ") and b"open connections" in reply
+    finally:
+        for s in held:
+            s.close()
+    time.sleep(0.2)
+    assert httpx.get(f"{url}/healthz", timeout=10).status_code == 200
+    # a normal client is not affected by the deadline: keep-alive requests on one connection
+    with httpx.Client(base_url=url, timeout=10) as c:
+        for _ in range(3):
+            assert c.get("/healthz").status_code == 200
+
+
+def test_query_token_not_in_the_access_log() -> None:
+    secret = "sd-secret-in-the-query-0123456789"
+    env = {"SD_STORE": "memory", "SD_LOG_LEVEL": "info", "SD_HEADER_TIMEOUT_S": "1"}
+    proc, url = start_process(env, {"tok-log-test-0001": ["read"]}, log=True)
+    try:
+        wait_ready(url, proc)
+        r = httpx.get(f"{url}/v1/cities?token={secret}&x=1", timeout=10)
+        assert r.status_code == 401
+        # the CLI's server has the header deadline too
+        with _connect(int(url.rsplit(":", 1)[1])) as s:
+            s.sendall(b"GET /healthz HTTP/1.1\r\n")
+            assert _read_all(s).startswith(b"HTTP/1.1 408 ")
+    finally:
+        stop(proc)
+    assert proc.stdout is not None
+    log = proc.stdout.read().decode(errors="replace")
+    assert "GET /v1/cities?token=***&x=1 HTTP/1.1" in log, log[-2000:]
+    assert secret not in log
