@@ -45,6 +45,12 @@ from services.parallel import parallel_map
 __all__ = ["Plans", "Route", "Scratch", "scratch", "plan_routes", "plan_one", "route_pair", "kappa_metric"]
 
 
+GUIDED_PER_TREE = 8
+"""About how many goal-directed searches (``search.run_guided``) from a taxi to one POI cost as much as one
+tree from the taxi to every POI, on a metropolitan street grid (``bench/bench_epoch.py``); only speed
+depends on it."""
+
+
 class Scratch(NamedTuple):
     """One thread's scratch: a zero mask and an evaluation stamp over the gain table and the next stamp,
     the entered utility and one kappa metric per edge and super-edge, and the tree evaluation's scratch."""
@@ -477,6 +483,8 @@ def _roots_chunk(
     out_t: NDArray[np.float64],
     out_l: NDArray[np.float64],
     out_ms: NDArray[np.int64],
+    own: NDArray[np.bool_],
+    touched0: NDArray[np.bool_],
 ) -> int:
     """The routes of every source under the in-trees ``chunk`` (item ``q * P + j``: kappa ``q``, target
     ``j``) in one compiled call, into the (sources, kappas, targets) outputs; returns the number of
@@ -487,7 +495,9 @@ def _roots_chunk(
     taxi is counted in has costs of its own there (``_patch``), higher, so its route is searched again
     under its own costs, goal-directed by the in-tree's labels (a lower bound that never drops by more than
     an edge's own label: ``search.run_guided`` finds the same canonical path as a plain search). A taxi
-    whose largest utility is not the base's (``_patch`` -1) gets its kappa > 0 routes in ``_taxis_chunk``.
+    whose largest utility is not the base's (``_patch`` -1), or marked ``own``, gets its kappa > 0 routes in
+    ``_taxis_chunk``. ``touched0[a, j]``: taxi ``a``'s fastest route to target ``j`` enters one of its
+    counted cells (written by the kappa = 0 in-trees).
     """
     p = targets.shape[0]
     todo = np.empty(sources.shape[0], dtype=np.int64)
@@ -497,10 +507,12 @@ def _roots_chunk(
         q, j = item // p, item % p
         root = targets[j]
         if kappas[q] == 0.0:
-            _to_root(
+            n = _to_root(
                 ed, rg, wsr, time_costs, gn, sc, counted, sources, root, depart_s, q, j, out_g, out_t, out_l,
                 out_ms, todo, False,
             )  # fmt: skip
+            for r in range(n):
+                touched0[todo[r], j] = True
             continue
         costs = Costs(base.edge[q], rev.se[q], rev.width[q], rev.span[q])
         n = _to_root(
@@ -512,13 +524,15 @@ def _roots_chunk(
         _potential(ed, fg, rg, costs, wsr, pot)
         for r in range(n):
             a = todo[r]
+            if own[a]:
+                continue
             mark(sc.zmask, counted, a, True)
             patched = _patch(ed, entering, se_of, gn, sc, counted, a, kappas, base, work)
             if patched >= 0:
-                own = Costs(work.edge[q], work.se[q], base.width[q], base.span[q])
-                search.run_guided(fg, ed, own, sources[a], root, pot, wsf)
+                mine = Costs(work.edge[q], work.se[q], base.width[q], base.span[q])
+                search.run_guided(fg, ed, mine, sources[a], root, pot, wsf)
                 guided += 1
-                if search.unfold(fg, ed, own, INF, root, wsf):
+                if search.unfold(fg, ed, mine, INF, root, wsf):
                     edges = search.path_to(ed, 1, wsf.pred, sources[a], root)
                     sid = sc.next_stamp[0]
                     sc.next_stamp[0] = sid + 1
@@ -555,6 +569,7 @@ def _taxis_chunk(
     root_t: NDArray[np.float64],
     root_l: NDArray[np.float64],
     root_ms: NDArray[np.int64],
+    own: NDArray[np.bool_],
     out_k: NDArray[np.int64],
     out_g: NDArray[np.float64],
     out_t: NDArray[np.float64],
@@ -565,7 +580,8 @@ def _taxis_chunk(
     """Algorithm 1 for the taxis ``chunk`` (rows of the outputs) in one compiled call: each taxi's zero mask
     and patched metrics set, its targets planned, both undone. With ``from_roots`` the routes
     ``root_*[i]`` (``_roots_chunk``) are taken for kappa = 0 always, and for another kappa when the taxi's
-    metric is the base one patched; a taxi whose largest utility is not the base's searches those itself.
+    metric is the base one patched, unless it is marked ``own``; a taxi whose largest utility is not the
+    base's searches those itself.
     Returns the largest slot reached, -1 or the first taxi that cannot reach a target, and how many
     (taxi, kappa) searches were run."""
     max_slot = 0
@@ -576,7 +592,7 @@ def _taxis_chunk(
         mark(sc.zmask, counted, i, True)
         n = _patch(ed, entering, se_of, gn, sc, counted, i, kappas, base, work)
         for q in range(nk):
-            have[q] = from_roots and (kappas[q] == 0.0 or n >= 0)
+            have[q] = from_roots and (kappas[q] == 0.0 or (n >= 0 and not own[i]))
             if not have[q] and (kappas[q] == 0.0 or base.umax > 0.0):
                 searched += 1
         ms = _plan_taxi(
@@ -657,9 +673,10 @@ def plan_routes(
     root_l = np.zeros((f, nk, pr))
     root_ms = np.zeros((f, nk, pr), dtype=np.int64)
     guided = 0
+    own = np.zeros(f, dtype=np.bool_)
+    touched0 = np.zeros((f, pr), dtype=np.bool_)
     if from_roots:
         rev = _reverse_kappa(ed, graph.reverse, base, kap)
-        trees = [q * p + j for q in range(nk) if kap[q] == 0.0 or base.umax > 0.0 for j in range(p)]
 
         def roots(chunk: Sequence[int]) -> list[int]:
             with pads.take() as pad:
@@ -667,18 +684,26 @@ def plan_routes(
                     ed, graph.forward, graph.reverse, pad.forward, pad.reverse, graph.time_reverse,
                     graph.entering, graph.se_of, base, rev, kappa_work(pad, base), gn, scratch(pad, gn),
                     counted, kap, sources, targets, np.asarray(chunk, dtype=np.int64), depart_s, root_g,
-                    root_t, root_l, root_ms,
+                    root_t, root_l, root_ms, own, touched0,
                 )  # fmt: skip
             return [n] + [0] * (len(chunk) - 1)
 
-        guided = sum(parallel_map(roots, trees, workers))
+        fastest = [q * p + j for q in range(nk) if kap[q] == 0.0 for j in range(p)]
+        parallel_map(roots, fastest, workers)
+        # A taxi whose fastest routes enter its counted cells on the way to many targets will likely need
+        # as many goal-directed searches per kappa: past GUIDED_PER_TREE of them, one tree of its own per
+        # kappa is cheaper (speed only: both give the canonical routes).
+        own = touched0.sum(axis=1) > GUIDED_PER_TREE
+        rest = [q * p + j for q in range(nk) if kap[q] != 0.0 and base.umax > 0.0 for j in range(p)]
+        guided = sum(parallel_map(roots, rest, workers))
+        trees = fastest + rest
 
     def taxis(chunk: Sequence[int]) -> list[tuple[int, int]]:
         with pads.take() as pad:
             ms, failed, searched = _taxis_chunk(
                 ed, graph.forward, pad.forward, graph.time_forward, graph.entering, graph.se_of, gn,
                 scratch(pad, gn), counted, kap, sources, targets, np.asarray(chunk, dtype=np.int64), depart_s,
-                from_roots, root_g, root_t, root_l, root_ms, out_k, out_g, out_t, out_l, base,
+                from_roots, root_g, root_t, root_l, root_ms, own, out_k, out_g, out_t, out_l, base,
                 kappa_work(pad, base),
             )  # fmt: skip
         if failed >= 0:

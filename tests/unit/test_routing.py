@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services import search
+from services import algorithm1, search
 from services.algorithm1 import plan_one, plan_routes, route_pair
 from services.algorithm2 import improve_routes
 from services.citydata import load_city
@@ -115,11 +115,16 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
             )
 
 
-def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_cells_lie() -> None:
+@pytest.mark.parametrize("per_tree", [8, 0])
+def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_cells_lie(
+    per_tree: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """From the POIs' in-trees, a taxi is searched again (goal-directed) only for a (kappa, POI) whose
     in-tree route enters a cell it is counted in: over these instances that happens, most routes come
     from the in-trees, and the routes equal one tree per taxi and kappa bit for bit (the check above, here
-    on many taxis and cells)."""
+    on many taxis and cells). With ``GUIDED_PER_TREE`` 0 every taxi with a fastest route entering its
+    counted cells grows its own kappa > 0 trees instead: the same routes again."""
+    monkeypatch.setattr(algorithm1, "GUIDED_PER_TREE", per_tree)
     own, guided, forward, trees = 0, 0, 0, 0
     for seed in range(6):
         rng, city, now, k0, _counts, _ = instance(seed)
@@ -150,8 +155,11 @@ def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_c
         trees += got[True].in_trees
         assert got[False].in_trees == got[False].guided_searches == 0
     assert trees == 6 * 5 * len(KAPPAS) and forward == 6 * 24 * len(KAPPAS)
-    assert 0 < guided < 6 * 24 * 5 * (len(KAPPAS) - 1) // 2
-    assert own < forward // 10
+    if per_tree:
+        assert 0 < guided < 6 * 24 * 5 * (len(KAPPAS) - 1) // 2
+        assert own < forward // 10
+    else:
+        assert guided < own < forward
 
 
 def test_a_taxi_counted_where_utility_peaks_gets_its_own_normalization() -> None:
