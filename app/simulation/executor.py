@@ -10,6 +10,7 @@ import itertools
 import multiprocessing
 import os
 import queue
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -117,6 +118,10 @@ class InlineExecutor:
 _started: Any = None  # in a pool process: the queue it reports starts on (set by _init_pool_process)
 
 
+START_WAIT_S = 5.0
+"""How long an outcome waits for its item's start to come through the queue."""
+
+
 def _init_pool_process(started: Any) -> None:
     global _started
     _started = started
@@ -175,6 +180,7 @@ class ProcessExecutor:
         }
         pending = set(futures)
         broken = False
+        seen: set[int] = set()
         try:
             while pending:
                 done, pending = wait(pending, timeout=0.05, return_when=FIRST_COMPLETED)
@@ -183,9 +189,22 @@ class ProcessExecutor:
                         b, i, pid = started.get_nowait()
                     except queue.Empty:
                         break
-                    if b == batch:
+                    if b == batch and i not in seen:
+                        seen.add(i)
                         yield Started(i, f"pid {pid}", pid)
                 for fut in done:
+                    # an item's start is put on the queue before it runs, but the queue's feeder thread
+                    # may deliver it after the outcome: wait for it (not for an item a dead process held)
+                    deadline = time.monotonic() + START_WAIT_S
+                    dead = isinstance(fut.exception(), BrokenProcessPool)
+                    while futures[fut] not in seen and not dead:
+                        try:
+                            b, i, pid = started.get(timeout=max(0.0, deadline - time.monotonic()))
+                        except queue.Empty:
+                            break
+                        if b == batch and i not in seen:
+                            seen.add(i)
+                            yield Started(i, f"pid {pid}", pid)
                     try:
                         value = fut.result()
                     except BrokenProcessPool as exc:
