@@ -37,7 +37,7 @@ from services.gains import (
     mark,
     tree_scratch,
 )
-from services.graph import INF, CellEdges, Costs, Edges, RoadGraph, SearchGraph
+from services.graph import INF, CellEdges, Costs, Edges, RoadGraph, SearchGraph, prepare_into
 from services.jit import compiled, compiled_inline
 from services.pads import Pad, Pads
 from services.parallel import parallel_map
@@ -95,26 +95,10 @@ def kappa_metric(
     se_cost: NDArray[np.int64],
 ) -> Costs:
     """Algorithm 1's edge cost ``c_e = t_e (1 - kappa u_e / umax)`` in whole microseconds (at least 1) into
-    ``edge_cost``, prepared for ``g`` (``graph.prepare_into``) in the same pass over the super-edges' edges
-    (every edge lies on exactly one super-edge)."""
-    ns = g.se_tail.shape[0]
-    lo = INF
-    hi = 1
-    for s in range(ns):
-        c = 0
-        for p in range(g.se_ptr[s], g.se_ptr[s + 1]):
-            e = g.se_edges[p]
-            ce = _kappa_cost(ed.time_s[e], u[e], umax, kappa)
-            edge_cost[e] = ce
-            c += ce
-        se_cost[s] = c
-        if c < lo:
-            lo = c
-        if c > hi:
-            hi = c
-    if ns == 0:
-        lo = 1
-    return Costs(edge_cost, se_cost, lo, hi // lo + 2)
+    ``edge_cost``, prepared for ``g`` (its super-edge sums into ``se_cost``)."""
+    for e in range(edge_cost.shape[0]):
+        edge_cost[e] = _kappa_cost(ed.time_s[e], u[e], umax, kappa)
+    return prepare_into(g, edge_cost, se_cost)
 
 
 @compiled
@@ -257,15 +241,14 @@ class ReverseKappa(NamedTuple):
 
 
 @compiled
-def _reverse_kappa(ed: Edges, rg: SearchGraph, base: KappaBase, kappas: NDArray[np.float64]) -> ReverseKappa:
+def _reverse_kappa(rg: SearchGraph, base: KappaBase, kappas: NDArray[np.float64]) -> ReverseKappa:
     nk = kappas.shape[0]
     se = np.zeros((nk, rg.se_tail.shape[0]), dtype=np.int64)
     width = np.ones(nk, dtype=np.int64)
     span = np.ones(nk, dtype=np.int64)
-    edge = np.zeros(ed.time_s.shape[0], dtype=np.int64)  # equals base.edge[q]: the same edge costs
     for q in range(nk):
         if kappas[q] != 0.0 and base.umax > 0.0:
-            c = kappa_metric(ed, rg, base.u, base.umax, kappas[q], edge, se[q])
+            c = prepare_into(rg, base.edge[q], se[q])  # the base's edge costs, summed the reverse way
             width[q] = c.width
             span[q] = c.span
     return ReverseKappa(se, width, span)
@@ -676,7 +659,7 @@ def plan_routes(
     own = np.zeros(f, dtype=np.bool_)
     touched0 = np.zeros((f, pr), dtype=np.bool_)
     if from_roots:
-        rev = _reverse_kappa(ed, graph.reverse, base, kap)
+        rev = _reverse_kappa(graph.reverse, base, kap)
 
         def roots(chunk: Sequence[int]) -> list[int]:
             with pads.take() as pad:
