@@ -168,9 +168,11 @@ def _to_root(
     reaches in ``out_ms[a, q, j]``. Lists in ``touched`` the sources whose path enters a cell their taxi
     is counted in, and returns how many."""
     search.run(rg, ed, costs, root, INF, np.empty(0, dtype=np.int64) if whole else sources, ws)
+    reached = np.empty(sources.shape[0], dtype=np.bool_)
+    search.unfold_many(rg, ed, costs, INF, sources, ws, reached)
     n = 0
     for a in range(sources.shape[0]):
-        if not search.unfold(rg, ed, costs, INF, sources[a], ws):
+        if not reached[a]:
             out_t[a, q, j] = np.nan
             continue
         mark(sc.zmask, counted, a, True)
@@ -384,6 +386,7 @@ def _plan_taxi(
     (``_patch``), else they are built whole. Writes the chosen kappa's index (-1: unreachable), gain, time
     and length per target; returns the largest slot reached, or -1 when a target cannot be reached."""
     k = targets.shape[0]
+    reached = np.empty(k, dtype=np.bool_)
     umax = base.umax if patched else entered_utility(ed, gn, sc.zmask, sc.u)
     best = np.full(k, -np.inf)
     g = np.zeros(k)
@@ -411,9 +414,8 @@ def _plan_taxi(
             else:
                 costs = kappa_metric(ed, fg, sc.u, umax, kappa, sc.edge_cost, sc.se_cost)
             search.run(fg, ed, costs, source, INF, targets, ws)
-            for i in range(k):
-                if not search.unfold(fg, ed, costs, INF, targets[i], ws):
-                    return -1
+            if not search.unfold_many(fg, ed, costs, INF, targets, ws, reached):
+                return -1
             ms = eval_tree(ed, gn, sc.zmask, ws.pred, source, targets, depart_s, sc.tree, g, t, length)
             if ms > max_slot:
                 max_slot = ms
@@ -434,11 +436,7 @@ def _potential(
 ) -> None:
     """Each forward kept node's label to the root of the in-tree in ``ws`` (grown whole under ``costs``;
     cost ``INF``: it cannot reach the root): ``search.run_guided``'s potential."""
-    for k in range(fg.kept.shape[0]):
-        c, a, b, _s, _start = search.resolve(rg, ed, costs, INF, fg.kept[k], ws)
-        pot[0, k] = c
-        pot[1, k] = a
-        pot[2, k] = b
+    search.labels(rg, ed, costs, INF, fg.kept, ws, pot)
 
 
 @compiled

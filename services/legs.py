@@ -61,10 +61,13 @@ def _within(
     """One in-tree toward ``origin`` bounded by ``limit_us``; for each of ``nodes`` whether its fastest path
     to the origin is at most ``radius_m`` long, with that path's wait and length."""
     search.run(rg, ed, time_costs, origin, limit_us, nodes, ws)
+    search.unfold_many(rg, ed, time_costs, limit_us, nodes, ws, ok)
+    label = np.empty((3, nodes.shape[0]), dtype=np.int64)
+    search.labels(rg, ed, time_costs, limit_us, nodes, ws, label)
     for i in range(nodes.shape[0]):
-        ok[i] = False
-        if not search.unfold(rg, ed, time_costs, limit_us, nodes[i], ws):
+        if not ok[i]:
             continue
+        ok[i] = False
         t = 0.0
         length = 0.0
         x = nodes[i]
@@ -75,7 +78,7 @@ def _within(
             x = ed.head[e]
         if length <= radius_m + 1e-6:
             ok[i] = True
-            wait_us[i] = search.resolve(rg, ed, time_costs, limit_us, nodes[i], ws)[0]
+            wait_us[i] = label[0, i]
             wait_s[i] = t
             length_m[i] = length
 
