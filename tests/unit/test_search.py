@@ -125,6 +125,47 @@ def test_targets_and_limit_give_the_same_paths(graph):
                 assert out[v] >= INF
 
 
+@pytest.mark.parametrize("reverse", [False, True])
+def test_many_nodes_in_one_call_read_as_one_by_one(graph, reverse):
+    """``labels`` and ``unfold_many`` (the batched reads of the hot loops) give every node -- kept, interior,
+    the source, beyond the limit -- the label ``resolve`` gives it, the reach ``unfold`` gives it, and the
+    same tree paths, from kept and interior sources."""
+    g = graph.reverse if reverse else graph.forward
+    cost = _costs(graph, "discounted")
+    costs = prepare(g, cost)
+    ws = search.workspace(graph, reverse)
+    rng = np.random.default_rng(23)
+    interior = np.flatnonzero(g.kept_of < 0)
+    sources = list(rng.choice(graph.n_nodes, size=3, replace=False))
+    if interior.size:
+        sources += list(rng.choice(interior, size=min(2, interior.size), replace=False))
+    every = np.arange(graph.n_nodes, dtype=np.int64)
+    for s in sources:
+        s = int(s)
+        label, _pred = reference_tree(graph, cost, s, reverse)
+        limit = int(np.median([x[0] for x in label if x is not None]))
+        search.run(g, graph.edges, costs, s, limit, np.zeros(0, np.int64), ws)
+        one = [search.resolve(g, graph.edges, costs, limit, v, ws)[:3] for v in range(graph.n_nodes)]
+        many = np.zeros((3, graph.n_nodes), dtype=np.int64)
+        search.labels(g, graph.edges, costs, limit, every, ws, many)
+        assert [tuple(c) for c in many.T.tolist()] == [tuple(x) for x in one]
+        assert any(x[0] >= INF for x in one) and any(x[0] < INF for x in one)
+        reached = np.zeros(graph.n_nodes, dtype=np.bool_)
+        order = rng.permutation(graph.n_nodes).astype(np.int64)
+        all_reached = search.unfold_many(g, graph.edges, costs, limit, order, ws, reached)
+        assert reached.tolist() == [one[v][0] < INF for v in order.tolist()]
+        assert not all_reached
+        paths = {
+            v: search.path_to(graph.edges, g.towards, ws.pred, s, v).tolist()
+            for v in order.tolist()
+            if one[v][0] < INF
+        }
+        search.run(g, graph.edges, costs, s, limit, np.zeros(0, np.int64), ws)
+        for v, path in paths.items():
+            assert search.unfold(g, graph.edges, costs, limit, v, ws)
+            assert search.path_to(graph.edges, g.towards, ws.pred, s, v).tolist() == path
+
+
 def test_forward_and_reverse_trees_give_one_path(graph):
     """The point of canonical labels: the path from a to b is the same searched from either end."""
     rng = np.random.default_rng(5)
