@@ -73,6 +73,7 @@ class Workspace(NamedTuple):
     touched: NDArray[np.int64]  # (K,) kept nodes whose entries the next search resets
     pred: NDArray[np.int64]  # (n,) original edge ids, valid on unfolded tree paths only
     info: NDArray[np.int64]  # [source, complete (1) or stopped early (0), number of touched nodes]
+    hkey: NDArray[np.int64]  # (K, 3) run_guided's heap: the key of each entry, beside it
 
 
 def workspace(graph: RoadGraph, reverse: bool = False) -> Workspace:
@@ -99,6 +100,7 @@ def workspace(graph: RoadGraph, reverse: bool = False) -> Workspace:
         touched=np.zeros(k, dtype=np.int64),
         pred=np.full(graph.n_nodes, -1, dtype=np.int64),
         info=np.zeros(3, dtype=np.int64),
+        hkey=np.zeros((k, 3), dtype=np.int64),
     )
 
 
@@ -482,78 +484,68 @@ def run(
 
 
 @compiled_inline
-def _before(
-    cost: NDArray[np.int64],
-    tie1: NDArray[np.int64],
-    tie2: NDArray[np.int64],
-    pot: NDArray[np.int64],
-    x: int,
-    y: int,
-) -> bool:
-    """Node ``x`` is taken before node ``y``: label plus potential, compared lexicographically."""
-    fx = int(cost[x] + pot[0, x])
-    fy = int(cost[y] + pot[0, y])
-    if fx != fy:
-        return fx < fy
-    ax = int(tie1[x] + pot[1, x])
-    ay = int(tie1[y] + pot[1, y])
-    if ax != ay:
-        return ax < ay
-    return int(tie2[x] + pot[2, x]) < int(tie2[y] + pot[2, y])
-
-
-@compiled_inline
 def _guided_up(
     heap: NDArray[np.int64],
+    hkey: NDArray[np.int64],
     state: NDArray[np.int64],
-    cost: NDArray[np.int64],
-    tie1: NDArray[np.int64],
-    tie2: NDArray[np.int64],
-    pot: NDArray[np.int64],
     i: int,
+    k: int,
+    c: int,
+    a: int,
+    b: int,
 ) -> None:
-    k = heap[i]
+    """Put node ``k`` with key ``(c, a, b)`` at heap position ``i`` (a free slot, or ``k``'s own with a key
+    no larger than before) and sift it up. Keys sit beside the entries: a comparison reads one row."""
     while i > 0:
         parent = (i - 1) >> 1
-        w = heap[parent]
-        if not _before(cost, tie1, tie2, pot, k, w):
+        if not _less(c, a, b, hkey[parent, 0], hkey[parent, 1], hkey[parent, 2]):
             break
+        w = heap[parent]
         heap[i] = w
+        hkey[i, 0] = hkey[parent, 0]
+        hkey[i, 1] = hkey[parent, 1]
+        hkey[i, 2] = hkey[parent, 2]
         state[w] = i
         i = parent
     heap[i] = k
+    hkey[i, 0] = c
+    hkey[i, 1] = a
+    hkey[i, 2] = b
     state[k] = i
 
 
 @compiled_inline
-def _guided_pop(
-    heap: NDArray[np.int64],
-    state: NDArray[np.int64],
-    cost: NDArray[np.int64],
-    tie1: NDArray[np.int64],
-    tie2: NDArray[np.int64],
-    pot: NDArray[np.int64],
-    size: int,
-) -> int:
+def _guided_pop(heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray[np.int64], size: int) -> int:
     """Remove the root of the binary heap (``heap[0]`` before the call); new size."""
     size -= 1
     if size == 0:
         return 0
     k = heap[size]
+    c0 = hkey[size, 0]
+    c1 = hkey[size, 1]
+    c2 = hkey[size, 2]
     i = 0
     while True:
         c = 2 * i + 1
         if c >= size:
             break
-        if c + 1 < size and _before(cost, tie1, tie2, pot, heap[c + 1], heap[c]):
+        if c + 1 < size and _less(
+            hkey[c + 1, 0], hkey[c + 1, 1], hkey[c + 1, 2], hkey[c, 0], hkey[c, 1], hkey[c, 2]
+        ):
             c += 1
-        w = heap[c]
-        if not _before(cost, tie1, tie2, pot, w, k):
+        if not _less(hkey[c, 0], hkey[c, 1], hkey[c, 2], c0, c1, c2):
             break
+        w = heap[c]
         heap[i] = w
+        hkey[i, 0] = hkey[c, 0]
+        hkey[i, 1] = hkey[c, 1]
+        hkey[i, 2] = hkey[c, 2]
         state[w] = i
         i = c
     heap[i] = k
+    hkey[i, 0] = c0
+    hkey[i, 1] = c1
+    hkey[i, 2] = c2
     state[k] = i
     return size
 
@@ -586,6 +578,7 @@ def run_guided(
     tie2 = ws.tie2
     state = ws.state
     heap = ws.nxt
+    hkey = ws.hkey
     _reset(ws)
     ws.info[0] = source
     sk = g.kept_of[source]
@@ -606,16 +599,15 @@ def run_guided(
             tie2[h] = b
             ws.pse[h] = s
             ws.pstart[h] = os
-            if state[h] < 0:
-                heap[size] = h
+            at = state[h]
+            if at < 0:
+                at = size
                 size += 1
-                _guided_up(heap, state, cost, tie1, tie2, pot, size - 1)
-            else:
-                _guided_up(heap, state, cost, tie1, tie2, pot, state[h])
+            _guided_up(heap, hkey, state, at, h, c + pot[0, h], a + pot[1, h], b + pot[2, h])
     complete = 1
     while size > 0:
         k = heap[0]
-        size = _guided_pop(heap, state, cost, tie1, tie2, pot, size)
+        size = _guided_pop(heap, hkey, state, size)
         state[k] = -2
         if ws.need[k]:
             remaining -= 1
@@ -642,12 +634,11 @@ def run_guided(
                 tie2[h] = b
                 ws.pse[h] = s
                 ws.pstart[h] = 0
-                if st < 0:
-                    heap[size] = h
+                at = st
+                if at < 0:
+                    at = size
                     size += 1
-                    _guided_up(heap, state, cost, tie1, tie2, pot, size - 1)
-                else:
-                    _guided_up(heap, state, cost, tie1, tie2, pot, st)
+                _guided_up(heap, hkey, state, at, h, c + pot[0, h], a + pot[1, h], b + pot[2, h])
     ws.info[1] = complete
     ws.info[2] = n_touched
 
