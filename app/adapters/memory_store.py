@@ -5,7 +5,7 @@ from __future__ import annotations
 import heapq
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -71,9 +71,15 @@ class MemoryStore:
     # -- expiry (lazy, like Redis: expired entries are invisible and dropped on the next access) --------
 
     def _touch(self, key: _ExpiryKey, ttl_s: int) -> None:
+        self._touch_all((key,), ttl_s)
+
+    def _touch_all(self, keys: Iterable[_ExpiryKey], ttl_s: int) -> None:
+        """Let each of ``keys`` (distinct) live ``ttl_s`` from now."""
         at = self._clock() + ttl_s
-        self._expires_at[key] = at
-        heapq.heappush(self._heap, (at, key))
+        expires_at, heap = self._expires_at, self._heap
+        for key in keys:
+            expires_at[key] = at
+            heapq.heappush(heap, (at, key))
 
     def _purge(self) -> None:
         now = self._clock()
@@ -127,11 +133,14 @@ class MemoryStore:
         with self._lock:
             c = self._city(city)
             ks = list(dict.fromkeys(intervals))
+            visits = c.ledger.visits
             visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
             for taxi in dict.fromkeys(taxi_ids):
                 pairs: set[tuple[IntervalKey, int]] = set()
                 for k in ks:
-                    pairs.update((k, cell) for cell in c.ledger.visits.get((k, taxi), ()))
+                    cells = visits.get((k, taxi))
+                    if cells:
+                        pairs.update([(k, cell) for cell in cells])
                 visited[taxi] = pairs
             return CityState(
                 version=c.version,
@@ -161,10 +170,13 @@ class MemoryStore:
                 if t.status in DONE:
                     c.done_at[t.id] = float(commit.time_s)
             _prune_done(c, float(commit.time_s) - ttl)
-            for visit in commit.visits:  # like Redis: every key a visit names lives on from this commit
+            # like Redis: every key a visit names lives on from this commit (each key touched once)
+            touched: dict[_ExpiryKey, None] = {}
+            for visit in commit.visits:
                 k = IntervalKey(int(visit.interval))
-                self._touch((city, "count", str(int(k))), ttl)
-                self._touch((city, "visit", _visit_key(k, visit.taxi_id)), ttl)
+                touched[(city, "count", str(int(k)))] = None
+                touched[(city, "visit", _visit_key(k, visit.taxi_id))] = None
+            self._touch_all(touched, ttl)
             c.epochs[commit.epoch_id] = StoredEpoch(
                 commit.epoch_id, commit.body_hash, float(commit.time_s), commit.response_json, commit.nonce
             )

@@ -97,16 +97,16 @@ def snapshot_of(city: City, body: EpochIn, limits: Limits) -> Snapshot:
                 requested_at_s=requested_s,
             )
         )
-    taxis = tuple(
-        Taxi(
-            id=TaxiId(t.id),
-            node=node_of(city, t.location, f"taxis[{i}].location"),
-            instrumented=t.instrumented,
-            vacant=t.status == "vacant",
-        )
-        for i, t in enumerate(body.taxis)
-    )
-    return Snapshot(epoch_id=body.epoch_id, time_s=time_s, riders=tuple(riders), taxis=taxis)
+    index_of = city.network.index_of
+    taxis: list[Taxi] = []
+    for i, t in enumerate(body.taxis):
+        loc = t.location
+        try:  # the common case, a known node id, without building the field's name
+            node = index_of(loc.node) if loc.node is not None else node_of(city, loc, "")
+        except (SnapError, InvalidInput):
+            node = node_of(city, loc, f"taxis[{i}].location")  # raises, naming the field
+        taxis.append(Taxi(TaxiId(t.id), node, t.instrumented, t.status == "vacant"))
+    return Snapshot(epoch_id=body.epoch_id, time_s=time_s, riders=tuple(riders), taxis=tuple(taxis))
 
 
 def epoch_command(city: City, body: EpochIn, limits: Limits) -> EpochCommand:

@@ -10,10 +10,11 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 import numpy as np
+import pydantic_core
 from pydantic import Field, StrictBool
 
 from app.schemas.common import Identifier, LocationIn, RequestModel, ResponseModel, Rfc3339, TimedRequest
-from app.schemas.tasks import TaskOut, task_of
+from app.schemas.tasks import TaskOut, task_doc, task_of
 from app.usecases import EpochResult, StoredDecision
 from services.city import City
 from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
@@ -27,6 +28,7 @@ __all__ = [
     "RiderMatchOut",
     "TaskAssignmentOut",
     "EpochOut",
+    "epoch_doc",
     "render_epoch",
     "decision_of",
     "read_epoch",
@@ -68,11 +70,43 @@ def body_hash(body: EpochIn) -> str:
 
 
 def _ext_path(city: City, path: tuple[int, ...]) -> list[int]:
-    return [int(v) for v in city.network.node_ids[list(path)]] if path else []
+    ids: list[int] = city.network.node_ids[list(path)].tolist() if path else []
+    return ids
 
 
 def _cells(cells: tuple[tuple[int, int], ...]) -> list[tuple[int, int]]:
     return [(int(c), int(r)) for c, r in cells]
+
+
+def _match_doc(city: City, m: RiderMatch) -> dict[str, Any]:
+    """A core match as a ``RiderMatchOut`` document (same fields, same order)."""
+    return {
+        "step": int(m.step),
+        "taxi_id": str(m.taxi_id),
+        "rider_id": str(m.rider_id),
+        "pickup_m": float(m.pickup_m),
+        "wait_s": float(m.wait_s),
+        "trip_m": float(m.trip_m),
+        "trip_time_s": float(m.trip_time_s),
+        "sensing_gain": float(m.sensing_gain),
+        "path": _ext_path(city, m.path),
+        "cells": _cells(m.cells),
+    }
+
+
+def _assignment_doc(city: City, a: TaskAssignment) -> dict[str, Any]:
+    """A core assignment as a ``TaskAssignmentOut`` document (same fields, same order)."""
+    return {
+        "taxi_id": str(a.taxi_id),
+        "task_id": str(a.task_id),
+        "path": _ext_path(city, a.path),
+        "cells": _cells(a.cells),
+        "length_m": float(a.length_m),
+        "travel_time_s": float(a.travel_time_s),
+        "sensing_gain": float(a.sensing_gain),
+        "efficiency": float(a.efficiency),
+        "cost_cny": float(a.cost_cny),
+    }
 
 
 class RiderMatchOut(ResponseModel):
@@ -92,18 +126,7 @@ class RiderMatchOut(ResponseModel):
     @classmethod
     def of(cls, city: City, m: RiderMatch) -> RiderMatchOut:
         """Render a core match."""
-        return cls(
-            step=m.step,
-            taxi_id=str(m.taxi_id),
-            rider_id=str(m.rider_id),
-            pickup_m=float(m.pickup_m),
-            wait_s=float(m.wait_s),
-            trip_m=float(m.trip_m),
-            trip_time_s=float(m.trip_time_s),
-            sensing_gain=float(m.sensing_gain),
-            path=_ext_path(city, m.path),
-            cells=_cells(m.cells),
-        )
+        return cls.model_validate(_match_doc(city, m))
 
 
 class TaskAssignmentOut(ResponseModel):
@@ -122,17 +145,7 @@ class TaskAssignmentOut(ResponseModel):
     @classmethod
     def of(cls, city: City, a: TaskAssignment) -> TaskAssignmentOut:
         """Render a core assignment."""
-        return cls(
-            taxi_id=str(a.taxi_id),
-            task_id=str(a.task_id),
-            path=_ext_path(city, a.path),
-            cells=_cells(a.cells),
-            length_m=float(a.length_m),
-            travel_time_s=float(a.travel_time_s),
-            sensing_gain=float(a.sensing_gain),
-            efficiency=float(a.efficiency),
-            cost_cny=float(a.cost_cny),
-        )
+        return cls.model_validate(_assignment_doc(city, a))
 
 
 class EpochOut(ResponseModel):
@@ -151,37 +164,44 @@ class EpochOut(ResponseModel):
 
     @classmethod
     def of(cls, result: EpochResult) -> EpochOut:
-        """Render a decided epoch with external node ids and local times."""
-        city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
-        stats = _core_stats(decision)
-        stats.update(
-            {
-                "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
-                "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
-                "task_assignments": len(decision.task_assignments),
-                "tasks_completed": len(decision.tasks_completed),
-                "riders": len(snapshot.riders),
-                "taxis": len(snapshot.taxis),
-                "interval": city.horizon.label(result.interval),
-                "interval_key": int(result.interval),
-                "in_horizon": int(city.horizon.in_horizon(result.interval)),
-                "solve_ms": round(result.solve_ms, 3),
-                "attempts": result.attempts,
-                "visits": len(decision.visits),
-                "gamma": result.gamma_after,
-                "gamma_gain": result.gamma_after - result.gamma_before,
-            }
-        )
-        return cls(
-            epoch_id=snapshot.epoch_id,
-            time=result.epoch.time_text,
-            rider_matches=[RiderMatchOut.of(city, m) for m in decision.rider_matches],
-            task_assignments=[TaskAssignmentOut.of(city, a) for a in decision.task_assignments],
-            tasks_completed=[TaskOut.of(city, t) for t in decision.tasks_completed],
-            unmatched_rider_ids=[str(r) for r in decision.unmatched_rider_ids],
-            expired_rider_ids=[str(r) for r in decision.expired_rider_ids],
-            stats=stats,
-        )
+        """Render a decided epoch with external node ids and local times (validated)."""
+        return cls.model_validate(epoch_doc(result))
+
+
+def epoch_doc(result: EpochResult) -> dict[str, Any]:
+    """A decided epoch as an ``EpochOut`` document of plain JSON values (external node ids, local times),
+    with the model's fields in the model's order: ``EpochOut.model_validate`` keeps it as it is, so its
+    JSON is byte for byte ``EpochOut.of(result).model_dump_json()`` (tests/api/test_usecases.py)."""
+    city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
+    stats = _core_stats(decision)
+    stats.update(
+        {
+            "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
+            "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
+            "task_assignments": len(decision.task_assignments),
+            "tasks_completed": len(decision.tasks_completed),
+            "riders": len(snapshot.riders),
+            "taxis": len(snapshot.taxis),
+            "interval": city.horizon.label(result.interval),
+            "interval_key": int(result.interval),
+            "in_horizon": int(city.horizon.in_horizon(result.interval)),
+            "solve_ms": round(float(result.solve_ms), 3),
+            "attempts": int(result.attempts),
+            "visits": len(decision.visits),
+            "gamma": float(result.gamma_after),
+            "gamma_gain": float(result.gamma_after - result.gamma_before),
+        }
+    )
+    return {
+        "epoch_id": str(snapshot.epoch_id),
+        "time": str(result.epoch.time_text),
+        "rider_matches": [_match_doc(city, m) for m in decision.rider_matches],
+        "task_assignments": [_assignment_doc(city, a) for a in decision.task_assignments],
+        "tasks_completed": [task_doc(city, t) for t in decision.tasks_completed],
+        "unmatched_rider_ids": [str(r) for r in decision.unmatched_rider_ids],
+        "expired_rider_ids": [str(r) for r in decision.expired_rider_ids],
+        "stats": stats,
+    }
 
 
 def _core_stats(decision: Decision) -> dict[str, float | int | str]:
@@ -195,13 +215,14 @@ def _core_stats(decision: Decision) -> dict[str, float | int | str]:
             if math.isfinite(v):  # JSON has no NaN or infinity
                 stats[key] = float(v)
         elif isinstance(v, str):
-            stats[key] = v
+            stats[key] = str(v)
     return stats
 
 
 def render_epoch(result: EpochResult) -> str:
-    """The response document of a decided epoch (``DispatchService``'s renderer)."""
-    return EpochOut.of(result).model_dump_json()
+    """The response document of a decided epoch (``DispatchService``'s renderer): ``epoch_doc`` encoded by
+    pydantic's JSON encoder, without validating the values it was built from a second time."""
+    return pydantic_core.to_json(epoch_doc(result), inf_nan_mode="null").decode()
 
 
 def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:
