@@ -6,14 +6,25 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 from collections.abc import Mapping
+from dataclasses import dataclass
+from json.encoder import encode_basestring_ascii
 from typing import Any, Literal
 
 import numpy as np
 import pydantic_core
 from pydantic import Field, StrictBool
 
-from app.schemas.common import Identifier, LocationIn, RequestModel, ResponseModel, Rfc3339, TimedRequest
+from app.schemas.common import (
+    ID_MAX_LEN,
+    Identifier,
+    LocationIn,
+    RequestModel,
+    ResponseModel,
+    Rfc3339,
+    TimedRequest,
+)
 from app.schemas.tasks import TaskOut, task_doc, task_of
 from app.usecases import EpochResult, StoredDecision
 from services.city import City
@@ -24,6 +35,8 @@ __all__ = [
     "RiderIn",
     "TaxiIn",
     "EpochIn",
+    "PlainTaxis",
+    "plain_taxis",
     "body_hash",
     "RiderMatchOut",
     "TaskAssignmentOut",
@@ -62,10 +75,96 @@ class EpochIn(TimedRequest):
     taxis: list[TaxiIn]
 
 
-def body_hash(body: EpochIn) -> str:
+@dataclass(frozen=True, slots=True)
+class PlainTaxis:
+    """An epoch's taxis read by ``plain_taxis``: external node ids, and their part of the canonical JSON."""
+
+    ids: tuple[str, ...]
+    node_ids: tuple[int, ...]
+    instrumented: tuple[bool, ...]
+    vacant: tuple[bool, ...]
+    canonical: str  # the JSON array ``body_hash`` writes for these taxis
+
+
+_TAXI_KEYS = frozenset({"id", "location", "instrumented", "status"})
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+_INT64 = (-(2**63), 2**63 - 1)
+_LOCATION_KEYS = frozenset({"node", "lon", "lat"})
+if (frozenset(TaxiIn.model_fields), frozenset(LocationIn.model_fields)) != (_TAXI_KEYS, _LOCATION_KEYS):
+    # plain_taxis writes exactly these fields' canonical JSON
+    raise RuntimeError("plain_taxis reads TaxiIn and LocationIn as they are: change it with the models")
+
+
+def plain_taxis(value: object) -> PlainTaxis | None:
+    """The parsed JSON ``taxis`` of an epoch body read without a model per taxi, when every item has the
+    common form ``{"id": printable ASCII text of 1..128 characters, "location": {"node": a JSON integer in
+    int64}, "instrumented": true or false, "status": "vacant" or "busy"}``: exactly what ``TaxiIn`` accepts
+    and keeps unchanged in that form. ``None`` for anything else, including every item ``TaxiIn`` would
+    refuse: the model then validates the taxis and says what is wrong (``app.api.bodies``)."""
+    if type(value) is not list:
+        return None
+    lo, hi = _INT64
+    ids: list[str] = []
+    nodes: list[int] = []
+    instrumented: list[bool] = []
+    vacant: list[bool] = []
+    parts: list[str] = []
+    for item in value:
+        if type(item) is not dict or item.keys() != _TAXI_KEYS:
+            return None
+        ident, loc, instr, status = item["id"], item["location"], item["instrumented"], item["status"]
+        if (
+            type(ident) is not str
+            or not 0 < len(ident) <= ID_MAX_LEN
+            or type(loc) is not dict
+            or len(loc) != 1
+            or type(instr) is not bool
+            or type(status) is not str
+            or (status != "vacant" and status != "busy")
+        ):
+            return None
+        node = loc.get("node")
+        if type(node) is not int or not lo <= node <= hi:
+            return None
+        ids.append(ident)
+        nodes.append(node)
+        instrumented.append(instr)
+        vacant.append(status == "vacant")
+        parts.append(
+            f'{{"id":{encode_basestring_ascii(ident)},"instrumented":{"true" if instr else "false"},'
+            f'"location":{{"lat":null,"lon":null,"node":{node}}},"status":"{status}"}}'
+        )
+    every_id = "".join(ids)  # no id is empty, so one look at them all
+    if not every_id.isascii() or _CONTROL.search(every_id):
+        return None
+    return PlainTaxis(
+        tuple(ids), tuple(nodes), tuple(instrumented), tuple(vacant), "[" + ",".join(parts) + "]"
+    )
+
+
+def _canonical(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"))
+
+
+def body_hash(body: EpochIn, taxis: PlainTaxis | None = None) -> str:
     """sha256 of the canonical JSON of a validated epoch body: the model dumped in JSON mode, keys sorted,
-    no spaces. Every committed epoch stores it and a replay must match it, so this never changes."""
-    canonical = json.dumps(body.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    no spaces. Every committed epoch stores it and a replay must match it, so this never changes.
+
+    With ``taxis`` (the body's taxis read by ``plain_taxis``, ``body`` validated without them), their part
+    is ``taxis.canonical``: the same text the model's dump of them gives (tests/api/test_plain_taxis.py)."""
+    dump = body.model_dump(mode="json")
+    if taxis is None:
+        canonical = _canonical(dump)
+    else:
+        dump["taxis"] = None
+        canonical = (
+            "{"
+            + ",".join(
+                f"{_canonical(key)}:{taxis.canonical if key == 'taxis' else _canonical(dump[key])}"
+                for key in sorted(dump)
+            )
+            + "}"
+        )
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
