@@ -7,6 +7,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import repeat
 from typing import Literal
 
 from app.adapters.codec import check_fleet_record, classify_tasks, new_lock_token, utc_day
@@ -44,6 +45,11 @@ class _City:
     locks: dict[str, tuple[str, float]] = field(default_factory=dict)  # name -> (token, expires at)
     solve_queue: list[SolveRequest] = field(default_factory=list)
     done_at: dict[TaskId, float] = field(default_factory=dict)  # epoch time a task finished at
+    # (interval, taxi) -> (its visited cells' set in the ledger, that set's size, the (interval, cell) pairs):
+    # the pairs load_state hands out, built again only when the set grew or was replaced (sets only grow)
+    visit_pairs: dict[
+        tuple[IntervalKey, TaxiId], tuple[set[int], int, frozenset[tuple[IntervalKey, int]]]
+    ] = field(default_factory=dict, compare=False, repr=False)  # derived from ledger.visits: not state
 
 
 def _prune_done(c: _City, before_s: float) -> None:
@@ -100,6 +106,7 @@ class MemoryStore:
         elif kind == "visit":
             k, taxi = name.split(":", 1)
             city.ledger.visits.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
+            city.visit_pairs.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
         elif kind == "epoch":
             city.epochs.pop(name, None)
         elif kind == "meta":
@@ -133,14 +140,17 @@ class MemoryStore:
         with self._lock:
             c = self._city(city)
             ks = list(dict.fromkeys(intervals))
-            visits = c.ledger.visits
+            visits, cache = c.ledger.visits, c.visit_pairs
             visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
             for taxi in dict.fromkeys(taxi_ids):
                 pairs: set[tuple[IntervalKey, int]] = set()
                 for k in ks:
                     cells = visits.get((k, taxi))
                     if cells:
-                        pairs.update([(k, cell) for cell in cells])
+                        hit = cache.get((k, taxi))
+                        if hit is None or hit[0] is not cells or hit[1] != len(cells):
+                            hit = cache[(k, taxi)] = (cells, len(cells), frozenset(zip(repeat(k), cells)))
+                        pairs.update(hit[2])
                 visited[taxi] = pairs
             return CityState(
                 version=c.version,
@@ -171,11 +181,11 @@ class MemoryStore:
                     c.done_at[t.id] = float(commit.time_s)
             _prune_done(c, float(commit.time_s) - ttl)
             # like Redis: every key a visit names lives on from this commit (each key touched once)
+            keys = dict.fromkeys((IntervalKey(int(v.interval)), v.taxi_id) for v in commit.visits)
             touched: dict[_ExpiryKey, None] = {}
-            for visit in commit.visits:
-                k = IntervalKey(int(visit.interval))
+            for k, taxi in keys:
                 touched[(city, "count", str(int(k)))] = None
-                touched[(city, "visit", _visit_key(k, visit.taxi_id))] = None
+                touched[(city, "visit", _visit_key(k, taxi))] = None
             self._touch_all(touched, ttl)
             c.epochs[commit.epoch_id] = StoredEpoch(
                 commit.epoch_id, commit.body_hash, float(commit.time_s), commit.response_json, commit.nonce

@@ -7,8 +7,9 @@ import hashlib
 import json
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from itertools import chain
 from json.encoder import encode_basestring_ascii
 from typing import Any, Literal
 
@@ -29,6 +30,7 @@ from app.schemas.tasks import TaskOut, task_doc, task_of
 from app.usecases import EpochResult, StoredDecision
 from services.city import City
 from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
+from services.network import Network
 from services.rfc3339 import parse_rfc3339
 
 __all__ = [
@@ -168,16 +170,36 @@ def body_hash(body: EpochIn, taxis: PlainTaxis | None = None) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-def _ext_path(city: City, path: tuple[int, ...]) -> list[int]:
-    ids: list[int] = city.network.node_ids[list(path)].tolist() if path else []
-    return ids
+_EXTERNAL_IDS: dict[int, tuple[Network, list[int]]] = {}  # id(network) -> (network, its node ids as ints)
 
 
-def _cells(cells: tuple[tuple[int, int], ...]) -> list[tuple[int, int]]:
-    return [(int(c), int(r)) for c, r in cells]
+def _external_ids(city: City) -> list[int]:
+    """The city's external node ids as a list of ints, kept for the few most recent networks."""
+    net = city.network
+    hit = _EXTERNAL_IDS.get(id(net))
+    if hit is None or hit[0] is not net:
+        if len(_EXTERNAL_IDS) >= 8:
+            _EXTERNAL_IDS.pop(next(iter(_EXTERNAL_IDS)), None)
+        hit = _EXTERNAL_IDS[id(net)] = (net, net.node_ids.tolist())
+    return hit[1]
 
 
-def _match_doc(city: City, m: RiderMatch) -> dict[str, Any]:
+def _ext_paths(city: City, paths: Sequence[tuple[int, ...]]) -> list[list[int]]:
+    """External node ids along each path."""
+    at = _external_ids(city).__getitem__
+    return [list(map(at, path)) for path in paths]
+
+
+def _cells_of(routes: Sequence[tuple[tuple[int, int], ...]]) -> list[list[tuple[int, int]]]:
+    """Each route's (col, row) cells as ints: as they are when they already are pairs of ints (one look at
+    all of them), converted one by one otherwise."""
+    cells = list(chain.from_iterable(routes))
+    if set(map(len, cells)) <= {2} and set(map(type, chain.from_iterable(cells))) <= {int}:
+        return [list(route) for route in routes]
+    return [[(int(c), int(r)) for c, r in route] for route in routes]
+
+
+def _match_doc(m: RiderMatch, path: list[int], cells: list[tuple[int, int]]) -> dict[str, Any]:
     """A core match as a ``RiderMatchOut`` document (same fields, same order)."""
     return {
         "step": int(m.step),
@@ -188,18 +210,18 @@ def _match_doc(city: City, m: RiderMatch) -> dict[str, Any]:
         "trip_m": float(m.trip_m),
         "trip_time_s": float(m.trip_time_s),
         "sensing_gain": float(m.sensing_gain),
-        "path": _ext_path(city, m.path),
-        "cells": _cells(m.cells),
+        "path": path,
+        "cells": cells,
     }
 
 
-def _assignment_doc(city: City, a: TaskAssignment) -> dict[str, Any]:
+def _assignment_doc(a: TaskAssignment, path: list[int], cells: list[tuple[int, int]]) -> dict[str, Any]:
     """A core assignment as a ``TaskAssignmentOut`` document (same fields, same order)."""
     return {
         "taxi_id": str(a.taxi_id),
         "task_id": str(a.task_id),
-        "path": _ext_path(city, a.path),
-        "cells": _cells(a.cells),
+        "path": path,
+        "cells": cells,
         "length_m": float(a.length_m),
         "travel_time_s": float(a.travel_time_s),
         "sensing_gain": float(a.sensing_gain),
@@ -225,7 +247,7 @@ class RiderMatchOut(ResponseModel):
     @classmethod
     def of(cls, city: City, m: RiderMatch) -> RiderMatchOut:
         """Render a core match."""
-        return cls.model_validate(_match_doc(city, m))
+        return cls.model_validate(_match_doc(m, _ext_paths(city, [m.path])[0], _cells_of([m.cells])[0]))
 
 
 class TaskAssignmentOut(ResponseModel):
@@ -244,7 +266,7 @@ class TaskAssignmentOut(ResponseModel):
     @classmethod
     def of(cls, city: City, a: TaskAssignment) -> TaskAssignmentOut:
         """Render a core assignment."""
-        return cls.model_validate(_assignment_doc(city, a))
+        return cls.model_validate(_assignment_doc(a, _ext_paths(city, [a.path])[0], _cells_of([a.cells])[0]))
 
 
 class EpochOut(ResponseModel):
@@ -272,6 +294,7 @@ def epoch_doc(result: EpochResult) -> dict[str, Any]:
     with the model's fields in the model's order: ``EpochOut.model_validate`` keeps it as it is, so its
     JSON is byte for byte ``EpochOut.of(result).model_dump_json()`` (tests/api/test_usecases.py)."""
     city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
+    matches, routes = decision.rider_matches, decision.task_assignments
     stats = _core_stats(decision)
     stats.update(
         {
@@ -294,8 +317,22 @@ def epoch_doc(result: EpochResult) -> dict[str, Any]:
     return {
         "epoch_id": str(snapshot.epoch_id),
         "time": str(result.epoch.time_text),
-        "rider_matches": [_match_doc(city, m) for m in decision.rider_matches],
-        "task_assignments": [_assignment_doc(city, a) for a in decision.task_assignments],
+        "rider_matches": list(
+            map(
+                _match_doc,
+                matches,
+                _ext_paths(city, [m.path for m in matches]),
+                _cells_of([m.cells for m in matches]),
+            )
+        ),
+        "task_assignments": list(
+            map(
+                _assignment_doc,
+                routes,
+                _ext_paths(city, [a.path for a in routes]),
+                _cells_of([a.cells for a in routes]),
+            )
+        ),
         "tasks_completed": [task_doc(city, t) for t in decision.tasks_completed],
         "unmatched_rider_ids": [str(r) for r in decision.unmatched_rider_ids],
         "expired_rider_ids": [str(r) for r in decision.expired_rider_ids],
