@@ -47,13 +47,19 @@ def apply_decision(
     epoch or earlier in the same list) changes nothing. No I/O and no clock: the only effect is on ``ledger``.
     """
     counted: list[Visit] = []
+    held, counts = ledger.visits, ledger.counts
     for v in visits:
         k, cell = IntervalKey(int(v.interval)), int(v.cell)
-        cells = ledger.visits.setdefault((k, v.taxi_id), set())
-        if cell in cells:
+        key = (k, v.taxi_id)
+        cells = held.get(key)
+        if cells is None:  # (no empty set or dict built per visit only to be thrown away)
+            cells = held[key] = set()
+        elif cell in cells:
             continue
         cells.add(cell)
-        row = ledger.counts.setdefault(k, {})
+        row = counts.get(k)
+        if row is None:
+            row = counts[k] = {}
         row[cell] = row.get(cell, 0) + 1
         counted.append(v)
     for t in task_updates:

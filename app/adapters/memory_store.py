@@ -5,8 +5,9 @@ from __future__ import annotations
 import heapq
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import repeat
 from typing import Literal
 
 from app.adapters.codec import check_fleet_record, classify_tasks, new_lock_token, utc_day
@@ -44,6 +45,11 @@ class _City:
     locks: dict[str, tuple[str, float]] = field(default_factory=dict)  # name -> (token, expires at)
     solve_queue: list[SolveRequest] = field(default_factory=list)
     done_at: dict[TaskId, float] = field(default_factory=dict)  # epoch time a task finished at
+    # (interval, taxi) -> (its visited cells' set in the ledger, that set's size, the (interval, cell) pairs):
+    # the pairs load_state hands out, built again only when the set grew or was replaced (sets only grow)
+    visit_pairs: dict[
+        tuple[IntervalKey, TaxiId], tuple[set[int], int, frozenset[tuple[IntervalKey, int]]]
+    ] = field(default_factory=dict, compare=False, repr=False)  # derived from ledger.visits: not state
 
 
 def _prune_done(c: _City, before_s: float) -> None:
@@ -71,9 +77,15 @@ class MemoryStore:
     # -- expiry (lazy, like Redis: expired entries are invisible and dropped on the next access) --------
 
     def _touch(self, key: _ExpiryKey, ttl_s: int) -> None:
+        self._touch_all((key,), ttl_s)
+
+    def _touch_all(self, keys: Iterable[_ExpiryKey], ttl_s: int) -> None:
+        """Let each of ``keys`` (distinct) live ``ttl_s`` from now."""
         at = self._clock() + ttl_s
-        self._expires_at[key] = at
-        heapq.heappush(self._heap, (at, key))
+        expires_at, heap = self._expires_at, self._heap
+        for key in keys:
+            expires_at[key] = at
+            heapq.heappush(heap, (at, key))
 
     def _purge(self) -> None:
         now = self._clock()
@@ -94,6 +106,7 @@ class MemoryStore:
         elif kind == "visit":
             k, taxi = name.split(":", 1)
             city.ledger.visits.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
+            city.visit_pairs.pop((IntervalKey(int(k)), TaxiId(taxi)), None)
         elif kind == "epoch":
             city.epochs.pop(name, None)
         elif kind == "meta":
@@ -127,11 +140,17 @@ class MemoryStore:
         with self._lock:
             c = self._city(city)
             ks = list(dict.fromkeys(intervals))
+            visits, cache = c.ledger.visits, c.visit_pairs
             visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
             for taxi in dict.fromkeys(taxi_ids):
                 pairs: set[tuple[IntervalKey, int]] = set()
                 for k in ks:
-                    pairs.update((k, cell) for cell in c.ledger.visits.get((k, taxi), ()))
+                    cells = visits.get((k, taxi))
+                    if cells:
+                        hit = cache.get((k, taxi))
+                        if hit is None or hit[0] is not cells or hit[1] != len(cells):
+                            hit = cache[(k, taxi)] = (cells, len(cells), frozenset(zip(repeat(k), cells)))
+                        pairs.update(hit[2])
                 visited[taxi] = pairs
             return CityState(
                 version=c.version,
@@ -161,10 +180,13 @@ class MemoryStore:
                 if t.status in DONE:
                     c.done_at[t.id] = float(commit.time_s)
             _prune_done(c, float(commit.time_s) - ttl)
-            for visit in commit.visits:  # like Redis: every key a visit names lives on from this commit
-                k = IntervalKey(int(visit.interval))
-                self._touch((city, "count", str(int(k))), ttl)
-                self._touch((city, "visit", _visit_key(k, visit.taxi_id)), ttl)
+            # like Redis: every key a visit names lives on from this commit (each key touched once)
+            keys = dict.fromkeys((IntervalKey(int(v.interval)), v.taxi_id) for v in commit.visits)
+            touched: dict[_ExpiryKey, None] = {}
+            for k, taxi in keys:
+                touched[(city, "count", str(int(k)))] = None
+                touched[(city, "visit", _visit_key(k, taxi))] = None
+            self._touch_all(touched, ttl)
             c.epochs[commit.epoch_id] = StoredEpoch(
                 commit.epoch_id, commit.body_hash, float(commit.time_s), commit.response_json, commit.nonce
             )

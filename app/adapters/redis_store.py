@@ -9,6 +9,7 @@ import json
 import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from itertools import repeat
 from typing import Any, Literal, cast
 from urllib.parse import urlsplit
 
@@ -329,7 +330,7 @@ class RedisStore:
         for taxi in taxis:
             pairs: set[tuple[IntervalKey, int]] = set()
             for k in ks:
-                pairs.update((k, int(cell)) for cell in replies[at])
+                pairs.update(zip(repeat(k), map(int, replies[at])))
                 at += 1
             visited[taxi] = pairs
         return CityState(

@@ -12,6 +12,7 @@ schema with ``request_body`` so the OpenAPI document keeps describing it (``open
 from __future__ import annotations
 
 import email.message
+from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 
 import pydantic_core
@@ -24,12 +25,13 @@ from app.api.handlers import from_validation_errors
 from app.api.inputs import Limits
 from app.errors import BadRequest, FieldIssue, InvalidInput, UnsupportedMediaType
 from app.schemas.admin import ResetIn, RewindIn
-from app.schemas.dispatch import EpochIn
+from app.schemas.dispatch import EpochIn, PlainTaxis, plain_taxis
 from app.schemas.dro import MAX_SAMPLES, WorstCaseIn
 from app.schemas.tasks import TaskIn
 
 __all__ = [
     "RawBody",
+    "EpochPost",
     "EpochBody",
     "TasksBody",
     "WorstCaseBody",
@@ -86,12 +88,25 @@ def _validate(model: type[M], obj: Any) -> M:
         raise from_validation_errors(exc) from None
 
 
-def _epoch(raw: RawBody, limits: LimitsDep) -> EpochIn:
+@dataclass(frozen=True, slots=True)
+class EpochPost:
+    """A validated epoch body. ``taxis`` is set when every taxi has the common form ``plain_taxis`` reads
+    (``body`` is then validated without them: one model per taxi is most of the cost at thousands of taxis);
+    otherwise ``body`` holds them, validated by the model."""
+
+    body: EpochIn
+    taxis: PlainTaxis | None = None
+
+
+def _epoch(raw: RawBody, limits: LimitsDep) -> EpochPost:
     obj = _json(raw)
     if isinstance(obj, dict):
         _at_most(obj.get("riders"), limits.max_riders, "riders")
         _at_most(obj.get("taxis"), limits.max_taxis, "taxis")
-    return _validate(EpochIn, obj)
+        taxis = plain_taxis(obj.get("taxis"))
+        if taxis is not None:  # valid as they are: the model validates the rest, with the same errors
+            return EpochPost(_validate(EpochIn, {**obj, "taxis": []}), taxis)
+    return EpochPost(_validate(EpochIn, obj))
 
 
 def _tasks(raw: RawBody, limits: LimitsDep) -> list[TaskIn]:
@@ -119,7 +134,7 @@ def _reset(raw: RawBody) -> ResetIn:
 
 
 # plain ``def`` dependencies: FastAPI runs them in the threadpool, never on the event loop
-EpochBody = Annotated[EpochIn, Depends(_epoch)]
+EpochBody = Annotated[EpochPost, Depends(_epoch)]
 TasksBody = Annotated[list[TaskIn], Depends(_tasks)]
 WorstCaseBody = Annotated[WorstCaseIn, Depends(_worst_case)]
 RewindBody = Annotated[RewindIn, Depends(_rewind)]

@@ -65,7 +65,8 @@ def post_epoch(
     """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
     started = time.perf_counter()
     try:
-        outcome = service.submit_epoch(city, epoch_command(service.city(city), epoch, limits))
+        command = epoch_command(service.city(city), epoch.body, limits, epoch.taxis)
+        outcome = service.submit_epoch(city, command)
     except ServiceError as err:
         metrics.epochs.labels(outcome=err.kind).inc()
         raise

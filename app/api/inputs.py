@@ -6,10 +6,11 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 from app.errors import InvalidInput
 from app.schemas.common import LABEL_PATTERN, RFC3339_PATTERN, LocationIn
-from app.schemas.dispatch import EpochIn, body_hash
+from app.schemas.dispatch import EpochIn, PlainTaxis, body_hash
 from app.schemas.tasks import TaskIn
 from app.settings import Settings
 from app.usecases import EpochCommand
@@ -77,12 +78,15 @@ def _at_most(n: int, limit: int, where: str) -> None:
         raise InvalidInput.at(where, f"at most {limit} items per request, got {n}")
 
 
-def snapshot_of(city: City, body: EpochIn, limits: Limits) -> Snapshot:
-    """The epoch resolved to node indices (sizes, unique ids, request times and locations checked)."""
+def snapshot_of(city: City, body: EpochIn, limits: Limits, plain: PlainTaxis | None = None) -> Snapshot:
+    """The epoch resolved to node indices (sizes, unique ids, request times and locations checked). With
+    ``plain`` (the body's taxis read by ``plain_taxis``, ``body`` validated without them) the taxis are
+    those, checked in the same order with the same errors."""
+    taxi_ids = [t.id for t in body.taxis] if plain is None else plain.ids
     _at_most(len(body.riders), limits.max_riders, "riders")
-    _at_most(len(body.taxis), limits.max_taxis, "taxis")
+    _at_most(len(taxi_ids), limits.max_taxis, "taxis")
     _unique([r.id for r in body.riders], "riders")
-    _unique([t.id for t in body.taxis], "taxis")
+    _unique(taxi_ids, "taxis")
     time_s = body.time.timestamp()
     riders: list[Rider] = []
     for i, r in enumerate(body.riders):
@@ -97,21 +101,31 @@ def snapshot_of(city: City, body: EpochIn, limits: Limits) -> Snapshot:
                 requested_at_s=requested_s,
             )
         )
-    taxis = tuple(
-        Taxi(
-            id=TaxiId(t.id),
-            node=node_of(city, t.location, f"taxis[{i}].location"),
-            instrumented=t.instrumented,
-            vacant=t.status == "vacant",
-        )
-        for i, t in enumerate(body.taxis)
-    )
-    return Snapshot(epoch_id=body.epoch_id, time_s=time_s, riders=tuple(riders), taxis=taxis)
+    index_of = city.network.index_of
+    taxis: list[Taxi] = []
+    if plain is not None:
+        nodes: list[int] = []
+        for i, node_id in enumerate(plain.node_ids):
+            try:
+                nodes.append(index_of(node_id))
+            except SnapError:
+                node_of(city, LocationIn(node=node_id), f"taxis[{i}].location")  # raises, naming the field
+        ids = cast(tuple[TaxiId, ...], plain.ids)
+        taxis = list(map(Taxi, ids, nodes, plain.instrumented, plain.vacant))
+    for i, t in enumerate(body.taxis):
+        loc = t.location
+        try:  # the common case, a known node id, without building the field's name
+            node = index_of(loc.node) if loc.node is not None else node_of(city, loc, "")
+        except (SnapError, InvalidInput):
+            node = node_of(city, loc, f"taxis[{i}].location")  # raises, naming the field
+        taxis.append(Taxi(TaxiId(t.id), node, t.instrumented, t.status == "vacant"))
+    return Snapshot(epoch_id=body.epoch_id, time_s=time_s, riders=tuple(riders), taxis=tuple(taxis))
 
 
-def epoch_command(city: City, body: EpochIn, limits: Limits) -> EpochCommand:
-    """The use case's input for an epoch post: the snapshot, the body's canonical hash and the posted time."""
-    return EpochCommand(snapshot_of(city, body, limits), body_hash(body), body.time.isoformat())
+def epoch_command(city: City, body: EpochIn, limits: Limits, plain: PlainTaxis | None = None) -> EpochCommand:
+    """The use case's input for an epoch post: the snapshot, the body's canonical hash and the posted time
+    (``plain``: the body's taxis as ``plain_taxis`` read them, ``body`` validated without them)."""
+    return EpochCommand(snapshot_of(city, body, limits, plain), body_hash(body, plain), body.time.isoformat())
 
 
 def tasks_of(city: City, tasks: Sequence[TaskIn], limits: Limits) -> list[Task]:

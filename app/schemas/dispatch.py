@@ -6,27 +6,44 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from collections.abc import Mapping
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from itertools import chain
+from json.encoder import encode_basestring_ascii
 from typing import Any, Literal
 
 import numpy as np
+import pydantic_core
 from pydantic import Field, StrictBool
 
-from app.schemas.common import Identifier, LocationIn, RequestModel, ResponseModel, Rfc3339, TimedRequest
-from app.schemas.tasks import TaskOut, task_of
+from app.schemas.common import (
+    ID_MAX_LEN,
+    Identifier,
+    LocationIn,
+    RequestModel,
+    ResponseModel,
+    Rfc3339,
+    TimedRequest,
+)
+from app.schemas.tasks import TaskOut, task_doc, task_of
 from app.usecases import EpochResult, StoredDecision
 from services.city import City
 from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
+from services.network import Network
 from services.rfc3339 import parse_rfc3339
 
 __all__ = [
     "RiderIn",
     "TaxiIn",
     "EpochIn",
+    "PlainTaxis",
+    "plain_taxis",
     "body_hash",
     "RiderMatchOut",
     "TaskAssignmentOut",
     "EpochOut",
+    "epoch_doc",
     "render_epoch",
     "decision_of",
     "read_epoch",
@@ -60,19 +77,157 @@ class EpochIn(TimedRequest):
     taxis: list[TaxiIn]
 
 
-def body_hash(body: EpochIn) -> str:
+@dataclass(frozen=True, slots=True)
+class PlainTaxis:
+    """An epoch's taxis read by ``plain_taxis``: external node ids, and their part of the canonical JSON."""
+
+    ids: tuple[str, ...]
+    node_ids: tuple[int, ...]
+    instrumented: tuple[bool, ...]
+    vacant: tuple[bool, ...]
+    canonical: str  # the JSON array ``body_hash`` writes for these taxis
+
+
+_TAXI_KEYS = frozenset({"id", "location", "instrumented", "status"})
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+_INT64 = (-(2**63), 2**63 - 1)
+_LOCATION_KEYS = frozenset({"node", "lon", "lat"})
+if (frozenset(TaxiIn.model_fields), frozenset(LocationIn.model_fields)) != (_TAXI_KEYS, _LOCATION_KEYS):
+    # plain_taxis writes exactly these fields' canonical JSON
+    raise RuntimeError("plain_taxis reads TaxiIn and LocationIn as they are: change it with the models")
+
+
+def plain_taxis(value: object) -> PlainTaxis | None:
+    """The parsed JSON ``taxis`` of an epoch body read without a model per taxi, when every item has the
+    common form ``{"id": printable ASCII text of 1..128 characters, "location": {"node": a JSON integer in
+    int64}, "instrumented": true or false, "status": "vacant" or "busy"}``: exactly what ``TaxiIn`` accepts
+    and keeps unchanged in that form. ``None`` for anything else, including every item ``TaxiIn`` would
+    refuse: the model then validates the taxis and says what is wrong (``app.api.bodies``)."""
+    if type(value) is not list:
+        return None
+    lo, hi = _INT64
+    ids: list[str] = []
+    nodes: list[int] = []
+    instrumented: list[bool] = []
+    vacant: list[bool] = []
+    parts: list[str] = []
+    for item in value:
+        if type(item) is not dict or item.keys() != _TAXI_KEYS:
+            return None
+        ident, loc, instr, status = item["id"], item["location"], item["instrumented"], item["status"]
+        if (
+            type(ident) is not str
+            or not 0 < len(ident) <= ID_MAX_LEN
+            or type(loc) is not dict
+            or len(loc) != 1
+            or type(instr) is not bool
+            or type(status) is not str
+            or (status != "vacant" and status != "busy")
+        ):
+            return None
+        node = loc.get("node")
+        if type(node) is not int or not lo <= node <= hi:
+            return None
+        ids.append(ident)
+        nodes.append(node)
+        instrumented.append(instr)
+        vacant.append(status == "vacant")
+        parts.append(
+            f'{{"id":{encode_basestring_ascii(ident)},"instrumented":{"true" if instr else "false"},'
+            f'"location":{{"lat":null,"lon":null,"node":{node}}},"status":"{status}"}}'
+        )
+    every_id = "".join(ids)  # no id is empty, so one look at them all
+    if not every_id.isascii() or _CONTROL.search(every_id):
+        return None
+    return PlainTaxis(
+        tuple(ids), tuple(nodes), tuple(instrumented), tuple(vacant), "[" + ",".join(parts) + "]"
+    )
+
+
+def _canonical(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"))
+
+
+def body_hash(body: EpochIn, taxis: PlainTaxis | None = None) -> str:
     """sha256 of the canonical JSON of a validated epoch body: the model dumped in JSON mode, keys sorted,
-    no spaces. Every committed epoch stores it and a replay must match it, so this never changes."""
-    canonical = json.dumps(body.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    no spaces. Every committed epoch stores it and a replay must match it, so this never changes.
+
+    With ``taxis`` (the body's taxis read by ``plain_taxis``, ``body`` validated without them), their part
+    is ``taxis.canonical``: the same text the model's dump of them gives (tests/api/test_plain_taxis.py)."""
+    dump = body.model_dump(mode="json")
+    if taxis is None:
+        canonical = _canonical(dump)
+    else:
+        dump["taxis"] = None
+        canonical = (
+            "{"
+            + ",".join(
+                f"{_canonical(key)}:{taxis.canonical if key == 'taxis' else _canonical(dump[key])}"
+                for key in sorted(dump)
+            )
+            + "}"
+        )
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-def _ext_path(city: City, path: tuple[int, ...]) -> list[int]:
-    return [int(v) for v in city.network.node_ids[list(path)]] if path else []
+_EXTERNAL_IDS: dict[int, tuple[Network, list[int]]] = {}  # id(network) -> (network, its node ids as ints)
 
 
-def _cells(cells: tuple[tuple[int, int], ...]) -> list[tuple[int, int]]:
-    return [(int(c), int(r)) for c, r in cells]
+def _external_ids(city: City) -> list[int]:
+    """The city's external node ids as a list of ints, kept for the few most recent networks."""
+    net = city.network
+    hit = _EXTERNAL_IDS.get(id(net))
+    if hit is None or hit[0] is not net:
+        if len(_EXTERNAL_IDS) >= 8:
+            _EXTERNAL_IDS.pop(next(iter(_EXTERNAL_IDS)), None)
+        hit = _EXTERNAL_IDS[id(net)] = (net, net.node_ids.tolist())
+    return hit[1]
+
+
+def _ext_paths(city: City, paths: Sequence[tuple[int, ...]]) -> list[list[int]]:
+    """External node ids along each path."""
+    at = _external_ids(city).__getitem__
+    return [list(map(at, path)) for path in paths]
+
+
+def _cells_of(routes: Sequence[tuple[tuple[int, int], ...]]) -> list[list[tuple[int, int]]]:
+    """Each route's (col, row) cells as ints: as they are when they already are pairs of ints (one look at
+    all of them), converted one by one otherwise."""
+    cells = list(chain.from_iterable(routes))
+    if set(map(len, cells)) <= {2} and set(map(type, chain.from_iterable(cells))) <= {int}:
+        return [list(route) for route in routes]
+    return [[(int(c), int(r)) for c, r in route] for route in routes]
+
+
+def _match_doc(m: RiderMatch, path: list[int], cells: list[tuple[int, int]]) -> dict[str, Any]:
+    """A core match as a ``RiderMatchOut`` document (same fields, same order)."""
+    return {
+        "step": int(m.step),
+        "taxi_id": str(m.taxi_id),
+        "rider_id": str(m.rider_id),
+        "pickup_m": float(m.pickup_m),
+        "wait_s": float(m.wait_s),
+        "trip_m": float(m.trip_m),
+        "trip_time_s": float(m.trip_time_s),
+        "sensing_gain": float(m.sensing_gain),
+        "path": path,
+        "cells": cells,
+    }
+
+
+def _assignment_doc(a: TaskAssignment, path: list[int], cells: list[tuple[int, int]]) -> dict[str, Any]:
+    """A core assignment as a ``TaskAssignmentOut`` document (same fields, same order)."""
+    return {
+        "taxi_id": str(a.taxi_id),
+        "task_id": str(a.task_id),
+        "path": path,
+        "cells": cells,
+        "length_m": float(a.length_m),
+        "travel_time_s": float(a.travel_time_s),
+        "sensing_gain": float(a.sensing_gain),
+        "efficiency": float(a.efficiency),
+        "cost_cny": float(a.cost_cny),
+    }
 
 
 class RiderMatchOut(ResponseModel):
@@ -92,18 +247,7 @@ class RiderMatchOut(ResponseModel):
     @classmethod
     def of(cls, city: City, m: RiderMatch) -> RiderMatchOut:
         """Render a core match."""
-        return cls(
-            step=m.step,
-            taxi_id=str(m.taxi_id),
-            rider_id=str(m.rider_id),
-            pickup_m=float(m.pickup_m),
-            wait_s=float(m.wait_s),
-            trip_m=float(m.trip_m),
-            trip_time_s=float(m.trip_time_s),
-            sensing_gain=float(m.sensing_gain),
-            path=_ext_path(city, m.path),
-            cells=_cells(m.cells),
-        )
+        return cls.model_validate(_match_doc(m, _ext_paths(city, [m.path])[0], _cells_of([m.cells])[0]))
 
 
 class TaskAssignmentOut(ResponseModel):
@@ -122,17 +266,7 @@ class TaskAssignmentOut(ResponseModel):
     @classmethod
     def of(cls, city: City, a: TaskAssignment) -> TaskAssignmentOut:
         """Render a core assignment."""
-        return cls(
-            taxi_id=str(a.taxi_id),
-            task_id=str(a.task_id),
-            path=_ext_path(city, a.path),
-            cells=_cells(a.cells),
-            length_m=float(a.length_m),
-            travel_time_s=float(a.travel_time_s),
-            sensing_gain=float(a.sensing_gain),
-            efficiency=float(a.efficiency),
-            cost_cny=float(a.cost_cny),
-        )
+        return cls.model_validate(_assignment_doc(a, _ext_paths(city, [a.path])[0], _cells_of([a.cells])[0]))
 
 
 class EpochOut(ResponseModel):
@@ -151,37 +285,59 @@ class EpochOut(ResponseModel):
 
     @classmethod
     def of(cls, result: EpochResult) -> EpochOut:
-        """Render a decided epoch with external node ids and local times."""
-        city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
-        stats = _core_stats(decision)
-        stats.update(
-            {
-                "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
-                "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
-                "task_assignments": len(decision.task_assignments),
-                "tasks_completed": len(decision.tasks_completed),
-                "riders": len(snapshot.riders),
-                "taxis": len(snapshot.taxis),
-                "interval": city.horizon.label(result.interval),
-                "interval_key": int(result.interval),
-                "in_horizon": int(city.horizon.in_horizon(result.interval)),
-                "solve_ms": round(result.solve_ms, 3),
-                "attempts": result.attempts,
-                "visits": len(decision.visits),
-                "gamma": result.gamma_after,
-                "gamma_gain": result.gamma_after - result.gamma_before,
-            }
-        )
-        return cls(
-            epoch_id=snapshot.epoch_id,
-            time=result.epoch.time_text,
-            rider_matches=[RiderMatchOut.of(city, m) for m in decision.rider_matches],
-            task_assignments=[TaskAssignmentOut.of(city, a) for a in decision.task_assignments],
-            tasks_completed=[TaskOut.of(city, t) for t in decision.tasks_completed],
-            unmatched_rider_ids=[str(r) for r in decision.unmatched_rider_ids],
-            expired_rider_ids=[str(r) for r in decision.expired_rider_ids],
-            stats=stats,
-        )
+        """Render a decided epoch with external node ids and local times (validated)."""
+        return cls.model_validate(epoch_doc(result))
+
+
+def epoch_doc(result: EpochResult) -> dict[str, Any]:
+    """A decided epoch as an ``EpochOut`` document of plain JSON values (external node ids, local times),
+    with the model's fields in the model's order: ``EpochOut.model_validate`` keeps it as it is, so its
+    JSON is byte for byte ``EpochOut.of(result).model_dump_json()`` (tests/api/test_usecases.py)."""
+    city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
+    matches, routes = decision.rider_matches, decision.task_assignments
+    stats = _core_stats(decision)
+    stats.update(
+        {
+            "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
+            "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
+            "task_assignments": len(decision.task_assignments),
+            "tasks_completed": len(decision.tasks_completed),
+            "riders": len(snapshot.riders),
+            "taxis": len(snapshot.taxis),
+            "interval": city.horizon.label(result.interval),
+            "interval_key": int(result.interval),
+            "in_horizon": int(city.horizon.in_horizon(result.interval)),
+            "solve_ms": round(float(result.solve_ms), 3),
+            "attempts": int(result.attempts),
+            "visits": len(decision.visits),
+            "gamma": float(result.gamma_after),
+            "gamma_gain": float(result.gamma_after - result.gamma_before),
+        }
+    )
+    return {
+        "epoch_id": str(snapshot.epoch_id),
+        "time": str(result.epoch.time_text),
+        "rider_matches": list(
+            map(
+                _match_doc,
+                matches,
+                _ext_paths(city, [m.path for m in matches]),
+                _cells_of([m.cells for m in matches]),
+            )
+        ),
+        "task_assignments": list(
+            map(
+                _assignment_doc,
+                routes,
+                _ext_paths(city, [a.path for a in routes]),
+                _cells_of([a.cells for a in routes]),
+            )
+        ),
+        "tasks_completed": [task_doc(city, t) for t in decision.tasks_completed],
+        "unmatched_rider_ids": [str(r) for r in decision.unmatched_rider_ids],
+        "expired_rider_ids": [str(r) for r in decision.expired_rider_ids],
+        "stats": stats,
+    }
 
 
 def _core_stats(decision: Decision) -> dict[str, float | int | str]:
@@ -195,13 +351,14 @@ def _core_stats(decision: Decision) -> dict[str, float | int | str]:
             if math.isfinite(v):  # JSON has no NaN or infinity
                 stats[key] = float(v)
         elif isinstance(v, str):
-            stats[key] = v
+            stats[key] = str(v)
     return stats
 
 
 def render_epoch(result: EpochResult) -> str:
-    """The response document of a decided epoch (``DispatchService``'s renderer)."""
-    return EpochOut.of(result).model_dump_json()
+    """The response document of a decided epoch (``DispatchService``'s renderer): ``epoch_doc`` encoded by
+    pydantic's JSON encoder, without validating the values it was built from a second time."""
+    return pydantic_core.to_json(epoch_doc(result), inf_nan_mode="null").decode()
 
 
 def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:

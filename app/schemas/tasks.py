@@ -13,7 +13,7 @@ from services.city import City
 from services.model import Task, TaskId, TaxiId
 from services.rfc3339 import parse_rfc3339
 
-__all__ = ["TaskIn", "TaskOut", "TasksOut", "TasksPutOut", "task_of"]
+__all__ = ["TaskIn", "TaskOut", "TasksOut", "TasksPutOut", "task_doc", "task_of"]
 
 
 class TaskIn(TimedRequest):
@@ -38,16 +38,21 @@ class TaskOut(ResponseModel):
     @classmethod
     def of(cls, city: City, task: Task) -> TaskOut:
         """Render a core task with external node ids and local times."""
-        tz = city.horizon.timezone
-        return cls(
-            id=str(task.id),
-            node=int(city.network.node_ids[task.node]),
-            status=task.status,
-            scheduled_at=format_time(task.scheduled_at_s, tz),
-            completed_at=None if task.completed_at_s is None else format_time(task.completed_at_s, tz),
-            taxi_id=None if task.taxi_id is None else str(task.taxi_id),
-            mode=task.mode,
-        )
+        return cls.model_validate(task_doc(city, task))
+
+
+def task_doc(city: City, task: Task) -> dict[str, Any]:
+    """A core task as a ``TaskOut`` document (same fields, same order), not validated again."""
+    tz = city.horizon.timezone
+    return {
+        "id": str(task.id),
+        "node": int(city.network.node_ids[task.node]),
+        "status": task.status,
+        "scheduled_at": format_time(task.scheduled_at_s, tz),
+        "completed_at": None if task.completed_at_s is None else format_time(task.completed_at_s, tz),
+        "taxi_id": None if task.taxi_id is None else str(task.taxi_id),
+        "mode": task.mode,
+    }
 
 
 def task_of(city: City, doc: Mapping[str, Any]) -> Task:

@@ -61,3 +61,19 @@ def test_entries_expire_after_retention_and_are_refreshed_when_touched() -> None
     assert [t.id for t in state.tasks] == ["t-e1", "t-e2"]
     # an expired epoch id may be committed again (Redis behaves the same once the record's key expires)
     assert store.commit_epoch(CITY, _commit("e1", 0, [], retention_s=100)).status == "committed"
+
+
+def test_loaded_visits_follow_every_commit_and_expiry() -> None:
+    """load_state keeps the (interval, cell) pairs it built for a taxi: they must follow the ledger when a
+    later commit adds cells, when the visits expire, and when they come back after expiring."""
+    clock = FakeClock()
+    store = MemoryStore(clock=clock)
+    store.commit_epoch(CITY, _commit("e1", 0, [Visit(A, K1, 5)], retention_s=100))
+    assert store.load_state(CITY, [K1, K2], [A, B]).visited == {A: {(K1, 5)}, B: set()}
+    store.commit_epoch(CITY, _commit("e2", 1, [Visit(A, K1, 6), Visit(A, K2, 5)], retention_s=100))
+    assert store.load_state(CITY, [K1, K2], [A]).visited == {A: {(K1, 5), (K1, 6), (K2, 5)}}
+    assert store.load_state(CITY, [K2], [A]).visited == {A: {(K2, 5)}}
+    clock.now += 101  # every visit expired
+    assert store.load_state(CITY, [K1, K2], [A]).visited == {A: set()}
+    store.commit_epoch(CITY, _commit("e3", 0, [Visit(A, K1, 7)], retention_s=100))
+    assert store.load_state(CITY, [K1, K2], [A]).visited == {A: {(K1, 7)}}

@@ -1,0 +1,203 @@
+"""An epoch body's taxis in their common form are read without a model per taxi (``plain_taxis``); every
+other body goes through the model as before. Either way a post must come out exactly as the model alone
+made it: the same resolved snapshot, the same canonical hash, or the same error (status, kind, detail and
+fields). Checked here against the former path (validate the whole body, resolve, hash) on hand-picked and
+on random bodies that mix every form a taxi can take, right or wrong."""
+
+from __future__ import annotations
+
+import json
+import random
+from typing import Any
+
+import pytest
+
+from app.api.bodies import _epoch, _json, _validate
+from app.api.inputs import Limits, epoch_command, snapshot_of
+from app.cities import CityRegistry
+from app.errors import ServiceError
+from app.schemas.dispatch import EpochIn, body_hash, plain_taxis
+from app.usecases import EpochCommand
+from services.city import City
+from tests.api.fakes import CITY, lonlat, node_id
+from tests.api.payloads import epoch
+
+LIMITS = Limits(max_riders=20, max_taxis=6, max_tasks=10)
+
+
+def former(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
+    """The epoch path before ``plain_taxis``: the model validates the whole body."""
+    body = _json(("application/json", json.dumps(obj).encode()))
+    if isinstance(body, dict):
+        for key, limit in (("riders", limits.max_riders), ("taxis", limits.max_taxis)):
+            if isinstance(body.get(key), list) and len(body[key]) > limit:
+                with pytest.raises(ServiceError):
+                    _epoch(("application/json", json.dumps(obj).encode()), limits)
+                raise _Skip
+    model = _validate(EpochIn, body)
+    return EpochCommand(snapshot_of(city, model, limits), body_hash(model), model.time.isoformat())
+
+
+class _Skip(Exception):
+    pass
+
+
+def current(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
+    """The epoch path as the route runs it."""
+    post = _epoch(("application/json", json.dumps(obj).encode()), limits)
+    return epoch_command(city, post.body, limits, post.taxis)
+
+
+def outcome(run: Any, city: City, obj: Any) -> Any:
+    try:
+        return run(city, obj)
+    except ServiceError as err:
+        return (err.status, err.kind, err.detail, [(f.loc, f.msg) for f in err.fields])
+
+
+def same(city: City, obj: Any) -> Any:
+    """Both paths' outcome (asserted equal); a body of more items than the limits is refused by both."""
+    try:
+        before = outcome(former, city, obj)
+    except _Skip:
+        return None
+    after = outcome(current, city, obj)
+    assert after == before
+    return after
+
+
+def taxi(ident: str = "t0", node: Any = None, *, instrumented: Any = True, status: Any = "vacant") -> Any:
+    return {
+        "id": ident,
+        "location": {"node": node_id(1, 1) if node is None else node},
+        "instrumented": instrumented,
+        "status": status,
+    }
+
+
+LON, LAT = lonlat(2, 3)
+FORMS: list[Any] = [  # right and wrong taxis; ``{i}`` in an id is replaced by the item's position
+    taxi("t{i}"),
+    taxi("t{i}", node_id(4, 4), instrumented=False, status="busy"),
+    taxi('q"\\/{i}'),
+    taxi("x" * 126 + "{i}"),
+    taxi("x" * 127 + "{i}"),
+    taxi("x" * 128 + "{i}"),
+    taxi("\U0001f695{i}"),
+    taxi("", node_id(0, 0)),
+    taxi("é{i}"),
+    taxi("tab\t{i}"),
+    taxi("del\x7f{i}"),
+    taxi("t{i}", 1000.0),
+    taxi("t{i}", 1000.5),
+    taxi("t{i}", True),
+    taxi("t{i}", "1000"),
+    taxi("t{i}", 999),
+    taxi("t{i}", 2**63 - 1),
+    taxi("t{i}", -(2**63)),
+    taxi("t{i}", 2**63),
+    taxi("t{i}", instrumented=1),
+    taxi("t{i}", instrumented=None),
+    taxi("t{i}", status="VACANT"),
+    taxi("t{i}", status=None),
+    {"id": "t{i}", "location": {"lon": LON, "lat": LAT}, "instrumented": True, "status": "vacant"},
+    {"id": "t{i}", "location": {"lon": 0.0, "lat": 0.0}, "instrumented": True, "status": "vacant"},
+    {"id": "t{i}", "location": {"node": 1000, "lon": LON}, "instrumented": True, "status": "vacant"},
+    {"id": "t{i}", "location": {"node": None}, "instrumented": True, "status": "vacant"},
+    {"id": "t{i}", "location": {}, "instrumented": True, "status": "vacant"},
+    {"id": "t{i}", "location": [1000], "instrumented": True, "status": "vacant"},
+    {"id": "t{i}", "location": {"node": 1000}, "instrumented": True},
+    {"id": "t{i}", "location": {"node": 1000}, "instrumented": True, "status": "vacant", "x": 1},
+    {"id": 7, "location": {"node": 1000}, "instrumented": True, "status": "vacant"},
+    ["t{i}"],
+    None,
+]
+
+
+def _instance(form: Any, i: int) -> Any:
+    return json.loads(json.dumps(form).replace("{i}", str(i)))
+
+
+@pytest.fixture(scope="module")
+def city(registry: CityRegistry) -> City:
+    return registry.get(CITY)
+
+
+def test_common_taxis_take_the_plain_path_and_come_out_as_before(city: City) -> None:
+    obj = epoch(taxis=[_instance(FORMS[k], i) for i, k in enumerate([0, 1, 2, 3, 4])])
+    assert plain_taxis(obj["taxis"]) is not None
+    command = same(city, obj)
+    assert isinstance(command, EpochCommand) and len(command.snapshot.taxis) == 5
+    assert [t.vacant for t in command.snapshot.taxis] == [True, False, True, True, True]
+
+
+@pytest.mark.parametrize("k", range(len(FORMS)))
+def test_each_form_alone_and_beside_common_taxis(city: City, k: int) -> None:
+    for taxis in ([_instance(FORMS[k], 0)], [_instance(FORMS[0], 0), _instance(FORMS[k], 1)]):
+        same(city, epoch(taxis=taxis))
+
+
+@pytest.mark.parametrize(
+    "taxis",
+    [
+        None,
+        {},
+        "taxis",
+        [],
+        [taxi("t0"), taxi("t0")],  # duplicate ids
+        [taxi(f"t{i}") for i in range(7)],  # more than the limit
+        [taxi("t0"), taxi("t1", 999)],  # unknown node id at position 1
+    ],
+)
+def test_whole_taxi_lists(city: City, taxis: Any) -> None:
+    obj = epoch()
+    if taxis is None:
+        del obj["taxis"]
+    else:
+        obj["taxis"] = taxis
+    same(city, obj)
+
+
+def test_other_errors_with_common_taxis_are_the_models(city: City) -> None:
+    bad_rider = epoch()
+    bad_rider["riders"][0]["requested_at"] = "yesterday"
+    bad_time = epoch()
+    bad_time["time"] = "2026-13-01T00:00:00Z"
+    extra = epoch() | {"note": 1}
+    no_id = {k: v for k, v in epoch().items() if k != "epoch_id"}
+    late = epoch()
+    late["riders"][0]["requested_at"] = "2099-01-01T00:00:00Z"
+    for obj in (bad_rider, bad_time, extra, no_id, late):
+        assert plain_taxis(obj["taxis"]) is not None
+        result = same(city, obj)
+        assert isinstance(result, tuple) and result[0] == 422
+
+
+def test_random_bodies(city: City) -> None:
+    rng = random.Random(20261123)
+    plain = 0
+    for _ in range(400):
+        n = rng.randint(1, 5)
+        weights = [8 if k < 5 else 1 for k in range(len(FORMS))]  # mostly common taxis
+        taxis = [_instance(rng.choices(FORMS, weights)[0], i) for i in range(n)]
+        if rng.random() < 0.1 and n > 1:
+            taxis[-1] = json.loads(json.dumps(taxis[0]))  # a duplicate
+        obj = epoch(taxis=taxis)
+        plain += plain_taxis(taxis) is not None
+        same(city, obj)
+    assert plain > 100  # the plain path was exercised, not only the model's
+
+
+def test_the_canonical_taxis_are_the_models_dump() -> None:
+    """The hash of a body read with ``plain_taxis`` is the hash of the whole model, node ids at the ends
+    of int64 and ids that JSON escapes included (no city involved)."""
+    taxis = [
+        taxi('a"b\\c/d'),
+        taxi("x" * 128, 2**63 - 1, instrumented=False, status="busy"),
+        taxi("n", -(2**63)),
+    ]
+    obj = epoch(taxis=taxis)
+    plain = plain_taxis(taxis)
+    assert plain is not None
+    rest = EpochIn.model_validate({**obj, "taxis": []})
+    assert body_hash(rest, plain) == body_hash(EpochIn.model_validate(obj))
