@@ -431,15 +431,6 @@ def _plan_taxi(
 
 
 @compiled
-def _potential(
-    ed: Edges, fg: SearchGraph, rg: SearchGraph, costs: Costs, ws: search.Workspace, pot: NDArray[np.int64]
-) -> None:
-    """Each forward kept node's label to the root of the in-tree in ``ws`` (grown whole under ``costs``;
-    cost ``INF``: it cannot reach the root): ``search.run_guided``'s potential."""
-    search.labels(rg, ed, costs, INF, fg.kept, ws, pot)
-
-
-@compiled
 def _roots_chunk(
     ed: Edges,
     fg: SearchGraph,
@@ -502,7 +493,7 @@ def _roots_chunk(
         )  # fmt: skip
         if n == 0:
             continue
-        _potential(ed, fg, rg, costs, wsr, pot)
+        search.labels(rg, ed, costs, INF, fg.kept, wsr, pot)  # the in-tree's labels: run_guided's potential
         for r in range(n):
             a = todo[r]
             if own[a]:
