@@ -45,7 +45,7 @@ from services.parallel import parallel_map
 __all__ = ["Plans", "Route", "Scratch", "scratch", "plan_routes", "plan_one", "route_pair", "kappa_metric"]
 
 
-GUIDED_PER_TREE = 8
+GUIDED_PER_TREE = 16
 """About how many goal-directed searches (``search.run_guided``) from a taxi to one POI cost as much as one
 tree from the taxi to every POI, on a metropolitan street grid (``bench/bench_epoch.py``); only speed
 depends on it."""
@@ -354,6 +354,117 @@ def _unpatch(se_of: NDArray[np.int64], base: KappaBase, work: KappaWork, n: int)
             work.se[q, se_of[e]] = base.se[q, se_of[e]]
 
 
+PATCH_BYTES = 256 * 2**20
+"""Most memory the taxis' own kappa costs may take when kept for the goal-directed searches
+(``Patches``); beyond it each search patches its taxi's metrics afresh. Only speed depends on it."""
+
+
+class Patches(NamedTuple):
+    """Each taxi's own kappa costs where they differ from the base, as ``_patch`` makes them, kept for the
+    goal-directed searches: a taxi is searched again for many (kappa, target) pairs, and patching it afresh
+    each time (the entered utility recomputed, every kappa's costs) cost more than the search itself.
+    Taxi ``a``'s patched edges are ``edge[ptr[a]:ptr[a] + n[a]]`` with cost ``cost[q, ...]`` under kappa
+    ``q``; ``n[a]`` -1: its largest utility is not the base's (it searches on its own). ``ptr`` empty:
+    nothing kept (each search patches afresh)."""
+
+    ptr: NDArray[np.int64]  # (F,) start of each taxi's rows, room for every edge entering its cells
+    n: NDArray[np.int64]  # (F,)
+    edge: NDArray[np.int64]
+    cost: NDArray[np.int64]  # (kappas, rows)
+
+
+@compiled
+def _keep_patches(
+    ed: Edges,
+    entering: CellEdges,
+    se_of: NDArray[np.int64],
+    gn: Gains,
+    sc: Scratch,
+    counted: Counted,
+    kappas: NDArray[np.float64],
+    base: KappaBase,
+    work: KappaWork,
+    chunk: NDArray[np.int64],
+    kept: Patches,
+) -> None:
+    """``_patch`` each taxi of ``chunk`` and keep what it wrote in ``kept``; ``work`` is left as the base."""
+    for a in chunk:
+        mark(sc.zmask, counted, a, True)
+        n = _patch(ed, entering, se_of, gn, sc, counted, a, kappas, base, work)
+        kept.n[a] = n
+        at = kept.ptr[a]
+        for r in range(n):
+            e = work.dirty[r]
+            kept.edge[at + r] = e
+            for q in range(kappas.shape[0]):
+                kept.cost[q, at + r] = work.edge[q, e]
+        _unpatch(se_of, base, work, n)
+        mark(sc.zmask, counted, a, False)
+
+
+@compiled_inline
+def _apply(se_of: NDArray[np.int64], work: KappaWork, kept: Patches, a: int, q: int) -> None:
+    """Turn ``work``'s kappa ``q`` row into taxi ``a``'s (the same integers ``_patch`` writes)."""
+    at = kept.ptr[a]
+    for r in range(at, at + kept.n[a]):
+        e = kept.edge[r]
+        new = kept.cost[q, r]
+        old = work.edge[q, e]
+        if new != old:
+            work.edge[q, e] = new
+            work.se[q, se_of[e]] += new - old
+
+
+@compiled_inline
+def _restore(
+    se_of: NDArray[np.int64], base: KappaBase, work: KappaWork, kept: Patches, a: int, q: int
+) -> None:
+    """Undo ``_apply``."""
+    at = kept.ptr[a]
+    for r in range(at, at + kept.n[a]):
+        e = kept.edge[r]
+        work.edge[q, e] = base.edge[q, e]
+        work.se[q, se_of[e]] = base.se[q, se_of[e]]
+
+
+def keep_patches(
+    graph: RoadGraph,
+    gn: Gains,
+    counted: Counted,
+    kappas: NDArray[np.float64],
+    base: KappaBase,
+    skip: NDArray[np.bool_],
+    workers: int,
+    pads: Pads,
+) -> Patches:
+    """Every taxi's own kappa costs (``Patches``), but those marked ``skip``; nothing kept when they would
+    take more than ``PATCH_BYTES``."""
+    f = counted.ptr.shape[0] - 1
+    per_cell = np.diff(graph.entering.ptr)
+    first = counted.slot == 0  # only the first slot's counted cells change a taxi's costs (_patch)
+    owner = np.repeat(np.arange(f), np.diff(counted.ptr))[first]
+    room = np.bincount(owner, weights=per_cell[counted.cell[first]], minlength=f).astype(np.int64)
+    room[skip] = 0
+    rows = int(room.sum())
+    n = np.full(f, -1, dtype=np.int64)
+    if rows * (len(kappas) + 1) * 8 > PATCH_BYTES:
+        return Patches(n[:0], n, n[:0], np.zeros((len(kappas), 0), dtype=np.int64))
+    ptr = np.zeros(f, dtype=np.int64)
+    ptr[1:] = np.cumsum(room)[:-1]
+    kept = Patches(ptr, n, np.zeros(rows, dtype=np.int64), np.zeros((len(kappas), rows), dtype=np.int64))
+
+    def fill(chunk: Sequence[int]) -> list[None]:
+        with pads.take() as pad:
+            _keep_patches(
+                graph.edges, graph.entering, graph.se_of, gn, scratch(pad, gn), counted, kappas, base,
+                kappa_work(pad, base), np.asarray(chunk, dtype=np.int64), kept,
+            )  # fmt: skip
+        return [None] * len(chunk)
+
+    parallel_map(fill, np.flatnonzero(~skip).tolist(), workers)
+    return kept
+
+
 @compiled
 def _plan_taxi(
     ed: Edges,
@@ -457,6 +568,7 @@ def _roots_chunk(
     out_ms: NDArray[np.int64],
     own: NDArray[np.bool_],
     touched0: NDArray[np.bool_],
+    kept: Patches,
 ) -> int:
     """The routes of every source under the in-trees ``chunk`` (item ``q * P + j``: kappa ``q``, target
     ``j``) in one compiled call, into the (sources, kappas, targets) outputs; returns the number of
@@ -474,6 +586,7 @@ def _roots_chunk(
     p = targets.shape[0]
     todo = np.empty(sources.shape[0], dtype=np.int64)
     pot = np.empty((3, fg.kept.shape[0]), dtype=np.int64)
+    keep = kept.ptr.shape[0] > 0
     guided = 0
     for item in chunk:
         q, j = item // p, item % p
@@ -499,7 +612,12 @@ def _roots_chunk(
             if own[a]:
                 continue
             mark(sc.zmask, counted, a, True)
-            patched = _patch(ed, entering, se_of, gn, sc, counted, a, kappas, base, work)
+            if keep:
+                patched = kept.n[a]
+                if patched >= 0:
+                    _apply(se_of, work, kept, a, q)
+            else:
+                patched = _patch(ed, entering, se_of, gn, sc, counted, a, kappas, base, work)
             if patched >= 0:
                 mine = Costs(work.edge[q], work.se[q], base.width[q], base.span[q])
                 search.run_guided(fg, ed, mine, sources[a], root, pot, wsf)
@@ -515,7 +633,10 @@ def _roots_chunk(
                     out_ms[a, q, j] = ms
                 else:
                     out_t[a, q, j] = np.nan
-            _unpatch(se_of, base, work, patched)
+            if not keep:
+                _unpatch(se_of, base, work, patched)
+            elif patched >= 0:
+                _restore(se_of, base, work, kept, a, q)
             mark(sc.zmask, counted, a, False)
     return guided
 
@@ -649,6 +770,8 @@ def plan_routes(
     touched0 = np.zeros((f, pr), dtype=np.bool_)
     if from_roots:
         rev = _reverse_kappa(graph.reverse, base, kap)
+        none = np.zeros(0, dtype=np.int64)
+        kept = Patches(none, none, none, np.zeros((nk, 0), dtype=np.int64))
 
         def roots(chunk: Sequence[int]) -> list[int]:
             with pads.take() as pad:
@@ -656,7 +779,7 @@ def plan_routes(
                     ed, graph.forward, graph.reverse, pad.forward, pad.reverse, graph.time_reverse,
                     graph.entering, graph.se_of, base, rev, kappa_work(pad, base), gn, scratch(pad, gn),
                     counted, kap, sources, targets, np.asarray(chunk, dtype=np.int64), depart_s, root_g,
-                    root_t, root_l, root_ms, own, touched0,
+                    root_t, root_l, root_ms, own, touched0, kept,
                 )  # fmt: skip
             return [n] + [0] * (len(chunk) - 1)
 
@@ -667,6 +790,8 @@ def plan_routes(
         # kappa is cheaper (speed only: both give the canonical routes).
         own = touched0.sum(axis=1) > GUIDED_PER_TREE
         rest = [q * p + j for q in range(nk) if kap[q] != 0.0 and base.umax > 0.0 for j in range(p)]
+        if rest:
+            kept = keep_patches(graph, gn, counted, kap, base, own, workers, pads)
         guided = sum(parallel_map(roots, rest, workers))
         trees = fastest + rest
 

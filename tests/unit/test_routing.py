@@ -115,16 +115,19 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
             )
 
 
-@pytest.mark.parametrize("per_tree", [8, 0])
+@pytest.mark.parametrize(("per_tree", "keep"), [(8, True), (8, False), (0, True)])
 def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_cells_lie(
-    per_tree: int, monkeypatch: pytest.MonkeyPatch
+    per_tree: int, keep: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """From the POIs' in-trees, a taxi is searched again (goal-directed) only for a (kappa, POI) whose
     in-tree route enters a cell it is counted in: over these instances that happens, most routes come
     from the in-trees, and the routes equal one tree per taxi and kappa bit for bit (the check above, here
-    on many taxis and cells). With ``GUIDED_PER_TREE`` 0 every taxi with a fastest route entering its
-    counted cells grows its own kappa > 0 trees instead: the same routes again."""
+    on many taxis and cells), whether the taxis' own costs are kept between its searches
+    (``algorithm1.Patches``) or patched afresh for each. With ``GUIDED_PER_TREE`` 0 every taxi with a
+    fastest route entering its counted cells grows its own kappa > 0 trees instead: the same routes again."""
     monkeypatch.setattr(algorithm1, "GUIDED_PER_TREE", per_tree)
+    if not keep:
+        monkeypatch.setattr(algorithm1, "PATCH_BYTES", 0)
     own, guided, forward, trees = 0, 0, 0, 0
     for seed in range(6):
         rng, city, now, k0, _counts, _ = instance(seed)
