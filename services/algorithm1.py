@@ -587,6 +587,7 @@ def _roots_chunk(
     todo = np.empty(sources.shape[0], dtype=np.int64)
     pot = np.empty((3, fg.kept.shape[0]), dtype=np.int64)
     keep = kept.ptr.shape[0] > 0
+    no_landmarks = np.zeros((0, 0), dtype=np.int64)
     guided = 0
     for item in chunk:
         q, j = item // p, item % p
@@ -620,7 +621,7 @@ def _roots_chunk(
                 patched = _patch(ed, entering, se_of, gn, sc, counted, a, kappas, base, work)
             if patched >= 0:
                 mine = Costs(work.edge[q], work.se[q], base.width[q], base.span[q])
-                search.run_guided(fg, ed, mine, sources[a], root, pot, wsf)
+                search.run_guided(fg, ed, mine, sources[a], root, pot, wsf, no_landmarks)
                 guided += 1
                 if search.unfold(fg, ed, mine, INF, root, wsf):
                     edges = search.path_to(ed, 1, wsf.pred, sources[a], root)

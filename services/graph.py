@@ -29,7 +29,6 @@ from services.jit import compiled
 
 __all__ = [
     "Edges",
-    "Geo",
     "SearchGraph",
     "Costs",
     "prepare",
@@ -153,27 +152,6 @@ def _entering(ec_ptr: NDArray[np.int64], ec_cell: NDArray[np.int64], n_cells: in
     return CellEdges(np.cumsum(ptr), pairs[1].astype(np.int64))
 
 
-class Geo(NamedTuple):
-    """Node positions (projected metres) and a travel-time floor per metre of straight line:
-    ``us_per_m * |uv| + 1 <= time_us[e]`` for every edge ``e = (u, v)``, so ``floor(us_per_m * |v t|)`` is a
-    lower bound on the travel time from ``v`` to ``t`` that never drops by more than an edge's cost along
-    it -- a potential for goal-directed searches (0: none; an edge faster than its straight line allows
-    none)."""
-
-    x_m: NDArray[np.float64]
-    y_m: NDArray[np.float64]
-    us_per_m: float
-
-
-def _geo(x_m: NDArray[np.float64], y_m: NDArray[np.float64], ed: Edges) -> Geo:
-    straight = np.hypot(x_m[ed.head] - x_m[ed.tail], y_m[ed.head] - y_m[ed.tail])
-    far = straight > 0
-    rate = (ed.time_us[far] - 1) / straight[far]
-    # a relative margin far above the rounding of hypot and of the product, so the bound holds as computed
-    us_per_m = float(max(0.0, rate.min() * (1.0 - 1e-9))) if rate.size else 0.0
-    return Geo(x_m, y_m, us_per_m)
-
-
 @dataclass(frozen=True, slots=True, eq=False, weakref_slot=True)
 class RoadGraph:
     """A city's network for searching: the edges, the forward and the reverse search graphs."""
@@ -189,7 +167,6 @@ class RoadGraph:
     se_of: NDArray[np.int64]  # (m,) the forward super-edge each edge lies on
     min_speed_mps: float
     max_speed_mps: float
-    geo: Geo
 
     @property
     def n_edges(self) -> int:
@@ -298,5 +275,4 @@ def road_graph(city: City) -> RoadGraph:
         ],
         min_speed_mps=float(positive.min()) if positive.size else 1.0,
         max_speed_mps=float(positive.max()) if positive.size else 1.0,
-        geo=_geo(net.x_m.astype(np.float64), net.y_m.astype(np.float64), edges),
     )

@@ -21,12 +21,14 @@ toward the root in a reverse one.
 
 from __future__ import annotations
 
+import threading
+import weakref
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services.graph import INF, Costs, Edges, Geo, RoadGraph, SearchGraph
+from services.graph import INF, Costs, Edges, RoadGraph, SearchGraph
 from services.jit import compiled, compiled_inline
 
 __all__ = [
@@ -35,7 +37,7 @@ __all__ = [
     "workspace",
     "run",
     "run_guided",
-    "geo_potential",
+    "landmarks",
     "resolve",
     "unfold",
     "unfold_many",
@@ -548,6 +550,30 @@ def _guided_pop(heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray
     return size
 
 
+@compiled_inline
+def _bound(lm: NDArray[np.int64], tl: NDArray[np.int64], v: int) -> int:
+    """The landmarks' lower bound on the travel time from node ``v`` to the target whose row is ``tl``
+    (``landmarks``): ``d(v, L) - d(t, L)`` and ``d(L, t) - d(L, v)`` by the triangle inequality, the largest
+    over the landmarks (at least 0); ``INF`` when ``v`` cannot reach a landmark the target reaches, so
+    cannot reach the target. Each term grows along an edge by at most the edge's time, so the largest
+    does too: a potential for ``run_guided``. 0 without landmarks."""
+    n = tl.shape[0] // 2
+    best = 0
+    for i in range(n):
+        to_t = tl[i]
+        if to_t < INF:
+            to_v = lm[v, i]
+            if to_v >= INF:
+                return INF
+            if to_v - to_t > best:
+                best = to_v - to_t
+        from_t = tl[n + i]
+        from_v = lm[v, n + i]
+        if from_t < INF and from_v < INF and from_t - from_v > best:
+            best = from_t - from_v
+    return best
+
+
 @compiled
 def run_guided(
     g: SearchGraph,
@@ -557,6 +583,7 @@ def run_guided(
     target: int,
     pot: NDArray[np.int64],
     ws: Workspace,
+    lm: NDArray[np.int64],
 ) -> None:
     """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*).
 
@@ -570,6 +597,9 @@ def run_guided(
     ``run`` -- is the one ``run`` gives it. With the labels of the cheaper metric as potential, a search
     whose metric differs from it nowhere on the canonical path goes straight along that path. The search
     stops when the target can be resolved and settles no node that cannot reach it.
+
+    With a landmark table ``lm`` (``landmarks``; shape (0, 0): none) the potential is its travel-time
+    bound instead (ties 0), computed for the nodes the search reaches; ``pot`` is not read.
     """
     cost = ws.cost
     tie1 = ws.tie1
@@ -583,11 +613,19 @@ def run_guided(
     tgt = np.empty(1, dtype=np.int64)
     tgt[0] = target
     n_touched, remaining = _need_targets(g, source, tgt, ws)
+    alt = lm.shape[0] > 0
+    tl = lm[target] if alt else np.zeros(0, dtype=np.int64)
     size = 0
     if remaining > 0:
         for j in range(1 if sk >= 0 else 2):
             h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
-            if h < 0 or pot[0, h] >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
+            if h < 0:
+                continue
+            if alt:
+                p0, p1, p2 = _bound(lm, tl, g.kept[h]), 0, 0
+            else:
+                p0, p1, p2 = pot[0, h], pot[1, h], pot[2, h]
+            if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
                 continue
             if cost[h] == INF and not ws.need[h]:
                 ws.touched[n_touched] = h
@@ -601,7 +639,7 @@ def run_guided(
             if at < 0:
                 at = size
                 size += 1
-            _guided_up(heap, hkey, state, at, h, c + pot[0, h], a + pot[1, h], b + pot[2, h])
+            _guided_up(heap, hkey, state, at, h, c + p0, a + p1, b + p2)
     complete = 1
     while size > 0:
         k = heap[0]
@@ -618,7 +656,13 @@ def run_guided(
         for s in range(g.indptr[k], g.indptr[k + 1]):
             h = g.se_head[s]
             st = state[h]
-            if st == -2 or pot[0, h] >= INF:
+            if st == -2:
+                continue
+            if alt:
+                p0, p1, p2 = _bound(lm, tl, g.kept[h]), 0, 0
+            else:
+                p0, p1, p2 = pot[0, h], pot[1, h], pot[2, h]
+            if p0 >= INF:
                 continue
             c = d + costs.se[s]
             a = a0 + g.se_tie1[s]
@@ -636,23 +680,9 @@ def run_guided(
                 if at < 0:
                     at = size
                     size += 1
-                _guided_up(heap, hkey, state, at, h, c + pot[0, h], a + pot[1, h], b + pot[2, h])
+                _guided_up(heap, hkey, state, at, h, c + p0, a + p1, b + p2)
     ws.info[1] = complete
     ws.info[2] = n_touched
-
-
-@compiled
-def geo_potential(g: SearchGraph, geo: Geo, target: int, pot: NDArray[np.int64]) -> None:
-    """``run_guided``'s potential toward ``target`` under the travel time, from straight-line distances
-    (``graph.Geo``): cost ``floor(us_per_m * |v target|)`` per kept node ``v``, ties 0."""
-    tx = geo.x_m[target]
-    ty = geo.y_m[target]
-    for k in range(g.kept.shape[0]):
-        v = g.kept[k]
-        d = np.sqrt((geo.x_m[v] - tx) ** 2 + (geo.y_m[v] - ty) ** 2)
-        pot[0, k] = int(np.floor(geo.us_per_m * d))
-        pot[1, k] = 0
-        pot[2, k] = 0
 
 
 @compiled
@@ -877,23 +907,22 @@ def paths(
     ws: Workspace,
     sources: NDArray[np.int64],
     targets: NDArray[np.int64],
-    geo: Geo,
+    lm: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The canonical path of every (source, target) pair in one call, as CSR ``(ptr, edges)``; a pair that
-    cannot be joined gets ``ptr`` -1 at its end (``ptr[i + 1] == -1``). With a travel-time floor in ``geo``
-    (``costs`` must be the travel time, or dearer) each search is goal-directed (``run_guided``; the same
-    paths)."""
+    cannot be joined gets ``ptr`` -1 at its end (``ptr[i + 1] == -1``). With a landmark table ``lm``
+    (``landmarks``; ``costs`` must be the travel time, or dearer) each search is goal-directed
+    (``run_guided``; the same paths); shape (0, 0): plain searches."""
     n = sources.shape[0]
     ptr = np.zeros(n + 1, dtype=np.int64)
     flat = np.empty(max(64, 32 * n), dtype=np.int64)
     used = 0
     tgt = np.empty(1, dtype=np.int64)
-    guided = geo.us_per_m > 0.0
-    pot = np.empty((3, g.kept.shape[0] if guided else 0), dtype=np.int64)
+    guided = lm.shape[0] > 0
+    pot = np.empty((3, 0), dtype=np.int64)
     for i in range(n):
         if guided:
-            geo_potential(g, geo, targets[i], pot)
-            run_guided(g, ed, costs, sources[i], targets[i], pot, ws)
+            run_guided(g, ed, costs, sources[i], targets[i], pot, ws, lm)
         else:
             tgt[0] = targets[i]
             run(g, ed, costs, sources[i], INF, tgt, ws)
@@ -923,7 +952,7 @@ def fastest_paths(
     """
     src = np.asarray(sources, dtype=np.int64)
     tgt = np.asarray(targets, dtype=np.int64)
-    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt, graph.geo)
+    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt, landmarks(graph))
     bad = np.flatnonzero(ptr[1:] < 0)
     if bad.size:
         i = int(bad[0])
@@ -958,3 +987,51 @@ def path(graph: RoadGraph, ws: Workspace, costs: Costs, source: int, target: int
         raise ValueError(f"node {target} cannot be reached from node {source}")
     edges: NDArray[np.int64] = path_to(ed, 1, ws.pred, int(source), int(target))
     return edges
+
+
+LANDMARKS = 8
+"""Landmarks per city for the goal-directed point-to-point searches (``landmarks``)."""
+
+_landmarks: weakref.WeakKeyDictionary[RoadGraph, NDArray[np.int64]] = weakref.WeakKeyDictionary()
+_landmarks_lock = threading.Lock()
+
+
+def landmarks(graph: RoadGraph, count: int = LANDMARKS) -> NDArray[np.int64]:
+    """The travel times between every node and ``count`` landmarks, as ``(n, 2 count)``: column ``i`` from
+    the node to landmark ``i``, column ``count + i`` from landmark ``i`` to the node (``INF``: no path);
+    built once per graph. Landmarks are picked farthest first (each the node farthest, there and back,
+    from the ones before, starting from node 0's farthest), so that for most pairs one lies beyond the
+    target and its bound (``_bound``) is close to the true time (the "ALT" bounds of Goldberg and
+    Harrelson, 2005). Only speed depends on the choice."""
+    with _landmarks_lock:
+        table = _landmarks.get(graph)
+        if table is None:
+            table = _landmarks[graph] = _landmark_table(graph, min(count, graph.n_nodes))
+        return table
+
+
+def _landmark_table(graph: RoadGraph, count: int) -> NDArray[np.int64]:
+    n = graph.n_nodes
+    nodes = np.arange(n, dtype=np.int64)
+    table = np.full((n, 2 * count), INF, dtype=np.int64)
+    wf, wr = workspace(graph), workspace(graph, reverse=True)
+    out = np.empty((3, n), dtype=np.int64)
+    empty = np.zeros(0, dtype=np.int64)
+
+    def there_and_back(v: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        run(graph.reverse, graph.edges, graph.time_reverse, v, INF, empty, wr)
+        labels(graph.reverse, graph.edges, graph.time_reverse, INF, nodes, wr, out)
+        to_v = out[0].copy()
+        run(graph.forward, graph.edges, graph.time_forward, v, INF, empty, wf)
+        labels(graph.forward, graph.edges, graph.time_forward, INF, nodes, wf, out)
+        return to_v, out[0].copy()
+
+    to0, from0 = there_and_back(0)
+    spread = np.where((to0 < INF) & (from0 < INF), to0 + from0, -1)  # nodes that reach 0 and back
+    for i in range(count):
+        v = int(np.argmax(spread))
+        table[:, i], table[:, count + i] = there_and_back(v)
+        there, back = table[:, i], table[:, count + i]
+        both = np.where((there < INF) & (back < INF), there + back, -1)
+        spread = both if i == 0 else np.minimum(spread, both)
+    return table

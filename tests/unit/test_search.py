@@ -226,7 +226,7 @@ def test_a_goal_directed_search_finds_the_same_path(graph, kind):
         reached = search.unfold(graph.forward, graph.edges, c_high, int(INF), b, fw)
         want_path = search.path_to(graph.edges, 1, fw.pred, a, b).tolist() if reached else None
         for p in (pot, zero):
-            search.run_guided(graph.forward, graph.edges, c_high, a, b, p, fw)
+            search.run_guided(graph.forward, graph.edges, c_high, a, b, p, fw, np.zeros((0, 0), np.int64))
             assert search.resolve(graph.forward, graph.edges, c_high, int(INF), b, fw)[:3] == want[:3]
             touched = fw.touched[: fw.info[2]]
             settled = touched[fw.state[touched] == -2]
@@ -239,25 +239,37 @@ def test_a_goal_directed_search_finds_the_same_path(graph, kind):
     assert fewer > 0
 
 
-def test_fastest_paths_guided_by_straight_lines_are_the_plain_ones(graph):
-    """Riders' trips and pickup legs search goal-directed toward the target by straight-line distance
-    (``graph.Geo``): the same canonical paths as plain searches, on every city -- interior ends included --
-    and the straight-line bound holds on every edge."""
-    ed, geo = graph.edges, graph.geo
-    straight = np.hypot(geo.x_m[ed.head] - geo.x_m[ed.tail], geo.y_m[ed.head] - geo.y_m[ed.tail])
-    assert geo.us_per_m > 0
-    assert (geo.us_per_m * straight + 1 <= ed.time_us).all()
+def test_fastest_paths_guided_by_landmarks_are_the_plain_ones(graph):
+    """Riders' trips and pickup legs search goal-directed toward the target by the landmarks' bounds
+    (``search.landmarks``): the same canonical paths as plain searches, on every city -- interior ends
+    included. The bound is a potential: never above the true travel time (INF exactly where the target
+    cannot be reached), never dropping along an edge by more than the edge's time."""
+    ed = graph.edges
+    lm = search.landmarks(graph)
+    assert lm.shape == (graph.n_nodes, 2 * min(search.LANDMARKS, graph.n_nodes))
+    assert search.landmarks(graph) is lm  # built once per graph
     rng = np.random.default_rng(23)
+    rv = search.workspace(graph, reverse=True)
+    nodes = np.arange(graph.n_nodes, dtype=np.int64)
+    exact = np.empty((3, graph.n_nodes), dtype=np.int64)
+    for t in rng.choice(graph.n_nodes, 4).tolist():
+        search.run(graph.reverse, ed, graph.time_reverse, t, int(INF), np.zeros(0, np.int64), rv)
+        search.labels(graph.reverse, ed, graph.time_reverse, int(INF), nodes, rv, exact)
+        bound = np.array([search._bound(lm, lm[t], v) for v in range(graph.n_nodes)], dtype=np.int64)
+        assert ((bound <= exact[0]) | (exact[0] >= INF)).all()
+        assert ((bound < INF) | (exact[0] >= INF)).all() and bound[t] == 0
+        finite = bound[ed.head] < INF
+        assert (bound[ed.tail][finite] <= ed.time_us[finite] + bound[ed.head][finite]).all()
     interior = np.flatnonzero(graph.forward.kept_of < 0)
     src = rng.choice(graph.n_nodes, 40)
     dst = rng.choice(graph.n_nodes, 40)
     if interior.size:
         src[:10] = rng.choice(interior, 10)
         dst[5:15] = rng.choice(interior, 10)
-    plain = geo._replace(us_per_m=0.0)
+    plain = np.zeros((0, 0), dtype=np.int64)
     ws = search.workspace(graph)
     for a, b in zip(src.tolist(), dst.tolist(), strict=True):
         one, other = np.array([a]), np.array([b])
-        got = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, geo)
+        got = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, lm)
         want = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, plain)
         assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
