@@ -1003,10 +1003,11 @@ def landmarks(graph: RoadGraph, count: int = LANDMARKS) -> NDArray[np.int64]:
     from the ones before, starting from node 0's farthest), so that for most pairs one lies beyond the
     target and its bound (``_bound``) is close to the true time (the "ALT" bounds of Goldberg and
     Harrelson, 2005). Only speed depends on the choice."""
+    count = min(count, graph.n_nodes)
     with _landmarks_lock:
         table = _landmarks.get(graph)
-        if table is None:
-            table = _landmarks[graph] = _landmark_table(graph, min(count, graph.n_nodes))
+        if table is None or table.shape[1] != 2 * count:
+            table = _landmarks[graph] = _landmark_table(graph, count)
         return table
 
 

@@ -273,3 +273,31 @@ def test_fastest_paths_guided_by_landmarks_are_the_plain_ones(graph):
         got = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, lm)
         want = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, plain)
         assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
+
+
+def test_landmark_guided_paths_on_one_way_streets_and_an_unreachable_part():
+    """Where not every node reaches every other (one-way streets, a part with no way in or out), the
+    landmarks' bound is INF exactly for nodes that cannot reach the target through a landmark the target
+    reaches, and guided searches agree with plain ones on every ordered pair: the same path, or the same
+    failure to join."""
+    nodes = {i: (100.0 * (i % 4), 100.0 * (i // 4)) for i in range(12)}  # a 4 x 3 lattice, 100 m blocks
+    nodes |= {20: (1000.0, 0.0), 21: (1100.0, 0.0), 22: (1100.0, 100.0)}  # an island
+    one_way = [(3, 7), (7, 11), (11, 10), (20, 21), (21, 22)]  # the east side and the island's street
+    two_way = [(i, i + 1) for i in range(12) if i % 4 != 3] + [(i, i + 4) for i in range(8)]
+    two_way = [e for e in two_way if e not in {(3, 7), (7, 11), (10, 11)}]
+    city = make_city(nodes, [*two_way, *[(v, u) for u, v in two_way], *one_way], both_ways=False)
+    graph = road_graph(city)
+    lm = search.landmarks(graph, count=3)
+    assert (lm[12:] >= INF).any() and (lm[:12] < INF).all()  # the island reaches no landmark
+    ws = search.workspace(graph)
+    plain = np.zeros((0, 0), dtype=np.int64)
+    joined = failed = 0
+    for a in range(graph.n_nodes):
+        for b in range(graph.n_nodes):
+            one, other = np.array([a]), np.array([b])
+            got = search.paths(graph.forward, graph.edges, graph.time_forward, ws, one, other, lm)
+            want = search.paths(graph.forward, graph.edges, graph.time_forward, ws, one, other, plain)
+            assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist(), (a, b)
+            joined += int(want[0][1] >= 0)
+            failed += int(want[0][1] < 0)
+    assert joined and failed  # both kinds of pair occur
