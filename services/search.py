@@ -556,7 +556,7 @@ def _bound(lm: NDArray[np.int64], tl: NDArray[np.int64], v: int) -> int:
     (``landmarks``): ``d(v, L) - d(t, L)`` and ``d(L, t) - d(L, v)`` by the triangle inequality, the largest
     over the landmarks (at least 0); ``INF`` when ``v`` cannot reach a landmark the target reaches, so
     cannot reach the target. Each term grows along an edge by at most the edge's time, so the largest
-    does too: a potential for ``run_guided``. 0 without landmarks."""
+    does too: a potential for ``run_guided``."""
     n = tl.shape[0] // 2
     best = 0
     for i in range(n):
@@ -572,6 +572,17 @@ def _bound(lm: NDArray[np.int64], tl: NDArray[np.int64], v: int) -> int:
         if from_t < INF and from_v < INF and from_t - from_v > best:
             best = from_t - from_v
     return best
+
+
+@compiled_inline
+def _potential(
+    pot: NDArray[np.int64], lm: NDArray[np.int64], tl: NDArray[np.int64], v: int, h: int
+) -> tuple[int, int, int]:
+    """``run_guided``'s potential of kept node ``h`` (original node ``v``): the landmarks' bound, ties 0,
+    when the target's row ``tl`` is given (non-empty), else ``pot``'s column ``h``."""
+    if tl.shape[0] > 0:
+        return _bound(lm, tl, v), 0, 0
+    return pot[0, h], pot[1, h], pot[2, h]
 
 
 @compiled
@@ -613,18 +624,14 @@ def run_guided(
     tgt = np.empty(1, dtype=np.int64)
     tgt[0] = target
     n_touched, remaining = _need_targets(g, source, tgt, ws)
-    alt = lm.shape[0] > 0
-    tl = lm[target] if alt else np.zeros(0, dtype=np.int64)
+    tl = lm[target] if lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
     size = 0
     if remaining > 0:
         for j in range(1 if sk >= 0 else 2):
             h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
             if h < 0:
                 continue
-            if alt:
-                p0, p1, p2 = _bound(lm, tl, g.kept[h]), 0, 0
-            else:
-                p0, p1, p2 = pot[0, h], pot[1, h], pot[2, h]
+            p0, p1, p2 = _potential(pot, lm, tl, g.kept[h], h)
             if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
                 continue
             if cost[h] == INF and not ws.need[h]:
@@ -658,10 +665,7 @@ def run_guided(
             st = state[h]
             if st == -2:
                 continue
-            if alt:
-                p0, p1, p2 = _bound(lm, tl, g.kept[h]), 0, 0
-            else:
-                p0, p1, p2 = pot[0, h], pot[1, h], pot[2, h]
+            p0, p1, p2 = _potential(pot, lm, tl, g.kept[h], h)
             if p0 >= INF:
                 continue
             c = d + costs.se[s]
