@@ -166,7 +166,6 @@ class RoadGraph:
     entering: CellEdges  # the edges that enter each cell
     se_of: NDArray[np.int64]  # (m,) the forward super-edge each edge lies on
     min_speed_mps: float
-    max_speed_mps: float
 
     @property
     def n_edges(self) -> int:
@@ -274,5 +273,4 @@ def road_graph(city: City) -> RoadGraph:
             np.argsort(forward.se_edges, kind="stable")
         ],
         min_speed_mps=float(positive.min()) if positive.size else 1.0,
-        max_speed_mps=float(positive.max()) if positive.size else 1.0,
     )
