@@ -158,15 +158,13 @@ def _operation_id(route: APIRoute) -> str:
 
 
 def _warm(registry: CityCatalog) -> None:
-    """Load every city once (errors surface later, per request and in /readyz)."""
+    """Load every city once and solve a tiny epoch on it, so the kernels are compiled (or loaded from cache)
+    and each city's search structures (road graph, landmark table) built before its first epoch arrives
+    (errors surface later, per request and in /readyz)."""
     from services.dispatch import warm_up
 
-    warmed = False
     for name in registry.names():
         try:
-            city = registry.get(name)
-            if not warmed:  # compile (or load from cache) the kernels before the first epoch arrives
-                warm_up(city)
-                warmed = True
+            warm_up(registry.get(name))
         except Exception:
             log.exception("city %s failed to load", name)

@@ -442,7 +442,8 @@ def decide(
 
 
 def warm_up(city: City) -> None:
-    """Solve a tiny epoch on ``city`` so the compiled kernels are loaded before the first real request."""
+    """Solve a tiny epoch on ``city`` so the compiled kernels are loaded, and the city's search structures
+    (``road_graph``, ``search.landmarks``) built, before the first real request."""
     n = city.network.n_nodes
     a, b = 0, n - 1
     t = 86400.0 * 20000 + 12 * 3600.0
