@@ -161,17 +161,20 @@ def _to_root(
     out_ms: NDArray[np.int64],
     touched: NDArray[np.int64],
     whole: bool,
+    skip: NDArray[np.bool_],
 ) -> int:
     """The shortest path under ``costs`` (a metric shared by every taxi) from every source to ``root``
     (one in-tree; grown whole, or until every source is settled), each evaluated for its taxi into
-    ``out_*[a, q, j]``; time NaN for a source that cannot reach the root; the largest slot the path
-    reaches in ``out_ms[a, q, j]``. Lists in ``touched`` the sources whose path enters a cell their taxi
-    is counted in, and returns how many."""
+    ``out_*[a, q, j]`` (but the sources marked ``skip``, left as they are); time NaN for a source that
+    cannot reach the root; the largest slot the path reaches in ``out_ms[a, q, j]``. Lists in ``touched``
+    the sources whose path enters a cell their taxi is counted in, and returns how many."""
     search.run(rg, ed, costs, root, INF, np.empty(0, dtype=np.int64) if whole else sources, ws)
     reached = np.empty(sources.shape[0], dtype=np.bool_)
     search.unfold_many(rg, ed, costs, INF, sources, ws, reached)
     n = 0
     for a in range(sources.shape[0]):
+        if skip[a]:
+            continue
         if not reached[a]:
             out_t[a, q, j] = np.nan
             continue
@@ -580,14 +583,16 @@ def _roots_chunk(
     under its own costs, goal-directed by the in-tree's labels (a lower bound that never drops by more than
     an edge's own label: ``search.run_guided`` finds the same canonical path as a plain search). A taxi
     whose largest utility is not the base's (``_patch`` -1), or marked ``own``, gets its kappa > 0 routes in
-    ``_taxis_chunk``. ``touched0[a, j]``: taxi ``a``'s fastest route to target ``j`` enters one of its
-    counted cells (written by the kappa = 0 in-trees).
+    ``_taxis_chunk`` (a taxi marked ``own`` is not evaluated in the kappa > 0 in-trees).
+    ``touched0[a, j]``: taxi ``a``'s fastest route to target ``j`` enters one of its counted cells
+    (written by the kappa = 0 in-trees).
     """
     p = targets.shape[0]
     todo = np.empty(sources.shape[0], dtype=np.int64)
     pot = np.empty((3, fg.kept.shape[0]), dtype=np.int64)
     keep = kept.ptr.shape[0] > 0
     no_landmarks = np.zeros((0, 0), dtype=np.int64)
+    skip_none = np.zeros(sources.shape[0], dtype=np.bool_)
     guided = 0
     for item in chunk:
         q, j = item // p, item % p
@@ -595,7 +600,7 @@ def _roots_chunk(
         if kappas[q] == 0.0:
             n = _to_root(
                 ed, rg, wsr, time_costs, gn, sc, counted, sources, root, depart_s, q, j, out_g, out_t, out_l,
-                out_ms, todo, False,
+                out_ms, todo, False, skip_none,
             )  # fmt: skip
             for r in range(n):
                 touched0[todo[r], j] = True
@@ -603,15 +608,13 @@ def _roots_chunk(
         costs = Costs(base.edge[q], rev.se[q], rev.width[q], rev.span[q])
         n = _to_root(
             ed, rg, wsr, costs, gn, sc, counted, sources, root, depart_s, q, j, out_g, out_t, out_l, out_ms,
-            todo, True,
+            todo, True, own,
         )  # fmt: skip
         if n == 0:
             continue
         search.labels(rg, ed, costs, INF, fg.kept, wsr, pot)  # the in-tree's labels: run_guided's potential
         for r in range(n):
             a = todo[r]
-            if own[a]:
-                continue
             mark(sc.zmask, counted, a, True)
             if keep:
                 patched = kept.n[a]
@@ -743,7 +746,9 @@ def plan_routes(
     the routes come from one in-tree per target and kappa under the metric every taxi shares (the travel
     time; the base kappa metric, no cell zeroed); a taxi whose in-tree route enters a cell it is counted in
     is searched again to that target under its own costs, goal-directed by the in-tree, and a taxi whose
-    normalization is its own searches its kappa > 0 trees itself. The routes are the same either way:
+    normalization is its own, or whose fastest routes enter its counted cells on the way to more than
+    ``GUIDED_PER_TREE`` targets, searches its kappa > 0 trees itself; when fewer than twice as many taxis
+    as targets are left to read them, no kappa > 0 in-trees are grown. The routes are the same either way:
     docs/DISPATCH.md proves it and the tests check it.
 
     Raises
@@ -793,6 +798,13 @@ def plan_routes(
         rest = [q * p + j for q in range(nk) if kap[q] != 0.0 and base.umax > 0.0 for j in range(p)]
         if rest:
             kept = keep_patches(graph, gn, counted, kap, base, own, workers, pads)
+            if len(kept.ptr):
+                own |= kept.n < 0  # own normalization: these taxis search their kappa > 0 trees themselves
+            if not 2 * p < f - int(own.sum()):
+                # The kappa > 0 in-trees pay only while they serve twice as many taxis as there are
+                # targets, as for kappa = 0 (speed only: both give the canonical routes).
+                own[:] = True
+                rest = []
         guided = sum(parallel_map(roots, rest, workers))
         trees = fastest + rest
 
@@ -805,7 +817,7 @@ def plan_routes(
                 kappa_work(pad, base),
             )  # fmt: skip
         if failed >= 0:
-            lost = np.isnan(root_t[failed]).any(axis=0) if from_roots else out_k[failed] < 0
+            lost = np.isnan(root_t[failed][kap == 0.0]).any(axis=0) if from_roots else out_k[failed] < 0
             missing = targets[lost]
             raise ValueError(f"targets unreachable from node {int(sources[failed])}: {missing[:5].tolist()}")
         return [(ms, searched)] + [(0, 0)] * (len(chunk) - 1)

@@ -165,6 +165,44 @@ def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_c
         assert guided < own < forward
 
 
+def test_when_most_taxis_search_on_their_own_no_kappa_in_trees_are_grown(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every taxi counted in several cells and ``GUIDED_PER_TREE`` 0: nearly every taxi's fastest route
+    enters its counted cells, so it grows its own kappa > 0 trees. Once fewer than twice as many taxis as
+    POIs would still read the kappa > 0 in-trees, none are grown and every taxi searches those kappas
+    itself (the rule that chooses the kappa = 0 in-trees): only the kappa = 0 in-trees, no goal-directed
+    search, and the same routes as one tree per taxi and kappa."""
+    monkeypatch.setattr(algorithm1, "GUIDED_PER_TREE", 0)
+    skipped = 0
+    for seed in range(4):
+        rng, city, now, k0, _counts, _ = instance(seed)
+        graph = road_graph(city)
+        taxis = [TaxiId(f"t{i}") for i in range(24)]
+        cells = city.grid.n_cells
+        visited = {t: frozenset((IntervalKey(k0), int(c)) for c in rng.integers(0, cells, 6)) for t in taxis}
+        counts = CountsView({IntervalKey(k0): rng.integers(0, 3, cells)}, visited)
+        gn = gain_table(city, counts.counts, k0, 2, now)
+        counted = counted_csr(counts.visited, taxis, k0)
+        sources = rng.choice(graph.n_nodes, len(taxis), replace=False).astype(np.int64)
+        targets = rng.choice(graph.n_nodes, 5, replace=False).astype(np.int64)
+        got = {
+            how: plan_routes(
+                graph, gn, counted, sources, targets, now, KAPPAS, 2, Pads(graph), fastest_from_targets=how
+            )
+            for how in (True, False)
+        }
+        for name in ("kappa_index", "gain", "time_s", "length_m"):
+            assert np.array_equal(getattr(got[True], name), getattr(got[False], name)), name
+        if got[True].in_trees == len(targets):  # kappa = 0 only
+            skipped += 1
+            assert got[True].guided_searches == 0
+            assert got[True].taxi_searches == len(taxis) * (len(KAPPAS) - 1)
+        else:
+            assert got[True].in_trees == len(targets) * len(KAPPAS)
+    assert skipped >= 2
+
+
 def test_a_taxi_counted_where_utility_peaks_gets_its_own_normalization() -> None:
     """Every cell but one heavily counted: the edges entering that cell carry the largest utility. A taxi
     counted there has a lower largest utility, so its costs are not the others' patched: they are built
