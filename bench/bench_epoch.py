@@ -116,7 +116,7 @@ def street_city(side: int = GRID_SIDE, block_m: float = GRID_BLOCK_M, seed: int 
     """A street network less regular than ``grid_city``, as a real city is: the grid's nodes moved by up to
     ~25 m, 15 % of its blocks missing, a fifth of the side streets one-way, side streets at 25-40 km/h and
     every tenth row and column an arterial at 60 km/h, lengths 0-30 % longer than the straight line (bends);
-    its largest strongly connected part (~21,000 nodes, ~52,000 directed edges)."""
+    its largest strongly connected part (22,372 nodes, 70,293 directed edges, 6,471 of them one-way)."""
     rng = np.random.default_rng(seed)
     lon0, lat0 = GRID_ORIGIN
     ids = np.arange(side * side, dtype=np.int64)
@@ -467,7 +467,7 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "committed. The metro scenarios run on a generated 150 x 150 street grid (22,500 nodes, 89,400 directed",
         "edges, 120 m blocks) with 5,000 taxis (1,500 instrumented), 800 riders and 100 or 300 new tasks an epoch;",
         "streets300 is metro300 on a less regular generated network (`street_city`: the grid's nodes moved,",
-        "15 % of blocks missing, one-way side streets, 60 km/h arterials, bends; ~21,000 nodes), as a city",
+        "15 % of blocks missing, one-way side streets, 60 km/h arterials, bends; 22,372 nodes), as a city",
         "the service has not seen would be.",
         "In-process = `services.dispatch.decide` with the default threads and with one (the two decisions are",
         "checked equal on every epoch); HTTP = a real `python -m app run` (uvicorn, in-memory store), the",
