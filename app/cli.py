@@ -83,7 +83,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.port}/v1/cities",
             flush=True,
         )
-    uvicorn.Server(server_config(create_app(settings), settings)).run()
+    uvicorn.Server(server_config(create_app(settings, tune_gc=True), settings)).run()
     return 0
 
 

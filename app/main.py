@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import gc
 import logging
 import threading
 from collections.abc import AsyncIterator, Callable
@@ -72,9 +73,12 @@ def create_app(
     *,
     decide: DecideFn | None = None,
     clock: Callable[[], float] | None = None,
+    tune_gc: bool = False,
 ) -> FastAPI:
     """Build the FastAPI app; a store passed in is the caller's to close, one built here is closed here.
-    ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window."""
+    ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window.
+    ``tune_gc`` (the ``run`` command's: the process is the service's alone) sets the garbage collector for
+    a long-lived heap (``GC_THRESHOLD``, and start-up's objects frozen once the cities are warm)."""
     settings = settings or Settings()
     owns_store = store is None
     the_store = BoundedStore(
@@ -99,7 +103,9 @@ def create_app(
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
         # load the cities in the background so the first request (and /readyz) find them ready
-        threading.Thread(target=_warm, args=(the_registry,), name="warm-cities", daemon=True).start()
+        if tune_gc:
+            gc.set_threshold(*GC_THRESHOLD)
+        threading.Thread(target=_warm, args=(the_registry, tune_gc), name="warm-cities", daemon=True).start()
         try:
             yield
         finally:
@@ -157,10 +163,19 @@ def _operation_id(route: APIRoute) -> str:
     return route.name
 
 
-def _warm(registry: CityCatalog) -> None:
+GC_THRESHOLD = (10_000, 10, 10)
+"""The collector's thresholds in the service process (Python's default is (700, 10, 10)). An epoch allocates
+hundreds of thousands of short-lived objects (a Manhattan epoch's response alone is 0.5 MB of JSON built from
+dicts), so at 700 the young generations were collected ~45 times an epoch and the whole heap every few
+epochs; docs/PERFORMANCE.md ("Garbage collection") has the measurements."""
+
+
+def _warm(registry: CityCatalog, freeze: bool = False) -> None:
     """Load every city once and solve a tiny epoch on it, so the kernels are compiled (or loaded from cache)
     and each city's search structures (road graph, landmark table) built before its first epoch arrives
-    (errors surface later, per request and in /readyz)."""
+    (errors surface later, per request and in /readyz). With ``freeze``, what start-up built (the cities,
+    the app, the compiled kernels' Python objects) is then moved out of the collector's reach (``gc.freeze``):
+    it lives as long as the process, and scanning it made each full collection ~100 ms at Manhattan scale."""
     from services.dispatch import warm_up
 
     for name in registry.names():
@@ -168,3 +183,6 @@ def _warm(registry: CityCatalog) -> None:
             warm_up(registry.get(name))
         except Exception:
             log.exception("city %s failed to load", name)
+    if freeze:
+        gc.collect()
+        gc.freeze()

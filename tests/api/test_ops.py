@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import gc
 import socket
+import time
 from pathlib import Path
 
 import pytest
 
 from app.adapters import RedisStore
 from app.cities import CityRegistry
-from app.main import create_app
+from app.main import GC_THRESHOLD, create_app
 from tests.api import payloads
 from tests.api.conftest import CITY, MakeClient, auth, settings
 from tests.api.fakes import FakeDecide
@@ -19,6 +21,31 @@ def test_healthz_and_readyz(make_client: MakeClient) -> None:
     client = make_client()
     assert client.get("/healthz").json() == {"status": "ok"}
     assert client.get("/readyz").json() == {"status": "ready", "store": "memory", "cities": [CITY]}
+
+
+def test_the_run_commands_app_tunes_the_collector_once_its_cities_are_warm(registry: CityRegistry) -> None:
+    from fastapi.testclient import TestClient
+
+    before, frozen = gc.get_threshold(), gc.get_freeze_count()
+    assert before != GC_THRESHOLD
+    try:
+        plain = create_app(settings(), registry=registry, decide=FakeDecide())
+        with TestClient(plain) as client:
+            assert client.get("/readyz").status_code == 200
+            time.sleep(0.2)
+            assert gc.get_threshold() == before and gc.get_freeze_count() == frozen  # tests' apps leave it be
+        tuned = create_app(settings(), registry=registry, decide=FakeDecide(), tune_gc=True)
+        with TestClient(tuned) as client:
+            assert gc.get_threshold() == GC_THRESHOLD
+            deadline = time.monotonic() + 30.0
+            while gc.get_freeze_count() == frozen and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert gc.get_freeze_count() > frozen  # start-up's objects are out of the collector's reach
+            r = client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch(), headers=auth())
+            assert r.status_code == 200, r.text
+    finally:
+        gc.set_threshold(*before)
+        gc.unfreeze()
 
 
 def test_readyz_without_cities_is_503(tmp_path: Path) -> None:
