@@ -167,7 +167,7 @@ GC_THRESHOLD = (10_000, 10, 10)
 """The collector's thresholds in the service process (Python's default is (700, 10, 10)). An epoch allocates
 hundreds of thousands of short-lived objects (a Manhattan epoch's response alone is 0.5 MB of JSON built from
 dicts), so at 700 the young generations were collected ~45 times an epoch and the whole heap every few
-epochs; docs/PERFORMANCE.md ("Garbage collection") has the measurements."""
+epochs; docs/DESIGN.md ("Speed without changing a decision") and docs/PERFORMANCE.md have the measurements."""
 
 
 def _warm(registry: CityCatalog, freeze: bool = False) -> None:
