@@ -16,7 +16,9 @@ shortest path of its cost (``services.graph``).
 
 from __future__ import annotations
 
+import datetime as dt
 from collections.abc import Callable, Sequence
+from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
@@ -442,19 +444,42 @@ def decide(
 
 
 def warm_up(city: City) -> None:
-    """Solve a tiny epoch on ``city`` so the compiled kernels are loaded, and the city's search structures
-    (``road_graph``, ``search.landmarks``) built, before the first real request."""
+    """Solve a few tiny seeded epochs on ``city`` so that every compiled kernel a real epoch calls is compiled
+    (or loaded from numba's on-disk cache), and the city's search structures (``road_graph``,
+    ``search.landmarks``) built, before the first real request: a kernel first met in a real epoch would
+    otherwise be compiled inside it (seconds on a fresh install). The epochs cover riders matched in Steps 1
+    and 2, Step 3 from the POIs' side (fewer than half as many POIs as taxis) with taxis counted in cells
+    (their own costs, goal-directed searches) and from the taxis' side, and Algorithm 2's re-plans, on one
+    thread and on two (``tests/unit/test_warm_up.py`` checks that later epochs compile nothing new)."""
+    rng = np.random.default_rng(7)
     n = city.network.n_nodes
-    a, b = 0, n - 1
-    t = 86400.0 * 20000 + 12 * 3600.0
-    snap = Snapshot(
-        "warm-up",
-        t,
-        (Rider(RiderId("r"), a, b, t),),
-        (
-            Taxi(TaxiId("i"), a, True, True),
-            Taxi(TaxiId("j"), b, True, True),
-            Taxi(TaxiId("o"), a, False, True),
-        ),
+    hz = city.horizon  # a minute into the horizon's first interval, where cells have a gain
+    t0 = dt.datetime.combine(dt.date(2024, 6, 3), hz.start, tzinfo=ZoneInfo(hz.timezone)).timestamp() + 60.0
+    instrumented = [int(x) for x in rng.integers(n, size=10)]
+    ordinary = [int(x) for x in rng.integers(n, size=3)]
+    taxis = tuple(Taxi(TaxiId(f"i{j}"), v, True, True) for j, v in enumerate(instrumented)) + tuple(
+        Taxi(TaxiId(f"o{j}"), v, False, True) for j, v in enumerate(ordinary)
     )
-    decide(city, CountsView({}), snap, [Task(TaskId("k"), b, t)])
+    counts: dict[IntervalKey, NDArray[np.int64]] = {}
+    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
+    tasks: dict[TaskId, Task] = {}
+    for e, (new_tasks, workers) in enumerate(((2, 1), (2, 2), (12, 2))):
+        t = t0 + e * hz.epoch_s
+        # riders at taxis' nodes so that there are matches (one at an instrumented taxi, three at ordinary)
+        riders = tuple(
+            Rider(RiderId(f"r{e}-{j}"), v, int(rng.integers(n)), t)
+            for j, v in enumerate((instrumented[e], ordinary[0], ordinary[1], ordinary[2]))
+        )
+        tasks.update(
+            (TaskId(f"k{e}-{j}"), Task(TaskId(f"k{e}-{j}"), int(rng.integers(n)), t))
+            for j in range(new_tasks)
+        )
+        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})
+        d = decide(
+            city, view, Snapshot(f"warm-up-{e}", t, riders, taxis), list(tasks.values()), workers=workers
+        )
+        for v in d.visits:  # counted as a commit would
+            if (v.interval, v.cell) not in visited.setdefault(v.taxi_id, set()):
+                visited[v.taxi_id].add((v.interval, v.cell))
+                counts.setdefault(v.interval, np.zeros(city.grid.n_cells, dtype=np.int64))[v.cell] += 1
+        tasks.update((u.id, u) for u in d.task_updates)

@@ -1,0 +1,85 @@
+"""``services.dispatch.warm_up`` compiles every kernel a real epoch calls, so none is compiled inside one.
+
+Checked in a fresh process (in this one, earlier tests have already called every kernel): after the warm-up,
+real epochs with evolving counts, on the bundled Chengdu and Manhattan cities, on one thread and two, add no
+signature to any compiled function of ``services``. A signature added there is a compilation (seconds on a
+fresh install) that the first real epoch to need it would pay.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import pkgutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def compiled_functions() -> dict[str, object]:
+    """Every numba dispatcher defined at module level in ``services`` (packages included)."""
+    from numba.core.registry import CPUDispatcher
+
+    import services
+
+    found: dict[str, object] = {}
+    for info in pkgutil.walk_packages(services.__path__, "services."):
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            if isinstance(value, CPUDispatcher) and value.__module__ == module.__name__:
+                found[f"{module.__name__}.{name}"] = value
+    return found
+
+
+def new_signatures_after_warm_up(scenario: str, epochs: int) -> dict[str, list[int]]:
+    """Warm the scenario's city up, then solve ``epochs`` of its epochs (committing their visits) on one and
+    two threads; the functions whose signature count grew, with the counts before and after."""
+    import numpy as np
+
+    from bench.bench_epoch import SCENARIOS, commit, load
+    from bench.bench_epoch import epochs as seeded_epochs
+    from services.dispatch import decide, warm_up
+    from services.model import CountsView, IntervalKey, Task, TaskId, TaxiId
+
+    functions = compiled_functions()
+    sc = SCENARIOS[scenario]
+    city = load(sc)
+    warm_up(city)
+    before = {k: len(f.signatures) for k, f in functions.items()}  # type: ignore[attr-defined]
+    counts: dict[IntervalKey, np.ndarray] = {}
+    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
+    open_tasks: dict[TaskId, Task] = {}
+    for e, (snap, tasks) in enumerate(seeded_epochs(city, sc, epochs)):
+        open_tasks.update({t.id: t for t in tasks})
+        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})
+        d = decide(city, view, snap, list(open_tasks.values()), workers=1 + e % 2)
+        commit(city, counts, visited, d)
+        for t in d.task_updates:
+            open_tasks[t.id] = t
+    after = {k: len(f.signatures) for k, f in functions.items()}  # type: ignore[attr-defined]
+    return {k: [before[k], after[k]] for k in functions if after[k] != before[k]}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["paper", "city"])
+def test_after_the_warm_up_real_epochs_compile_nothing(scenario: str) -> None:
+    code = (
+        "import json, sys; from tests.unit.test_warm_up import new_signatures_after_warm_up as f; "
+        f"print(json.dumps(f({scenario!r}, 4)))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=900, check=False
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    grown = json.loads(out.stdout.strip().splitlines()[-1])
+    assert grown == {}, f"compiled inside a real epoch, not by the warm-up: {grown}"
+
+
+def test_the_compiled_functions_are_found() -> None:
+    found = compiled_functions()
+    assert "services.algorithm1._taxis_chunk" in found and "services.search.run" in found
+    assert len(found) > 30
