@@ -43,17 +43,15 @@ from zoneinfo import ZoneInfo
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as cg
-from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from bench.report import ROOT, stamp, write_section
 from services.city import City
 from services.citydata import CityMeta, city_from_network, haversine_m, load_city, save_bundle
 from services.dispatch import decide, warm_up
+from services.ledger import Ledger, apply_decision, ledger_view
 from services.model import (
-    CountsView,
     Decision,
-    IntervalKey,
     Rider,
     RiderId,
     Snapshot,
@@ -206,19 +204,6 @@ def floor_once(city: City, snap: Snapshot, open_nodes: list[int]) -> float:
     return time.perf_counter() - started
 
 
-def commit(
-    city: City,
-    counts: dict[IntervalKey, NDArray[np.int64]],
-    visited: dict[TaxiId, set[tuple[IntervalKey, int]]],
-    d: Decision,
-) -> None:
-    """Count a decision's visits, as the store would on commit."""
-    for v in d.visits:
-        if (v.interval, v.cell) not in visited.setdefault(v.taxi_id, set()):
-            visited[v.taxi_id].add((v.interval, v.cell))
-            counts.setdefault(v.interval, np.zeros(city.grid.n_cells, dtype=np.int64))[v.cell] += 1
-
-
 def _lap(marks: list[tuple[str, float]], name: str) -> None:
     marks.append((name, time.perf_counter()))
 
@@ -226,29 +211,17 @@ def _lap(marks: list[tuple[str, float]], name: str) -> None:
 def run_inprocess(sc: Scenario, n: int) -> dict[str, object]:
     city = load(sc)
     workers = default_workers()
-    counts: dict[IntervalKey, NDArray[np.int64]] = {}
-    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
-    open_tasks: dict[TaskId, Task] = {}
+    ledger = Ledger()  # what the store would hold: the committed counts and tasks
     lat, lat1, flo, phases, open_n = [], [], [], [], []
-    warm_snap, warm_tasks = next(epochs(city, sc, 1))
     warm_up(city)  # every kernel compiled (or loaded from the cache) outside timing, as the server does
-    decide(city, CountsView({}), warm_snap, warm_tasks, workers=workers)
-
-    def settle(d: Decision) -> None:
-        commit(city, counts, visited, d)
-        for t in d.task_updates:
-            if t.status == "completed":
-                open_tasks.pop(t.id, None)
-            else:
-                open_tasks[t.id] = t
-
     # epochs 1..n are timed, as over HTTP, where the server's first epoch is not (see ``run_http``)
     for e, (snap, tasks) in enumerate(epochs(city, sc, n + 1)):
-        open_tasks.update({t.id: t for t in tasks})
-        task_list = list(open_tasks.values())
-        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})
+        ledger.tasks.update({t.id: t for t in tasks})
+        task_list = list(ledger.tasks.values())
+        view = ledger_view(ledger, (t.id for t in snap.taxis if t.instrumented), city.grid.n_cells)
         if e == 0:
-            settle(decide(city, view, snap, task_list, workers=workers))
+            d = decide(city, view, snap, task_list, workers=workers)
+            apply_decision(ledger, d.visits, d.task_updates)
             continue
         out: dict[int, tuple[float, Decision, dict[str, float]]] = {}
         for w in (workers, 1) if e % 2 == 0 else (1, workers):
@@ -271,7 +244,7 @@ def run_inprocess(sc: Scenario, n: int) -> dict[str, object]:
         phases.append(out[workers][2])
         open_n.append(int(d.stats["open_tasks"]))
         flo.append(floor_once(city, snap, sorted({t.node for t in task_list if t.is_open(snap.time_s)})))
-        settle(d)
+        apply_decision(ledger, d.visits, d.task_updates)
         print(
             f"  [{sc.name}] epoch {e}: {lat[-1] * 1000:.0f} ms ({lat1[-1] * 1000:.0f} on one thread), floor {flo[-1] * 1000:.0f} ms",
             flush=True,
@@ -473,9 +446,10 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "",
         "Inputs (seeded, `bench/bench_epoch.py` `SCENARIOS`): taxis at random nodes, riders requested 0-300 s",
         "earlier between random nodes, new tasks at random nodes every epoch (paper, city: 0..max; metro: exactly",
-        "that many), epochs 200 s apart from 08:00 local, the first solved untimed on every path; counts and task",
-        "states evolve as the decisions are committed. The metro scenarios run on a generated 150 x 150 street grid (22,500 nodes, 89,400 directed",
-        "edges, 120 m blocks) with 5,000 taxis (1,500 instrumented), 800 riders and 100 or 300 new tasks an epoch;",
+        "that many), epochs 200 s apart from 08:00 local, the first solved untimed on every path; counts and",
+        "task states evolve as the decisions are committed. The metro scenarios run on a generated 150 x 150",
+        "street grid (22,500 nodes, 89,400 directed edges, 120 m blocks) with 5,000 taxis (1,500 instrumented),",
+        "800 riders and 100 or 300 new tasks an epoch;",
         "streets300 is metro300 on a less regular generated network (`street_city`: the grid's nodes moved,",
         "15 % of blocks missing, one-way side streets, 60 km/h arterials, bends; 22,372 nodes), as a city",
         "the service has not seen would be.",

@@ -16,9 +16,7 @@ shortest path of its cost (``services.graph``).
 
 from __future__ import annotations
 
-import datetime as dt
 from collections.abc import Callable, Sequence
-from zoneinfo import ZoneInfo
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,6 +37,7 @@ from services.gains import (
     path_facts,
 )
 from services.graph import RoadGraph, road_graph
+from services.ledger import Ledger, apply_decision, ledger_view
 from services.legs import Leg, pickups, trips
 from services.model import (
     CountsView,
@@ -453,16 +452,14 @@ def warm_up(city: City) -> None:
     thread and on two (``tests/unit/test_warm_up.py`` checks that later epochs compile nothing new)."""
     rng = np.random.default_rng(7)
     n = city.network.n_nodes
-    hz = city.horizon  # a minute into the horizon's first interval, where cells have a gain
-    t0 = dt.datetime.combine(dt.date(2024, 6, 3), hz.start, tzinfo=ZoneInfo(hz.timezone)).timestamp() + 60.0
+    hz = city.horizon  # a minute into a day's first interval of the horizon, where cells have a gain
+    t0 = hz.interval_start_s(IntervalKey(19_877 * hz.per_day)) + 60.0  # 2024-06-03
     instrumented = [int(x) for x in rng.integers(n, size=10)]
     ordinary = [int(x) for x in rng.integers(n, size=3)]
     taxis = tuple(Taxi(TaxiId(f"i{j}"), v, True, True) for j, v in enumerate(instrumented)) + tuple(
         Taxi(TaxiId(f"o{j}"), v, False, True) for j, v in enumerate(ordinary)
     )
-    counts: dict[IntervalKey, NDArray[np.int64]] = {}
-    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
-    tasks: dict[TaskId, Task] = {}
+    ledger = Ledger()
     for e, (new_tasks, workers) in enumerate(((2, 1), (2, 2), (12, 2))):
         t = t0 + e * hz.epoch_s
         # riders at taxis' nodes so that there are matches (one at an instrumented taxi, three at ordinary)
@@ -470,16 +467,9 @@ def warm_up(city: City) -> None:
             Rider(RiderId(f"r{e}-{j}"), v, int(rng.integers(n)), t)
             for j, v in enumerate((instrumented[e], ordinary[0], ordinary[1], ordinary[2]))
         )
-        tasks.update(
-            (TaskId(f"k{e}-{j}"), Task(TaskId(f"k{e}-{j}"), int(rng.integers(n)), t))
-            for j in range(new_tasks)
-        )
-        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})
-        d = decide(
-            city, view, Snapshot(f"warm-up-{e}", t, riders, taxis), list(tasks.values()), workers=workers
-        )
-        for v in d.visits:  # counted as a commit would
-            if (v.interval, v.cell) not in visited.setdefault(v.taxi_id, set()):
-                visited[v.taxi_id].add((v.interval, v.cell))
-                counts.setdefault(v.interval, np.zeros(city.grid.n_cells, dtype=np.int64))[v.cell] += 1
-        tasks.update((u.id, u) for u in d.task_updates)
+        for j in range(new_tasks):
+            ledger.tasks[TaskId(f"k{e}-{j}")] = Task(TaskId(f"k{e}-{j}"), int(rng.integers(n)), t)
+        view = ledger_view(ledger, (taxi.id for taxi in taxis if taxi.instrumented), city.grid.n_cells)
+        snap = Snapshot(f"warm-up-{e}", t, riders, taxis)
+        d = decide(city, view, snap, list(ledger.tasks.values()), workers=workers)
+        apply_decision(ledger, d.visits, d.task_updates)

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from services.model import DONE, CountsView, IntervalKey, Task, TaskId, TaxiId, Visit
 
-__all__ = ["Ledger", "apply_decision", "dense_counts", "counts_view"]
+__all__ = ["Ledger", "apply_decision", "dense_counts", "counts_view", "ledger_view"]
 
 
 @dataclass(slots=True)
@@ -93,3 +93,14 @@ def counts_view(
         counts={k: dense_counts(counts.get(k, {}), n_cells) for k in keys},
         visited={taxi: frozenset(pairs) for taxi, pairs in visited.items()},
     )
+
+
+def ledger_view(ledger: Ledger, taxis: Iterable[TaxiId], n_cells: int) -> CountsView:
+    """What ``decide`` reads of ``ledger`` for an epoch of the instrumented ``taxis``: every interval's counts
+    and those taxis' counted (interval, cell) pairs."""
+    wanted = set(taxis)
+    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
+    for (k, taxi), cells in ledger.visits.items():
+        if taxi in wanted:
+            visited.setdefault(taxi, set()).update((k, c) for c in cells)
+    return counts_view(ledger.counts, visited, n_cells)

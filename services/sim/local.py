@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from services.city import City
 from services.dispatch import decide
-from services.ledger import Ledger, apply_decision, counts_view, dense_counts
+from services.ledger import Ledger, apply_decision, dense_counts, ledger_view
 from services.model import (
     IntervalKey,
     RiderId,
@@ -24,7 +24,6 @@ from services.model import (
     Snapshot,
     Task,
     TaskAssignment,
-    TaxiId,
 )
 
 __all__ = ["Outcome", "LocalDispatcher"]
@@ -59,12 +58,8 @@ class LocalDispatcher:
         """Decide one epoch and commit it."""
         if self._last_time_s is not None and snapshot.time_s < self._last_time_s:
             raise ValueError("epoch time is older than the last committed epoch")
-        instrumented = {t.id for t in snapshot.taxis if t.instrumented}
-        visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
-        for (k, taxi), cells in self._ledger.visits.items():
-            if taxi in instrumented:
-                visited.setdefault(taxi, set()).update((k, c) for c in cells)
-        view = counts_view(self._ledger.counts, visited, self.city.grid.n_cells)
+        instrumented = (t.id for t in snapshot.taxis if t.instrumented)
+        view = ledger_view(self._ledger, instrumented, self.city.grid.n_cells)
         started = time.perf_counter()
         decision = decide(self.city, view, snapshot, list(self._ledger.tasks.values()))
         solve_ms = (time.perf_counter() - started) * 1000.0

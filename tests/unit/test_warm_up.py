@@ -38,28 +38,22 @@ def compiled_functions() -> dict[str, object]:
 def new_signatures_after_warm_up(scenario: str, epochs: int) -> dict[str, list[int]]:
     """Warm the scenario's city up, then solve ``epochs`` of its epochs (committing their visits) on one and
     two threads; the functions whose signature count grew, with the counts before and after."""
-    import numpy as np
-
-    from bench.bench_epoch import SCENARIOS, commit, load
+    from bench.bench_epoch import SCENARIOS, load
     from bench.bench_epoch import epochs as seeded_epochs
     from services.dispatch import decide, warm_up
-    from services.model import CountsView, IntervalKey, Task, TaskId, TaxiId
+    from services.ledger import Ledger, apply_decision, ledger_view
 
     functions = compiled_functions()
     sc = SCENARIOS[scenario]
     city = load(sc)
     warm_up(city)
     before = {k: len(f.signatures) for k, f in functions.items()}  # type: ignore[attr-defined]
-    counts: dict[IntervalKey, np.ndarray] = {}
-    visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
-    open_tasks: dict[TaskId, Task] = {}
+    ledger = Ledger()
     for e, (snap, tasks) in enumerate(seeded_epochs(city, sc, epochs)):
-        open_tasks.update({t.id: t for t in tasks})
-        view = CountsView(dict(counts), {k: frozenset(v) for k, v in visited.items()})
-        d = decide(city, view, snap, list(open_tasks.values()), workers=1 + e % 2)
-        commit(city, counts, visited, d)
-        for t in d.task_updates:
-            open_tasks[t.id] = t
+        ledger.tasks.update({t.id: t for t in tasks})
+        view = ledger_view(ledger, (t.id for t in snap.taxis if t.instrumented), city.grid.n_cells)
+        d = decide(city, view, snap, list(ledger.tasks.values()), workers=1 + e % 2)
+        apply_decision(ledger, d.visits, d.task_updates)
     after = {k: len(f.signatures) for k, f in functions.items()}  # type: ignore[attr-defined]
     return {k: [before[k], after[k]] for k in functions if after[k] != before[k]}
 
