@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import gc
 import socket
-import time
+import threading
 from pathlib import Path
 
 import pytest
@@ -23,6 +23,13 @@ def test_healthz_and_readyz(make_client: MakeClient) -> None:
     assert client.get("/readyz").json() == {"status": "ready", "store": "memory", "cities": [CITY]}
 
 
+def _join_warm_up() -> None:
+    for thread in threading.enumerate():
+        if thread.name == "warm-cities":
+            thread.join(timeout=60.0)
+            assert not thread.is_alive()
+
+
 def test_the_run_commands_app_tunes_the_collector_once_its_cities_are_warm(registry: CityRegistry) -> None:
     from fastapi.testclient import TestClient
 
@@ -32,14 +39,12 @@ def test_the_run_commands_app_tunes_the_collector_once_its_cities_are_warm(regis
         plain = create_app(settings(), registry=registry, decide=FakeDecide())
         with TestClient(plain) as client:
             assert client.get("/readyz").status_code == 200
-            time.sleep(0.2)
+            _join_warm_up()
             assert gc.get_threshold() == before and gc.get_freeze_count() == frozen  # tests' apps leave it be
         tuned = create_app(settings(), registry=registry, decide=FakeDecide(), tune_gc=True)
         with TestClient(tuned) as client:
             assert gc.get_threshold() == GC_THRESHOLD
-            deadline = time.monotonic() + 30.0
-            while gc.get_freeze_count() == frozen and time.monotonic() < deadline:
-                time.sleep(0.05)
+            _join_warm_up()
             assert gc.get_freeze_count() > frozen  # start-up's objects are out of the collector's reach
             r = client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch(), headers=auth())
             assert r.status_code == 200, r.text
