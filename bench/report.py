@@ -1,7 +1,7 @@
 """docs/PERFORMANCE.md is assembled from sections, one per benchmark, each between markers.
 
 A benchmark replaces only its own section (``<!-- bench:NAME -->`` ... ``<!-- /bench:NAME -->``), so
-running one benchmark never erases another's numbers.
+running one benchmark never erases another's numbers, nor the hand-written text between sections.
 """
 
 from __future__ import annotations
@@ -52,18 +52,20 @@ def stamp(command: str) -> str:
     return f"Measured {dt.date.today().isoformat()} with `{command}`. Machine: {machine()}."
 
 
-def _sections(text: str) -> dict[str, str]:
-    found = re.findall(r"<!-- bench:(\w+) -->\n(.*?)<!-- /bench:\1 -->\n?", text, flags=re.S)
-    return {name: body for name, body in found}
-
-
 def write_section(name: str, markdown: str, path: Path = PERFORMANCE) -> Path:
-    """Replace (or add) section ``name`` of the performance document with ``markdown``."""
-    sections = _sections(path.read_text()) if path.exists() else {}
-    sections[name] = markdown.rstrip("\n") + "\n"
-    names = [n for n in ORDER if n in sections] + sorted(n for n in sections if n not in ORDER)
-    parts = [_HEAD]
-    for n in names:
-        parts.append(f"\n<!-- bench:{n} -->\n{sections[n]}<!-- /bench:{n} -->\n")
-    path.write_text("".join(parts))
+    """Replace (or add) section ``name`` of the performance document with ``markdown``; everything else in the
+    document, other sections and hand-written text between them alike, stays as it is. A new section goes
+    before the first section that follows it in ``ORDER``, else at the end."""
+    text = path.read_text() if path.exists() else _HEAD
+    block = f"<!-- bench:{name} -->\n{markdown.rstrip(chr(10))}\n<!-- /bench:{name} -->\n"
+    span = re.search(rf"<!-- bench:{name} -->\n.*?<!-- /bench:{name} -->\n?", text, flags=re.S)
+    if span is not None:
+        text = text[: span.start()] + block + text[span.end() :]
+    else:
+        later = ORDER[ORDER.index(name) + 1 :] if name in ORDER else ()
+        starts = [m.start() for n in later if (m := re.search(rf"<!-- bench:{n} -->\n", text))]
+        at = min(starts, default=len(text))
+        before, after = text[:at].rstrip("\n") + "\n\n", text[at:]
+        text = before + block + ("\n" + after if after else "")
+    path.write_text(text)
     return path
