@@ -173,10 +173,10 @@ epochs; docs/DESIGN.md ("Speed without changing a decision") and docs/PERFORMANC
 def _warm(registry: CityCatalog, freeze: bool = False) -> None:
     """Load every city once and warm it up (``services.dispatch.warm_up``), so that every kernel is compiled
     (or loaded from cache) and each city's search structures (road graph, landmark table) built before its
-    first epoch arrives
-    (errors surface later, per request and in /readyz). With ``freeze``, what start-up built (the cities,
-    the app, the compiled kernels' Python objects) is then moved out of the collector's reach (``gc.freeze``):
-    it lives as long as the process, and scanning it made each full collection ~100 ms at Manhattan scale."""
+    first epoch arrives (errors surface later, per request and in /readyz). With ``freeze``, what start-up
+    built (the cities, the app, the compiled kernels' Python objects) is then moved out of the collector's
+    reach (``gc.freeze``): it lives as long as the process, and scanning it made each full collection
+    ~100 ms at Manhattan scale."""
     from services.dispatch import warm_up
 
     for name in registry.names():
