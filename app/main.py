@@ -6,6 +6,7 @@ import functools
 import gc
 import logging
 import threading
+import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
@@ -102,10 +103,15 @@ def create_app(
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
-        # load the cities in the background so the first request (and /readyz) find them ready
+        # load and warm the cities in the background; /readyz answers 503 until that has finished, so a
+        # balancer sends no epoch that would wait for the kernels to compile
         if tune_gc:
             gc.set_threshold(*GC_THRESHOLD)
-        threading.Thread(target=_warm, args=(the_registry, tune_gc), name="warm-cities", daemon=True).start()
+        warmed = threading.Event()
+        service.warming = warmed
+        threading.Thread(
+            target=_warm, args=(the_registry, tune_gc, warmed), name="warm-cities", daemon=True
+        ).start()
         try:
             yield
         finally:
@@ -170,20 +176,27 @@ dicts), so at 700 the young generations were collected ~45 times an epoch and th
 epochs; docs/DESIGN.md ("Speed without changing a decision") and docs/PERFORMANCE.md have the measurements."""
 
 
-def _warm(registry: CityCatalog, freeze: bool = False) -> None:
+def _warm(registry: CityCatalog, freeze: bool = False, done: threading.Event | None = None) -> None:
     """Load every city once and warm it up (``services.dispatch.warm_up``), so that every kernel is compiled
     (or loaded from cache) and each city's search structures (road graph, landmark table) built before its
     first epoch arrives (errors surface later, per request and in /readyz). With ``freeze``, what start-up
     built (the cities, the app, the compiled kernels' Python objects) is then moved out of the collector's
     reach (``gc.freeze``): it lives as long as the process, and scanning it made each full collection
-    ~100 ms at Manhattan scale."""
+    ~100 ms at Manhattan scale. ``done`` is set at the end, whatever happened (a city that failed to load
+    is /readyz's to report)."""
     from services.dispatch import warm_up
 
-    for name in registry.names():
-        try:
-            warm_up(registry.get(name))
-        except Exception:
-            log.exception("city %s failed to load", name)
-    if freeze:
-        gc.collect()
-        gc.freeze()
+    began = time.perf_counter()
+    try:
+        for name in registry.names():
+            try:
+                warm_up(registry.get(name))
+            except Exception:
+                log.exception("city %s failed to load", name)
+        log.info("warm-up finished in %.1f s: ready", time.perf_counter() - began)
+        if freeze:
+            gc.collect()
+            gc.freeze()
+    finally:
+        if done is not None:
+            done.set()

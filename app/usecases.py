@@ -8,6 +8,7 @@ import dataclasses
 import json
 import logging
 import math
+import threading
 import time
 import uuid
 from collections.abc import Callable, Sequence
@@ -241,6 +242,8 @@ class DispatchService:
         self.commit_attempts = commit_attempts
         self.max_ahead_s = max_ahead_s
         self.clock = clock
+        self.warming: threading.Event | None = None
+        """Set by the app's start-up: unset while the cities are being warmed up (``ready`` is 503)."""
 
     # ------------------------------------------------------------------ cities
 
@@ -417,7 +420,13 @@ class DispatchService:
     # ------------------------------------------------------------------ readiness
 
     def ready(self) -> list[str]:
-        """The served cities once the store answers and every city loads (``Unavailable``, a 503, else)."""
+        """The served cities once the store answers, the start-up warm-up (``warming``) has finished and every
+        city loads (``Unavailable``, a 503, else)."""
+        if self.warming is not None and not self.warming.is_set():
+            raise Unavailable(
+                "warming up: the cities are loading and the routing kernels compiling (minutes on a fresh "
+                "install, under a second once they are cached); epochs posted now wait for it"
+            )
         self.store.ping()
         names = self.city_names()
         if not names:

@@ -56,7 +56,7 @@ def service(**env: str) -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
 
     proc, url = start_process(env, {TOKEN: ["read", "dispatch", "admin"]})
     try:
-        wait_ready(url, proc, timeout_s=120)
+        wait_ready(url, proc)
         yield url, proc
     finally:
         stop(proc)

@@ -22,11 +22,15 @@ async def healthz() -> HealthOut:
 
 
 @router.get(
-    "/readyz", response_model=ReadyOut, summary="Store reachable and cities loaded", responses=errors(503)
+    "/readyz",
+    response_model=ReadyOut,
+    summary="Warmed up, store reachable and cities loaded",
+    responses=errors(503),
 )
 def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
-    """Readiness: the store answers a ping and every city loads (503 otherwise; the error says only
-    "store unreachable", never where the store is)."""
+    """Readiness: start-up's warm-up has finished (every city loaded and the routing kernels compiled or
+    read from their cache), the store answers a ping and every city loads (503 otherwise; the error says
+    only "store unreachable", never where the store is)."""
     return ReadyOut(status="ready", store=settings.store, cities=service.ready())
 
 

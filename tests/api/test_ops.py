@@ -12,6 +12,7 @@ import pytest
 from app.adapters import RedisStore
 from app.cities import CityRegistry
 from app.main import GC_THRESHOLD, create_app
+from services.city import City
 from tests.api import payloads
 from tests.api.conftest import CITY, MakeClient, auth, settings
 from tests.api.fakes import FakeDecide
@@ -38,8 +39,8 @@ def test_the_run_commands_app_tunes_the_collector_once_its_cities_are_warm(regis
     try:
         plain = create_app(settings(), registry=registry, decide=FakeDecide())
         with TestClient(plain) as client:
-            assert client.get("/readyz").status_code == 200
             _join_warm_up()
+            assert client.get("/readyz").status_code == 200
             assert gc.get_threshold() == before and gc.get_freeze_count() == frozen  # tests' apps leave it be
         tuned = create_app(settings(), registry=registry, decide=FakeDecide(), tune_gc=True)
         with TestClient(tuned) as client:
@@ -51,6 +52,38 @@ def test_the_run_commands_app_tunes_the_collector_once_its_cities_are_warm(regis
     finally:
         gc.set_threshold(*before)
         gc.unfreeze()
+
+
+class _HeldCities:
+    """A catalog whose cities load only once ``release`` is set (a warm-up that takes its time)."""
+
+    def __init__(self, inner: CityRegistry) -> None:
+        self.inner = inner
+        self.release = threading.Event()
+
+    def names(self) -> list[str]:
+        return self.inner.names()
+
+    def get(self, name: str) -> City:
+        if threading.current_thread().name == "warm-cities":
+            assert self.release.wait(timeout=60.0)
+        return self.inner.get(name)
+
+
+def test_readyz_is_503_until_the_warm_up_has_finished(registry: CityRegistry) -> None:
+    from fastapi.testclient import TestClient
+
+    held = _HeldCities(registry)
+    app = create_app(settings(), registry=held, decide=FakeDecide())
+    with TestClient(app) as client:
+        client.get("/healthz")  # the warm-up thread is running (and held) by now
+        r = client.get("/readyz")
+        assert r.status_code == 503, r.text
+        assert r.json()["error"] == "unavailable" and "warming up" in r.json()["detail"]
+        assert client.get("/healthz").json() == {"status": "ok"}  # alive all along
+        held.release.set()
+        _join_warm_up()
+        assert client.get("/readyz").json() == {"status": "ready", "store": "memory", "cities": [CITY]}
 
 
 def test_readyz_without_cities_is_503(tmp_path: Path) -> None:

@@ -57,8 +57,9 @@ def start_service(
     return start_process(env, tokens, port=port)
 
 
-def wait_ready(url: str, proc: subprocess.Popen[bytes], timeout_s: float = 90.0) -> None:
-    """Wait until ``/readyz`` answers 200; raise with the process's stderr when it exits first."""
+def wait_ready(url: str, proc: subprocess.Popen[bytes], timeout_s: float = 600.0) -> None:
+    """Wait until ``/readyz`` answers 200; raise with the process's stderr when it exits first. Readiness
+    waits for start-up's warm-up, which compiles the kernels when numba's cache is cold (minutes)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
