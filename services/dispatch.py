@@ -34,6 +34,7 @@ from services.gains import (
     eval_pairs,
     fixed_point_unit,
     gain_table,
+    pair_gains_q,
     path_facts,
 )
 from services.graph import RoadGraph, road_graph
@@ -97,13 +98,12 @@ def _step1(
     leg_ptr[1:] = np.cumsum([len(leg.edges) for leg in service])
     leg_edges = np.concatenate([leg.edges for leg in service]).astype(np.int64) if service else leg_ptr[:0]
     crossings = max(int((ed.ec_ptr[leg.edges + 1] - ed.ec_ptr[leg.edges]).sum()) for leg in service)
+    depart = now + pick_wait_s
     while True:
         top = gain_table(city, counts.counts, k0, n_slots, now)
         unit = fixed_point_unit(float(top.term.max(initial=0.0)), crossings)
         gn = gain_table(city, counts.counts, k0, n_slots, now, unit=unit)
-        g, gq, max_slot = eval_pairs(
-            ed, gn, counted, pick_taxi, pick_rider, now + pick_wait_s, leg_ptr, leg_edges
-        )
+        gq, max_slot = pair_gains_q(ed, gn, counted, pick_taxi, pick_rider, depart, leg_ptr, leg_edges)
         if max_slot < n_slots:
             break
         n_slots = int(max_slot) + 1
@@ -113,7 +113,11 @@ def _step1(
     )
     stats.update({"step1_positive_pairs": len(ok), "step1_gain_unit": gn.unit})
     chosen = ok[sol.pair]
-    out = [(int(pick_taxi[k]), int(pick_rider[k]), float(g[k])) for k in chosen]
+    # the reported gain: the floating-point sum along the path, for the matched pairs only
+    g, _gq, _ms = eval_pairs(
+        ed, gn, counted, pick_taxi[chosen], pick_rider[chosen], depart[chosen], leg_ptr, leg_edges
+    )
+    out = [(int(pick_taxi[k]), int(pick_rider[k]), float(x)) for k, x in zip(chosen, g, strict=True)]
     return out, n_slots, stats
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "TreeScratch",
     "tree_scratch",
     "eval_pairs",
+    "pair_gains_q",
     "distinct_cells",
     "path_facts",
     "entered_utility",
@@ -408,6 +409,92 @@ def eval_pairs(
         if ms > max_slot:
             max_slot = ms
     return out_g, out_q, max_slot
+
+
+@compiled
+def pair_gains_q(
+    ed: Edges,
+    gn: Gains,
+    counted: Counted,
+    pair_taxi: NDArray[np.int64],
+    pair_leg: NDArray[np.int64],
+    pair_depart: NDArray[np.float64],
+    leg_ptr: NDArray[np.int64],
+    leg_edges: NDArray[np.int64],
+) -> tuple[NDArray[np.int64], int]:
+    """``eval_pairs``' fixed-point gains and largest slot (the same integers), without walking every
+    crossing of every pair.
+
+    A leg's crossings are timed in order from the departure (their computed times never decrease), so
+    when the departure and an upper bound on the last crossing's time (the leg's travel time plus more
+    than the rounding of the running sum) fall in one slot, every crossing falls in it: the pair's gain is
+    then the sum of that slot's fixed-point terms over the leg's distinct cells the taxi is not counted in,
+    and integer sums do not depend on the order of addition. Other pairs (a leg across an interval's end)
+    are walked by ``eval_path``."""
+    k = pair_taxi.shape[0]
+    n_slots, n_cells = gn.term.shape
+    n_legs = leg_ptr.shape[0] - 1
+    cell_ptr = np.zeros(n_legs + 1, dtype=np.int64)
+    n_total = 0
+    for e in leg_edges:
+        n_total += ed.ec_ptr[e + 1] - ed.ec_ptr[e]
+    cells = np.empty(n_total, dtype=np.int64)
+    leg_s = np.zeros(n_legs)
+    last = np.zeros(n_cells, dtype=np.int64)
+    n = 0
+    for leg in range(n_legs):
+        dur = 0.0
+        for i in range(leg_ptr[leg], leg_ptr[leg + 1]):
+            e = leg_edges[i]
+            dur += ed.time_s[e]
+            for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
+                c = ed.ec_cell[j]
+                if last[c] != leg + 1:
+                    last[c] = leg + 1
+                    cells[n] = c
+                    n += 1
+        cell_ptr[leg + 1] = n
+        leg_s[leg] = dur
+    zmask = np.zeros(gn.term.shape, dtype=np.bool_)
+    stamp = np.zeros(gn.term.shape, dtype=np.int64)
+    out_q = np.zeros(k, dtype=np.int64)
+    max_slot = 0
+    order = np.argsort(pair_taxi, kind="mergesort")
+    current = -1
+    for r in range(k):
+        q = order[r]
+        a = pair_taxi[q]
+        if a != current:
+            if current >= 0:
+                mark(zmask, counted, current, False)
+            mark(zmask, counted, a, True)
+            current = a
+        leg = pair_leg[q]
+        lo, hi = cell_ptr[leg], cell_ptr[leg + 1]
+        if hi == lo:
+            continue  # no crossing: no gain, slot 0
+        depart = pair_depart[q]
+        steps = leg_ptr[leg + 1] - leg_ptr[leg] + 2
+        slack = (abs(depart) + leg_s[leg]) * 4.5e-16 * steps + 1e-3  # > the running sum's rounding
+        slot = _slot(depart, gn.shift_s, gn.interval_s, gn.k0)
+        if slot == _slot(depart + (leg_s[leg] + slack), gn.shift_s, gn.interval_s, gn.k0):
+            if slot > max_slot:
+                max_slot = slot
+            if slot < n_slots:
+                gq = 0
+                for p in range(lo, hi):
+                    c = cells[p]
+                    if not zmask[slot, c]:
+                        gq += gn.term_q[slot, c]
+                out_q[q] = gq
+        else:
+            _g, gq, _t, _l, ms = eval_path(
+                ed, gn, zmask, stamp, r + 1, leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]], depart
+            )
+            out_q[q] = gq
+            if ms > max_slot:
+                max_slot = ms
+    return out_q, max_slot
 
 
 @compiled

@@ -130,20 +130,25 @@ def pickups(
     if n_r == 0 or len(taxi_nodes) == 0:
         return Pickups(empty_i, empty_i, np.zeros(0), np.zeros(0), empty_i)
     limit_us = int(np.ceil(radius_m / graph.min_speed_mps * US_PER_S * (1 + 1e-9))) + 1
-    near = cKDTree(xy[taxi_nodes]).query_ball_point(xy[origins], r=radius_m * 1.01 + 1.0)
+    taxi_tree = cKDTree(xy[taxi_nodes])
+    reach = radius_m * 1.01 + 1.0
     ed = graph.edges
 
     def chunk(rs: Sequence[int]) -> list[_Found]:
-        cands = [np.array(sorted(near[j]), dtype=np.int64) for j in rs]
+        # the chunk's riders' candidates as arrays, ordered by rider then taxi (no Python list per rider:
+        # at the limits, thousands of taxis near each of thousands of riders)
+        orig = np.asarray([origins[j] for j in rs], dtype=np.int64)
+        near = taxi_tree.sparse_distance_matrix(cKDTree(xy[orig]), reach, output_type="ndarray")
+        order = np.lexsort((near["i"], near["j"]))
+        flat = near["i"][order].astype(np.int64)
         ptr = np.zeros(len(rs) + 1, dtype=np.int64)
-        ptr[1:] = np.cumsum([len(c) for c in cands])
-        flat = np.concatenate(cands) if cands else np.zeros(0, dtype=np.int64)
+        ptr[1:] = np.cumsum(np.bincount(near["j"], minlength=len(rs)))
+        del near, order
         nodes = taxi_nodes[flat]
         ok = np.zeros(len(flat), dtype=np.bool_)
         w_us = np.zeros(len(flat), dtype=np.int64)
         w_s = np.zeros(len(flat))
         length = np.zeros(len(flat))
-        orig = np.asarray([origins[j] for j in rs], dtype=np.int64)
         with pads.take() as pad:
             _within_many(
                 ed, graph.reverse, pad.reverse, graph.time_reverse, orig, ptr, nodes, limit_us,
