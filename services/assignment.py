@@ -223,6 +223,18 @@ def _solve(
     return pair4row
 
 
+def _compact(ids: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """``np.unique(ids, return_inverse=True)``: the distinct ids, ascending, and each one's index among
+    them (by counting when the ids are small non-negative numbers, as indices are)."""
+    lo, hi = int(ids.min()), int(ids.max())
+    if lo < 0 or hi > 8 * ids.size + 1024:
+        distinct, inverse = np.unique(ids, return_inverse=True)
+        return distinct.astype(np.int64), inverse.astype(np.int64).ravel()
+    present = np.bincount(ids, minlength=hi + 1) > 0
+    rank = np.cumsum(present) - 1
+    return np.flatnonzero(present).astype(np.int64), rank[ids].astype(np.int64)
+
+
 def lexicographic_assignment(
     rows: NDArray[np.int64],
     cols: NDArray[np.int64],
@@ -253,14 +265,17 @@ def lexicographic_assignment(
     if rows.size == 0:
         return Assignment(empty, empty, empty, 0, 0)
     # rows of the solve: the side with fewer distinct members (each is processed once)
-    flip = np.unique(cols).size < np.unique(rows).size
-    r, c = (cols, rows) if flip else (rows, cols)
-    r_ids, r_idx = np.unique(r, return_inverse=True)
-    c_ids, c_idx = np.unique(c, return_inverse=True)
-    order = np.lexsort((c_idx, r_idx))
+    row_ids, row_idx = _compact(rows)
+    col_ids, col_idx = _compact(cols)
+    flip = col_ids.size < row_ids.size
+    r_ids, r_idx, c_ids, c_idx = (
+        (col_ids, col_idx, row_ids, row_idx) if flip else (row_ids, row_idx, col_ids, col_idx)
+    )
+    # the pairs by row, then column (keys are distinct: no duplicate pairs); a stable sort is linear on
+    # pairs already in that order, as the pickups' are
+    order = np.argsort(r_idx * c_ids.size + c_idx, kind="stable")
     indptr = np.zeros(r_ids.size + 1, dtype=np.int64)
-    np.add.at(indptr, r_idx + 1, 1)
-    indptr = np.cumsum(indptr)
+    indptr[1:] = np.cumsum(np.bincount(r_idx, minlength=r_ids.size))
     sec = secondary if secondary_sense == "min" else -secondary
     chosen = _solve(
         int(r_ids.size), int(c_ids.size), indptr, c_idx[order].astype(np.int64), -primary[order], sec[order]

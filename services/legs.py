@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
@@ -57,30 +58,53 @@ def _within(
     wait_us: NDArray[np.int64],
     wait_s: NDArray[np.float64],
     length_m: NDArray[np.float64],
+    slot: NDArray[np.int64],
+    uniq: NDArray[np.int64],
 ) -> None:
     """One in-tree toward ``origin`` bounded by ``limit_us``; for each of ``nodes`` whether its fastest path
-    to the origin is at most ``radius_m`` long, with that path's wait and length."""
-    search.run(rg, ed, time_costs, origin, limit_us, nodes, ws)
-    search.unfold_many(rg, ed, time_costs, limit_us, nodes, ws, ok)
-    label = np.empty((3, nodes.shape[0]), dtype=np.int64)
-    search.labels(rg, ed, time_costs, limit_us, nodes, ws, label)
+    to the origin is at most ``radius_m`` long, with that path's wait and length. A node several taxis
+    stand on is resolved and walked once (``slot``: -1 per node on entry and on return; ``uniq``: room for
+    the distinct nodes)."""
+    n_u = 0
     for i in range(nodes.shape[0]):
-        if not ok[i]:
+        v = nodes[i]
+        if slot[v] < 0:
+            slot[v] = n_u
+            uniq[n_u] = v
+            n_u += 1
+    un = uniq[:n_u]
+    reached = np.zeros(n_u, dtype=np.bool_)
+    search.run(rg, ed, time_costs, origin, limit_us, un, ws)
+    search.unfold_many(rg, ed, time_costs, limit_us, un, ws, reached)
+    label = np.empty((3, n_u), dtype=np.int64)
+    search.labels(rg, ed, time_costs, limit_us, un, ws, label)
+    u_ok = np.zeros(n_u, dtype=np.bool_)
+    u_s = np.zeros(n_u)
+    u_len = np.zeros(n_u)
+    for q in range(n_u):
+        if not reached[q]:
             continue
-        ok[i] = False
         t = 0.0
         length = 0.0
-        x = nodes[i]
+        x = un[q]
         while x != origin:
             e = ws.pred[x]
             t += ed.time_s[e]
             length += ed.length_m[e]
             x = ed.head[e]
         if length <= radius_m + 1e-6:
-            ok[i] = True
-            wait_us[i] = label[0, i]
-            wait_s[i] = t
-            length_m[i] = length
+            u_ok[q] = True
+            u_s[q] = t
+            u_len[q] = length
+    for i in range(nodes.shape[0]):
+        q = slot[nodes[i]]
+        ok[i] = u_ok[q]
+        if u_ok[q]:
+            wait_us[i] = label[0, q]
+            wait_s[i] = u_s[q]
+            length_m[i] = u_len[q]
+    for q in range(n_u):
+        slot[un[q]] = -1
 
 
 @compiled
@@ -100,12 +124,14 @@ def _within_many(
     length_m: NDArray[np.float64],
 ) -> None:
     """``_within`` for several riders in one call: rider ``q``'s candidates are ``nodes[ptr[q]:ptr[q+1]]``."""
+    slot = np.full(ws.pred.shape[0], -1, dtype=np.int64)
+    uniq = np.empty(ws.pred.shape[0], dtype=np.int64)
     for q in range(origins.shape[0]):
         lo, hi = ptr[q], ptr[q + 1]
         if hi > lo:
             _within(
                 ed, rg, ws, time_costs, origins[q], limit_us, radius_m, nodes[lo:hi], ok[lo:hi],
-                wait_us[lo:hi], wait_s[lo:hi], length_m[lo:hi],
+                wait_us[lo:hi], wait_s[lo:hi], length_m[lo:hi], slot, uniq,
             )  # fmt: skip
 
 
@@ -139,11 +165,14 @@ def pickups(
         # at the limits, thousands of taxis near each of thousands of riders)
         orig = np.asarray([origins[j] for j in rs], dtype=np.int64)
         near = taxi_tree.sparse_distance_matrix(cKDTree(xy[orig]), reach, output_type="ndarray")
-        order = np.lexsort((near["i"], near["j"]))
-        flat = near["i"][order].astype(np.int64)
-        ptr = np.zeros(len(rs) + 1, dtype=np.int64)
-        ptr[1:] = np.cumsum(np.bincount(near["j"], minlength=len(rs)))
-        del near, order
+        by_rider = sp.csr_matrix(
+            (np.ones(len(near), dtype=np.int8), (near["j"], near["i"])), shape=(len(rs), len(taxi_nodes))
+        )
+        del near
+        by_rider.sort_indices()
+        flat = by_rider.indices.astype(np.int64)
+        ptr = by_rider.indptr.astype(np.int64)
+        del by_rider
         nodes = taxi_nodes[flat]
         ok = np.zeros(len(flat), dtype=np.bool_)
         w_us = np.zeros(len(flat), dtype=np.int64)
