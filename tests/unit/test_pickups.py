@@ -54,7 +54,6 @@ def test_pickups_are_the_pairs_within_the_radius_by_the_book(manhattan, workers:
                 length += float(ed.length_m[e])
             if length <= radius + 1e-6:
                 want.append((j, i, label[node][0], t, length))
-    got = list(zip(pk.rider.tolist(), pk.taxi.tolist(), pk.wait_us.tolist(), pk.wait_s.tolist(), strict=True))
-    lengths = pk.length_m.tolist()
-    got = [(*g, x) for g, x in zip(got, lengths, strict=True)]
+    head = zip(pk.rider.tolist(), pk.taxi.tolist(), pk.wait_us.tolist(), pk.wait_s.tolist(), strict=True)
+    got = [(*h, x) for h, x in zip(head, pk.length_m.tolist(), strict=True)]
     assert len(want) > 2000 and got == want
