@@ -177,8 +177,16 @@ class Store(Protocol):
     def get_epoch(self, city: str, epoch_id: str) -> StoredEpoch | None: ...
 
     def load_state(
-        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
-    ) -> CityState: ...
+        self,
+        city: str,
+        intervals: Sequence[IntervalKey],
+        taxi_ids: Sequence[TaxiId],
+        *,
+        visits_from: IntervalKey | None = None,
+    ) -> CityState:
+        """Version, last epoch, the counts of ``intervals``, the (interval, cell) pairs each of ``taxi_ids``
+        is counted in during those of ``intervals`` from ``visits_from`` on (all of them with None: a
+        decision reads no earlier pair), and the tasks, as one consistent snapshot."""
 
     def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
         """Atomically: check id unseen (or seen with this commit's nonce: ``committed`` again, nothing

@@ -288,9 +288,10 @@ class DispatchService:
         return EpochOutcome(response_json=stored.response_json, replayed=True)
 
     def _load(
-        self, name: str, intervals: set[IntervalKey], taxi_ids: Sequence[TaxiId], time_s: float
+        self, name: str, intervals: set[IntervalKey], taxi_ids: Sequence[TaxiId], time_s: float, k0: int
     ) -> CityState:
-        state = self.store.load_state(name, sorted(intervals), taxi_ids)
+        # the taxis' counted pairs from the epoch's interval on: the paths it plans start now
+        state = self.store.load_state(name, sorted(intervals), taxi_ids, visits_from=IntervalKey(k0))
         if state.last_epoch_time_s is not None and time_s < state.last_epoch_time_s:
             raise StaleEpoch(
                 f"epoch time is older than the last committed epoch {state.last_epoch_id!r}",
@@ -339,7 +340,7 @@ class DispatchService:
         intervals = {IntervalKey(k0 + i) for i in range(LOOKAHEAD_INTERVALS + 1)} | set(day)
         instrumented = [t.id for t in snapshot.taxis if t.instrumented]
         for attempt in range(1, self.commit_attempts + 1):
-            state = self._load(name, intervals, instrumented, snapshot.time_s)
+            state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
             started = time.perf_counter()
             while True:
                 counts = counts_view(state.counts, state.visited, city.grid.n_cells, sorted(intervals))
@@ -349,7 +350,7 @@ class DispatchService:
                 if not missing:
                     break
                 intervals |= missing  # the solve reached intervals it read as zero: load them, solve again
-                state = self._load(name, intervals, instrumented, snapshot.time_s)
+                state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
             solve_ms = (time.perf_counter() - started) * 1000.0
             before, after = _gamma_before_after(city, counts, decision, day)
             result = EpochResult(city, epoch, decision, k0, solve_ms, attempt, before, after)

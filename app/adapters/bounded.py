@@ -72,10 +72,15 @@ class BoundedStore:
         return self._call(lambda: self.inner.get_epoch(city, epoch_id))
 
     def load_state(
-        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+        self,
+        city: str,
+        intervals: Sequence[IntervalKey],
+        taxi_ids: Sequence[TaxiId],
+        *,
+        visits_from: IntervalKey | None = None,
     ) -> CityState:
         """Forwarded within a slot."""
-        return self._call(lambda: self.inner.load_state(city, intervals, taxi_ids))
+        return self._call(lambda: self.inner.load_state(city, intervals, taxi_ids, visits_from=visits_from))
 
     def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
         """Forwarded within a slot."""

@@ -134,17 +134,23 @@ class MemoryStore:
             return self._city(city).epochs.get(epoch_id)
 
     def load_state(
-        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+        self,
+        city: str,
+        intervals: Sequence[IntervalKey],
+        taxi_ids: Sequence[TaxiId],
+        *,
+        visits_from: IntervalKey | None = None,
     ) -> CityState:
         """A copy of the city's state for the given intervals and taxis."""
         with self._lock:
             c = self._city(city)
             ks = list(dict.fromkeys(intervals))
+            vks = ks if visits_from is None else [k for k in ks if k >= visits_from]
             visits, cache = c.ledger.visits, c.visit_pairs
             visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
             for taxi in dict.fromkeys(taxi_ids):
                 pairs: set[tuple[IntervalKey, int]] = set()
-                for k in ks:
+                for k in vks:
                     cells = visits.get((k, taxi))
                     if cells:
                         hit = cache.get((k, taxi))

@@ -308,10 +308,16 @@ class RedisStore:
         return StoredEpoch(epoch_id, body_hash, float(time_s), response)
 
     def load_state(
-        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+        self,
+        city: str,
+        intervals: Sequence[IntervalKey],
+        taxi_ids: Sequence[TaxiId],
+        *,
+        visits_from: IntervalKey | None = None,
     ) -> CityState:
         """Version, last epoch, counts, visits and tasks read in one MULTI/EXEC (a consistent snapshot)."""
         ks = list(dict.fromkeys(intervals))
+        vks = ks if visits_from is None else [k for k in ks if k >= visits_from]
         taxis = list(dict.fromkeys(taxi_ids))
         with self._guard("loading city state"):
             pipe = self._client.pipeline(transaction=True)
@@ -319,7 +325,7 @@ class RedisStore:
             for k in ks:
                 pipe.hgetall(self._count_key(city, k))
             for taxi in taxis:
-                for k in ks:
+                for k in vks:
                     pipe.smembers(self._visit_key(city, k, taxi))
             pipe.hgetall(self._key(city, "tasks"))
             replies = pipe.execute()
@@ -329,7 +335,7 @@ class RedisStore:
         at = 1 + len(ks)
         for taxi in taxis:
             pairs: set[tuple[IntervalKey, int]] = set()
-            for k in ks:
+            for k in vks:
                 pairs.update(zip(repeat(k), map(int, replies[at])))
                 at += 1
             visited[taxi] = pairs

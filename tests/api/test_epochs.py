@@ -152,9 +152,14 @@ class RacingStore:
         return getattr(self.inner, name)
 
     def load_state(
-        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+        self,
+        city: str,
+        intervals: Sequence[IntervalKey],
+        taxi_ids: Sequence[TaxiId],
+        *,
+        visits_from: IntervalKey | None = None,
     ) -> CityState:
-        state = self.inner.load_state(city, intervals, taxi_ids)
+        state = self.inner.load_state(city, intervals, taxi_ids, visits_from=visits_from)
         if self.races is None or self.races > 0:
             if self.races is not None:
                 self.races -= 1

@@ -43,10 +43,15 @@ class FrozenStore(MemoryStore):
         return super().interval_counts(city, interval)
 
     def load_state(
-        self, city: str, intervals: Sequence[IntervalKey], taxi_ids: Sequence[TaxiId]
+        self,
+        city: str,
+        intervals: Sequence[IntervalKey],
+        taxi_ids: Sequence[TaxiId],
+        *,
+        visits_from: IntervalKey | None = None,
     ) -> CityState:
         self._wait()
-        return super().load_state(city, intervals, taxi_ids)
+        return super().load_state(city, intervals, taxi_ids, visits_from=visits_from)
 
 
 def _until(what: str, ok: Callable[[], bool], timeout_s: float = 60.0) -> None:

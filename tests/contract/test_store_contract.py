@@ -115,6 +115,16 @@ def test_load_state_only_returns_what_was_asked(store: Store) -> None:
     assert state.visited == {B: set()}
 
 
+def test_load_state_reads_visits_from_an_interval_on(store: Store) -> None:
+    store.commit_epoch(
+        CITY,
+        commit("e1", version=0, visits=[visit(A, K1, 5), visit(A, K2, 6), visit(A, K3, 7), visit(B, K1, 5)]),
+    )
+    state = store.load_state(CITY, [K1, K2, K3], [A, B], visits_from=K2)
+    assert state.counts == {K1: {5: 2}, K2: {6: 1}, K3: {7: 1}}  # every interval's counts
+    assert state.visited == {A: {(K2, 6)}, B: set()}  # the pairs from K2 on (K3 is an earlier interval)
+
+
 def test_same_visit_in_two_epochs_counts_once(store: Store) -> None:
     store.commit_epoch(CITY, commit("e1", version=0, visits=[visit(A, K1, 5)]))
     result = store.commit_epoch(CITY, commit("e2", version=1, visits=[visit(A, K1, 5), visit(A, K1, 5)]))
