@@ -212,7 +212,7 @@ class StoreUnavailableError(Unavailable):
 
 
 class Busy(Unavailable):
-    """Too many concurrent commits on one city; retry."""
+    """Too many concurrent commits on one city, or every solve slot taken; retry."""
 
     kind = "busy"
 

@@ -97,6 +97,8 @@ def create_app(
         read_epoch=read_epoch,
         retention_s=settings.retention_s,
         commit_attempts=settings.commit_attempts,
+        max_solves=settings.max_solves,
+        solve_queue_s=settings.solve_queue_s,
         max_ahead_s=settings.epoch_max_ahead_s,
         **({} if clock is None else {"clock": clock}),
     )

@@ -95,6 +95,19 @@ class Settings(BaseSettings):
         le=64,
         description="Threads that share an epoch's independent searches (default: the CPUs, at most 4).",
     )
+    max_solves: int = Field(
+        default=2,
+        ge=1,
+        le=64,
+        description="Epochs solved at once per process (each takes the dispatch threads and, at the API's "
+        "limits, ~1 GB); an epoch finding every slot taken waits at most solve_queue_s, then gets 503 busy.",
+    )
+    solve_queue_s: float = Field(
+        default=30.0,
+        ge=0.0,
+        le=600.0,
+        description="How long an epoch waits for a free solve slot (then 503).",
+    )
     commit_attempts: int = Field(
         default=8, ge=1, le=100, description="Solve/commit tries on version conflicts."
     )

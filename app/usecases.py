@@ -230,6 +230,8 @@ class DispatchService:
         read_epoch: EpochReader,
         retention_s: int = 8 * 86400,
         commit_attempts: int = 8,
+        max_solves: int = 2,
+        solve_queue_s: float = 30.0,
         max_ahead_s: float = 86400.0,
         clock: Callable[[], float] = time.time,
     ) -> None:
@@ -240,6 +242,8 @@ class DispatchService:
         self.read_epoch = read_epoch
         self.retention_s = retention_s
         self.commit_attempts = commit_attempts
+        self.solve_queue_s = solve_queue_s
+        self._solve_slots = threading.BoundedSemaphore(max_solves)
         self.max_ahead_s = max_ahead_s
         self.clock = clock
         self.warming: threading.Event | None = None
@@ -326,7 +330,9 @@ class DispatchService:
             )
 
     def submit_epoch(self, name: str, epoch: EpochCommand) -> EpochOutcome:
-        """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs")."""
+        """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs"). At most
+        ``max_solves`` epochs are solved at once: one finding every slot taken waits ``solve_queue_s``, then
+        is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot."""
         city = self.city(name)
         snapshot = epoch.snapshot
         self._check_window(city, snapshot.time_s)
@@ -334,6 +340,20 @@ class DispatchService:
         if stored is not None:
             return self._replay(stored, epoch.body_hash)
 
+        if not self._solve_slots.acquire(timeout=self.solve_queue_s):
+            raise Busy(
+                f"every solve slot is taken (waited {self.solve_queue_s:g} s for one): too many epochs at "
+                "once; retry later"
+            )
+        try:
+            return self._solve_and_commit(name, city, epoch)
+        finally:
+            self._solve_slots.release()
+
+    def _solve_and_commit(self, name: str, city: City, epoch: EpochCommand) -> EpochOutcome:
+        """``submit_epoch`` within a solve slot: solve against the loaded state, commit, and on a version
+        conflict load and solve again."""
+        snapshot = epoch.snapshot
         k0 = city.horizon.interval_of(snapshot.time_s)
         day = city.horizon.day_intervals(k0)
         # the epoch's interval and the next two (paths run on), plus the day's horizon for Gamma

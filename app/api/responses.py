@@ -18,7 +18,8 @@ _DESCRIPTIONS = {
     415: "The body is not sent as `application/json` (`unsupported_media_type`).",
     422: "The request failed validation (`validation_error`); `fields` names the offending values.",
     500: "Unexpected failure (`internal`), logged.",
-    503: "The store cannot be reached (`store_unavailable`), or too many concurrent commits (`busy`).",
+    503: "The store cannot be reached (`store_unavailable`), or too many concurrent commits or epochs being "
+    "solved (`busy`).",
 }
 
 

@@ -334,3 +334,39 @@ def test_tasks_left_pending_past_the_retention_expire(make_client: MakeClient, a
     status = {t["id"]: t["status"] for t in listed}
     assert status == {"poi-a": "expired", "poi-b": "pending"}
     assert [t.id for t in any_store.load_state(CITY, [], []).tasks] == ["poi-b"]
+
+
+def test_epochs_beyond_the_solve_slots_wait_then_get_503_busy_and_change_nothing(
+    make_client: MakeClient,
+) -> None:
+    import threading
+
+    inner, entered, gate = FakeDecide(), threading.Event(), threading.Event()
+
+    def held(*args: Any) -> Any:
+        if not entered.is_set():  # the first epoch holds the only slot until the gate opens
+            entered.set()
+            assert gate.wait(timeout=30.0)
+        return inner(*args)
+
+    store = MemoryStore()
+    client = make_client(store=store, decide=held, max_solves=1, solve_queue_s=0.2)
+    first: list[Any] = []
+    thread = threading.Thread(
+        target=lambda: first.append(
+            client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch("e1"), headers=auth())
+        )
+    )
+    thread.start()
+    assert entered.wait(timeout=30.0)
+    before = fingerprint(store)
+    r = client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch("e2", 1.0), headers=auth())
+    assert r.status_code == 503, r.text
+    assert r.json()["error"] == "busy" and "solve slot" in r.json()["detail"]
+    assert fingerprint(store) == before  # refused before anything was read or written
+    gate.set()
+    thread.join(timeout=30.0)
+    assert first[0].status_code == 200, first[0].text
+    again = client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch("e2", 1.0), headers=auth())
+    assert again.status_code == 200 and again.headers.get("Idempotent-Replayed") is None
+    assert len(inner.calls) == 2  # e1 and e2 once each: the refused post solved nothing
