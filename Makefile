@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-sim bench-dro bench-cluster bench-hardening openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-sim bench-dro bench-cluster bench-hardening openapi dashboard
 
 install: $(STAMP)
 
@@ -55,6 +55,10 @@ bench: bench-epoch bench-sim bench-dro bench-cluster bench-hardening
 
 bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
+
+# The HTTP path with the service on Redis (REDIS_URL, default the local server): its own section.
+bench-epoch-redis: $(STAMP)
+	$(PY) -m bench.bench_epoch --redis-url $${REDIS_URL:-redis://127.0.0.1:6379/0}
 
 bench-sim: $(STAMP)
 	$(PY) -m bench.bench_sim

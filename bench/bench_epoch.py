@@ -283,15 +283,19 @@ def _iso(city: City, t: float) -> str:
     return dt.datetime.fromtimestamp(t, tz=ZoneInfo(city.horizon.timezone)).isoformat()
 
 
-def run_http(sc: Scenario, n: int) -> dict[str, object]:
-    """Start the real service (uvicorn, in-memory store) and post the same epochs over HTTP."""
+def run_http(sc: Scenario, n: int, redis_url: str | None = None) -> dict[str, object]:
+    """Start the real service (uvicorn; in-memory store, or Redis at ``redis_url`` under a fresh key
+    prefix, deleted afterwards) and post the same epochs over HTTP."""
     import httpx
 
     city = load(sc)
     port = _free_port()
     token = "bench-token-0123456789"
+    prefix = f"bench{os.getpid()}x{port}"
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "SD_PORT": str(port), "SD_TOKENS": json.dumps({token: ["read", "dispatch"]})}
+        if redis_url is not None:
+            env.update({"SD_STORE": "redis", "SD_REDIS_URL": redis_url, "SD_REDIS_PREFIX": prefix})
         name = sc.city
         if sc.city in GENERATED:
             name = city.name
@@ -380,6 +384,13 @@ def run_http(sc: Scenario, n: int) -> dict[str, object]:
         finally:
             proc.terminate()
             proc.wait(timeout=30)
+            if redis_url is not None:
+                import redis
+
+                keys = redis.Redis.from_url(redis_url)
+                for key in keys.scan_iter(match=f"{prefix}:*", count=1000):
+                    keys.delete(key)
+                keys.close()
     return {"latency": lat, "server_solve": solve, "server_peak_rss_mb": rss}
 
 
@@ -402,10 +413,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-http", action="store_true")
     ap.add_argument("--no-write", action="store_true")
     ap.add_argument("--report-only", type=Path, metavar="JSON", help="rewrite the report from saved results")
+    ap.add_argument(
+        "--redis-url",
+        metavar="URL",
+        help="instead: the HTTP path only, with the service on Redis at URL (its own section of the report)",
+    )
     args = ap.parse_args(argv)
     if args.report_only:
         write_report(json.loads(args.report_only.read_text()))
         return 0
+    if args.redis_url:
+        return _redis_main(args.redis_url, args.scenario or ["paper", "city"], args.epochs, not args.no_write)
     results: dict[str, dict[str, object]] = {}
     for name in args.scenario or list(SCENARIOS):
         sc = SCENARIOS[name]
@@ -440,6 +458,51 @@ def main(argv: list[str] | None = None) -> int:
         (ROOT / "bench" / "out" / "last_epoch_results.json").write_text(json.dumps(results, indent=1))
     if not args.no_write:
         write_report(results)
+    return 0
+
+
+def _redis_main(url: str, names: list[str], epochs: int | None, write: bool) -> int:
+    """The HTTP path with the service on Redis, against the server's own solve of each epoch."""
+    rows = []
+    for name in names:
+        sc = SCENARIOS[name]
+        n = epochs or sc.epochs
+        print(f"[{name}] over HTTP on Redis, {n} epochs ...", flush=True)
+        h = run_http(sc, n, redis_url=url)
+        lat, solve = np.array(h["latency"]), np.array(h["server_solve"])
+        rows.append(
+            (
+                name,
+                n,
+                summary(list(lat)),
+                summary(list(lat - solve)),
+                float(np.median(lat / solve - 1.0) * 100),
+            )
+        )
+        print(
+            f"  {name}: round trip p50 {rows[-1][2]['p50_ms']:.0f} ms, over the solve {rows[-1][4]:+.1f} %",
+            flush=True,
+        )
+    if write:
+        lines = [
+            "## Epoch latency on Redis",
+            "",
+            stamp(f"python -m bench.bench_epoch --redis-url {url}"),
+            "",
+            "The HTTP path of `Epoch latency`'s scenarios with the service on Redis (`SD_STORE=redis`, a local",
+            "redis-server, a fresh key prefix), as a deployment runs it: the round trip, and the round trip minus",
+            "the server's own solve of the same epoch (`stats.solve_ms`), which is the cost of validation, the",
+            "state load and the commit on Redis, and the response.",
+            "",
+            "| scale | epochs | HTTP p50 ms | HTTP p99 ms | round trip - solve, p50 / p99 ms | over the solve (median) |",
+            "|---|---|---|---|---|---|",
+        ]
+        for name, n, lat_s, extra, pct in rows:
+            lines.append(
+                f"| {name} | {n} | {lat_s['p50_ms']:.1f} | {lat_s['p99_ms']:.1f} | "
+                f"{extra['p50_ms']:.1f} / {extra['p99_ms']:.1f} | {pct:+.1f} % |"
+            )
+        write_section("epoch-redis", "\n".join(lines))
     return 0
 
 

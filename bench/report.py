@@ -19,6 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PERFORMANCE = ROOT / "docs" / "PERFORMANCE.md"
 ORDER = (
     "epoch",
+    "epoch-redis",
     "sim",
     "experiment",
     "dro",
