@@ -1,4 +1,5 @@
-"""Redis ``Store``: one Lua script commits an epoch; reads are MULTI/EXEC snapshots (keys: docs/DESIGN.md).
+"""Redis ``Store``: one Lua script commits an epoch, another reads its state; other reads are MULTI/EXEC
+snapshots (keys: docs/DESIGN.md).
 
 Every key of a city carries the hash tag ``{city}``, so on a Redis Cluster (``mode="cluster"``, redis-py's
 cluster client) all of a city's keys share one slot: each script and transaction runs on one node."""
