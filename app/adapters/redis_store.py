@@ -67,10 +67,11 @@ COMMIT_EPOCH_LUA = """
 -- KEYS[1] meta hash, KEYS[2] epoch record hash, KEYS[3] intervals zset, KEYS[4] open tasks hash,
 -- KEYS[5] demand list of the epoch's UTC day, KEYS[6] finished tasks hash, KEYS[7] finished tasks by
 -- epoch time (zset), KEYS[8..] count and visit keys named by index in visits.
--- ARGV[1] JSON {epoch_id, hash, time, expected_version, ttl, response, done_before,
+-- ARGV[1] JSON {epoch_id, hash, time, expected_version, ttl, done_before,
 --               visits: [[count_key_index, visit_key_index, cell, interval], ...],
---               tasks: [[task_id, task_json, '1' if it finishes the task else '0'], ...],
---               demand (absent when nothing is recorded)}.
+--               tasks: [[task_id, task_json, '1' if it finishes the task else '0'], ...]};
+-- ARGV[2] the response document, ARGV[3] the demand record ('' when nothing is recorded): as they are,
+-- not inside ARGV[1] (no 0.5 MB string escaped into JSON and decoded again).
 -- A finished task moves from the open hash to the finished ones; finished tasks that finished before
 -- done_before (epoch time) are dropped.
 -- Cells, intervals, times and the TTL arrive as strings: no number round-trips through a Lua double.
@@ -97,15 +98,19 @@ if m[2] and tonumber(c.time) < tonumber(m[2]) then
 end
 
 local touched = {}
+local seen_intervals = {}
 for _, v in ipairs(c.visits) do
   local count_key, visit_key, cell = KEYS[v[1]], KEYS[v[2]], v[3]
   -- a (taxi, interval, cell) is counted at most once ever: Lambda grows only for a new set member
   if redis.call('SADD', visit_key, cell) == 1 then
     redis.call('HINCRBY', count_key, cell, 1)
   end
-  redis.call('ZADD', intervals, v[4], v[4])
+  seen_intervals[v[4]] = true
   touched[count_key] = true
   touched[visit_key] = true
+end
+for k, _ in pairs(seen_intervals) do
+  redis.call('ZADD', intervals, k, k)
 end
 for key, _ in pairs(touched) do
   redis.call('EXPIRE', key, c.ttl)
@@ -126,10 +131,10 @@ end
 if #old > 0 then
   redis.call('ZREMRANGEBYSCORE', done_at, '-inf', '(' .. c.done_before)
 end
-redis.call('HSET', epoch, 'hash', c.hash, 'time', c.time, 'response', c.response, 'nonce', c.nonce)
+redis.call('HSET', epoch, 'hash', c.hash, 'time', c.time, 'response', ARGV[2], 'nonce', c.nonce)
 redis.call('EXPIRE', epoch, c.ttl)
-if c.demand ~= nil and c.demand ~= cjson.null then
-  redis.call('RPUSH', demand, c.demand)
+if ARGV[3] ~= '' then
+  redis.call('RPUSH', demand, ARGV[3])
   redis.call('EXPIRE', demand, c.ttl)
 end
 local version = redis.call('HINCRBY', meta, 'version', 1)
@@ -399,7 +404,6 @@ class RedisStore:
             "time": format_time(commit.time_s),
             "expected_version": str(int(commit.expected_version)),
             "ttl": str(int(commit.retention_s)),
-            "response": commit.response_json,
             "nonce": commit.nonce,
             "visits": visits,
             "done_before": format_time(commit.time_s - commit.retention_s),
@@ -407,11 +411,10 @@ class RedisStore:
                 [str(t.id), task_to_json(t), "1" if t.status in DONE else "0"] for t in commit.task_updates
             ],
         }
-        if commit.demand_json is not None:
-            doc["demand"] = commit.demand_json
         with self._guard("committing an epoch"):
             arg = json.dumps(doc, ensure_ascii=False)
-            reply = cast(list[Any], self._eval("commit", keys, [arg]))
+            demand = commit.demand_json if commit.demand_json is not None else ""
+            reply = cast(list[Any], self._eval("commit", keys, [arg, commit.response_json, demand]))
         status = reply[0]
         if status == "committed":
             return CommitResult("committed", new_version=int(reply[1]))
