@@ -394,6 +394,13 @@ def run_http(sc: Scenario, n: int, redis_url: str | None = None) -> dict[str, ob
     return {"latency": lat, "server_solve": solve, "server_peak_rss_mb": rss}
 
 
+def over_solve(h: dict[str, Any]) -> tuple[dict[str, float], float]:
+    """The HTTP path's own cost, epoch by epoch: the round trip minus the server's solve of that epoch (load
+    that changes between the in-process and the HTTP runs cancels out), and its median as a percentage."""
+    lat, solve = np.array(h["latency"]), np.array(h["server_solve"])
+    return summary(list(lat - solve)), float(np.median(lat / solve - 1.0) * 100.0)
+
+
 def summary(xs: list[float]) -> dict[str, float]:
     a = np.array(xs) * 1000.0
     return {
@@ -445,11 +452,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[{name}] over HTTP, {n} epochs ...", flush=True)
             h = run_http(sc, n)
             res["http"] = summary(h["latency"])  # type: ignore[arg-type]
-            # the HTTP path's own cost, epoch by epoch: round trip minus the server's solve of that epoch
-            # (load that changes between the in-process and the HTTP runs cancels out)
-            lat_a, solve_a = np.array(h["latency"]), np.array(h["server_solve"])
-            res["http_minus_solve"] = summary(list(lat_a - solve_a))
-            res["http_over_solve_pct"] = float(np.median(lat_a / solve_a - 1.0) * 100.0)
+            res["http_minus_solve"], res["http_over_solve_pct"] = over_solve(h)
             res["server_peak_rss_mb"] = h["server_peak_rss_mb"]
         res["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
         results[name] = res
@@ -469,16 +472,7 @@ def _redis_main(url: str, names: list[str], epochs: int | None, write: bool) -> 
         n = epochs or sc.epochs
         print(f"[{name}] over HTTP on Redis, {n} epochs ...", flush=True)
         h = run_http(sc, n, redis_url=url)
-        lat, solve = np.array(h["latency"]), np.array(h["server_solve"])
-        rows.append(
-            (
-                name,
-                n,
-                summary(list(lat)),
-                summary(list(lat - solve)),
-                float(np.median(lat / solve - 1.0) * 100),
-            )
-        )
+        rows.append((name, n, summary(h["latency"]), *over_solve(h)))  # type: ignore[arg-type]
         print(
             f"  {name}: round trip p50 {rows[-1][2]['p50_ms']:.0f} ms, over the solve {rows[-1][4]:+.1f} %",
             flush=True,

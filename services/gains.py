@@ -370,6 +370,17 @@ def eval_tree(
     return max_slot
 
 
+@compiled_inline
+def _mask_for(zmask: NDArray[np.bool_], counted: Counted, current: int, a: int) -> int:
+    """Move the zero mask from taxi ``current`` (-1: none) to taxi ``a`` (nothing when they are the same);
+    returns ``a``. Pairs taken grouped by taxi set each taxi's mask once."""
+    if a != current:
+        if current >= 0:
+            mark(zmask, counted, current, False)
+        mark(zmask, counted, a, True)
+    return a
+
+
 @compiled
 def eval_pairs(
     ed: Edges,
@@ -394,12 +405,7 @@ def eval_pairs(
     current = -1
     for r in range(k):
         q = order[r]
-        a = pair_taxi[q]
-        if a != current:
-            if current >= 0:
-                mark(zmask, counted, current, False)
-            mark(zmask, counted, a, True)
-            current = a
+        current = _mask_for(zmask, counted, current, pair_taxi[q])
         leg = pair_leg[q]
         g, gq, _t, _l, ms = eval_path(
             ed, gn, zmask, stamp, r + 1, leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]], pair_depart[q]
@@ -438,23 +444,14 @@ def pair_gains_q(
     n_total = 0
     for e in leg_edges:
         n_total += ed.ec_ptr[e + 1] - ed.ec_ptr[e]
-    cells = np.empty(n_total, dtype=np.int64)
+    cells = np.empty(n_total, dtype=np.int64)  # each leg's distinct cells (at most its crossings)
     leg_s = np.zeros(n_legs)
-    last = np.zeros(n_cells, dtype=np.int64)
-    n = 0
     for leg in range(n_legs):
-        dur = 0.0
-        for i in range(leg_ptr[leg], leg_ptr[leg + 1]):
-            e = leg_edges[i]
-            dur += ed.time_s[e]
-            for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
-                c = ed.ec_cell[j]
-                if last[c] != leg + 1:
-                    last[c] = leg + 1
-                    cells[n] = c
-                    n += 1
-        cell_ptr[leg + 1] = n
-        leg_s[leg] = dur
+        edges = leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]]
+        mine = distinct_cells(ed, edges, n_cells)
+        cell_ptr[leg + 1] = cell_ptr[leg] + mine.shape[0]
+        cells[cell_ptr[leg] : cell_ptr[leg + 1]] = mine
+        leg_s[leg] = ed.time_s[edges].sum()
     zmask = np.zeros(gn.term.shape, dtype=np.bool_)
     stamp = np.zeros(gn.term.shape, dtype=np.int64)
     out_q = np.zeros(k, dtype=np.int64)
@@ -463,12 +460,7 @@ def pair_gains_q(
     current = -1
     for r in range(k):
         q = order[r]
-        a = pair_taxi[q]
-        if a != current:
-            if current >= 0:
-                mark(zmask, counted, current, False)
-            mark(zmask, counted, a, True)
-            current = a
+        current = _mask_for(zmask, counted, current, pair_taxi[q])
         leg = pair_leg[q]
         lo, hi = cell_ptr[leg], cell_ptr[leg + 1]
         if hi == lo:

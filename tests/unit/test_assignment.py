@@ -128,6 +128,20 @@ def test_against_dense_lsa(n, m, density, sense):
     assert (a.primary, a.secondary) == exact_by_lsa(n, m, rows, cols, p, s, sense)
 
 
+@pytest.mark.parametrize("offset", [-(2**40), 10**12])
+def test_ids_far_from_indices_give_the_same_matching(offset):
+    """Rows and columns named by large or negative ids (compacted by sorting, not counting) match as the
+    same pairs named by small indices do, pair for pair."""
+    rng = np.random.default_rng(7)
+    rows, cols = random_pairs(rng, 120, 150, 0.1)
+    p = rng.integers(0, 4, size=len(rows)).astype(np.int64)
+    s = rng.integers(0, 2**10, size=len(rows)).astype(np.int64)
+    a = lexicographic_assignment(rows, cols, p, s, secondary_sense="min")
+    b = lexicographic_assignment(rows * 7 + offset, cols * 3 + offset, p, s, secondary_sense="min")
+    assert len(a.pair) > 50 and np.array_equal(a.pair, b.pair)
+    assert (a.primary, a.secondary) == (b.primary, b.secondary)
+
+
 @pytest.mark.slow
 def test_at_the_limits():
     """2000 riders x 5000 taxis (SD_MAX_RIDERS x SD_MAX_TAXIS), ~40 candidates per rider."""
