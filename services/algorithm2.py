@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from services.algorithm1 import Route, plan_one
+from services.algorithm1 import Drive, Route, plan_one
 from services.city import City
 from services.gains import Counted, gain_table, joint_utility, route_pairs
 from services.graph import RoadGraph
@@ -70,6 +70,8 @@ def improve_routes(
     for rows, cells in dense:
         total_n[rows, cells] += 1  # a route's pairs are distinct
     history = [joint_utility(city, counts.counts, total)]
+    # no route of a taxi costs more under any kappa metric than its fastest path's travel time
+    limits = [int(graph.edges.time_us[f].sum()) for f in fastest]
 
     def replan(total_n: NDArray[np.int64], todo: Sequence[int]) -> list[tuple[Route, NDArray[np.int64]]]:
         out = []
@@ -79,7 +81,8 @@ def improve_routes(
                 others_n = total_n.copy()
                 others_n[dense[i]] -= 1
                 gn = gain_table(city, counts.counts, k0, n_slots, depart_s, extra_counts=others_n)
-                cand = plan_one(graph, gn, counted, i, r.source, r.target, fastest[i], kappas, depart_s, pad)
+                drive = Drive(i, r.source, r.target, limits[i])
+                cand = plan_one(graph, gn, counted, drive, fastest[i], kappas, depart_s, pad)
                 out.append((cand, others_n))
         return out
 

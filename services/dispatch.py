@@ -17,12 +17,13 @@ shortest path of its cost (``services.graph``).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from services import search
-from services.algorithm1 import Route, plan_routes, route_pair
+from services.algorithm1 import Drive, Route, plan_routes, route_pair
 from services.algorithm2 import improve_routes
 from services.assignment import lexicographic_assignment
 from services.city import City
@@ -37,7 +38,7 @@ from services.gains import (
     pair_gains_q,
     path_facts,
 )
-from services.graph import RoadGraph, road_graph
+from services.graph import INF, US_PER_S, RoadGraph, road_graph
 from services.ledger import Ledger, apply_decision, ledger_view
 from services.legs import Leg, pickups, trips
 from services.model import (
@@ -66,6 +67,17 @@ INITIAL_SLOTS = 3
 
 PHI_BITS = 40
 """Step 3 compares phi in units of 2**-40 of the largest."""
+
+
+class _Epoch(NamedTuple):
+    """What every step of one epoch shares: its time, its interval, the slots tabulated so far, the threads
+    and Step 3's reach (whole microseconds)."""
+
+    now: float
+    k0: int
+    n_slots: int
+    workers: int
+    reach_us: int
 
 
 def path_nodes(graph: RoadGraph, start: int, edges: NDArray[np.int64]) -> tuple[int, ...]:
@@ -121,25 +133,46 @@ def _step1(
     return out, n_slots, stats
 
 
+def step3_reach_us(city: City, graph: RoadGraph) -> int:
+    """Step 3's reach in whole microseconds (``INF``: every taxi is a candidate for every POI): the city's
+    ``reach_s`` on a network that takes longer than ``reach_above_s`` to cross (``search.crossing_us``),
+    none on a smaller one (docs/METHOD.md, "Step 3 at scale")."""
+    p = city.params
+    if p.reach_s is None or search.crossing_us(graph) <= p.reach_above_s * US_PER_S:
+        return INF
+    return int(round(p.reach_s * US_PER_S))
+
+
 def _step3(
     city: City,
     graph: RoadGraph,
     counts: CountsView,
-    now: float,
-    k0: int,
     free: Sequence[Taxi],
     counted: Counted,
     targets: NDArray[np.int64],
-    n_slots: int,
-    workers: int,
+    epoch: _Epoch,
     pads: Pads,
 ) -> tuple[list[tuple[int, Route, NDArray[np.int64]]], Gains, int]:
     """Step 3 before Algorithm 2: (free-taxi index, route, fastest path to the same POI) per matched pair
-    (``counted``: the free taxis' counted pairs, in their order)."""
+    (``counted``: the free taxis' counted pairs, in their order). A pair is a candidate when the POI lies
+    within the taxi's reach; maximize the matches, then the total phi."""
     sources = np.array([t.node for t in free], dtype=np.int64)
+    kappas = city.params.kappas
+    n_slots = epoch.n_slots
     while True:
-        gn = gain_table(city, counts.counts, k0, n_slots, now)
-        plans = plan_routes(graph, gn, counted, sources, targets, now, city.params.kappas, workers, pads)
+        gn = gain_table(city, counts.counts, epoch.k0, n_slots, epoch.now)
+        plans = plan_routes(
+            graph,
+            gn,
+            counted,
+            sources,
+            targets,
+            epoch.now,
+            kappas,
+            epoch.workers,
+            pads,
+            reach_us=epoch.reach_us,
+        )
         if plans.max_slot < n_slots:
             break
         n_slots = plans.max_slot + 1
@@ -148,7 +181,7 @@ def _step3(
     phi_q = (
         np.rint(phi / (top / 2.0**PHI_BITS)).astype(np.int64) if top > 0 else np.zeros(phi.shape, np.int64)
     )
-    rows, cols = np.nonzero(np.ones(phi.shape, dtype=bool))  # every taxi reaches every POI
+    rows, cols = np.nonzero(plans.candidate)
     sol = lexicographic_assignment(
         rows, cols, np.ones(len(rows), dtype=np.int64), phi_q[rows, cols], secondary_sense="max"
     )
@@ -158,18 +191,21 @@ def _step3(
         out = []
         with pads.take() as pad:
             for i, j in chunk:
-                kappa = float(plans.kappas[plans.kappa_index[i, j]])
-                src, tgt = int(sources[i]), int(targets[j])
-                edges, fastest = route_pair(graph, gn, counted, i, src, tgt, kappa, pad)
+                q = int(plans.kappa_index[i, j])
+                leg = Drive(i, int(sources[i]), int(targets[j]), int(plans.d0_us[i, j]))
+                fastest = route_pair(graph, gn, counted, leg, kappas, 0, pad)
+                edges = fastest if kappas[q] == 0.0 else route_pair(graph, gn, counted, leg, kappas, q, pad)
                 gain, time_s, length_m = (
                     float(plans.gain[i, j]),
                     float(plans.time_s[i, j]),
                     float(plans.length_m[i, j]),
                 )
-                out.append((i, Route(src, tgt, kappa, edges, gain, time_s, length_m, 0), fastest))
+                out.append(
+                    (i, Route(leg.source, leg.target, kappas[q], edges, gain, time_s, length_m, 0), fastest)
+                )
         return out
 
-    out = parallel_map(routes, pairs, workers)
+    out = parallel_map(routes, pairs, epoch.workers)
     return out, gn, n_slots
 
 
@@ -317,9 +353,8 @@ def decide(
     passes = 0
     if p.active_sensing and free and len(targets):
         counted_free = counted_rows(counted_instr, free_rows)
-        s3, gn, n_slots = _step3(
-            city, graph, counts, now, k0, free, counted_free, targets, n_slots, workers, pads
-        )
+        epoch = _Epoch(now, k0, n_slots, workers, step3_reach_us(city, graph))
+        s3, gn, n_slots = _step3(city, graph, counts, free, counted_free, targets, epoch, pads)
         lap("step3")
         matched = [free[i] for i, _, _ in s3]
         counted = counted_rows(counted_free, [i for i, _, _ in s3])

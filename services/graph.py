@@ -25,12 +25,19 @@ from numpy.typing import NDArray
 
 from services.city import City
 from services.contraction import contract
-from services.jit import compiled
+from services.jit import compiled, compiled_inline
 
 __all__ = [
     "Edges",
     "SearchGraph",
     "Costs",
+    "Lazy",
+    "no_lazy",
+    "kappa_cost",
+    "lazy_edge",
+    "lazy_se",
+    "lazy_fill",
+    "fixed_super_edges",
     "prepare",
     "prepare_into",
     "RoadGraph",
@@ -107,6 +114,81 @@ class Costs(NamedTuple):
     span: int
 
 
+class Lazy(NamedTuple):
+    """Algorithm 1's cost of one taxi, ``c_e = t_e (1 - kappa u_e / umax)`` (``kappa_cost``), computed as a
+    search relaxes each super-edge instead of for every edge beforehand: ``u_e`` is the sum of ``term``
+    over the cells edge ``e`` enters (all its cells but the first) that ``zmask`` leaves open, in the order
+    the edge enters them (the sum ``gains.entered_utility`` makes). A super-edge none of whose edges enters
+    a cell costs its travel time under every such metric (``fixed``: that cost, -1 for the others). A
+    search given one writes the costs of the super-edges a path may end or start inside (the source's and
+    the targets'), and of their edges, into its ``Costs`` arrays beforehand, so ``search.resolve`` finds
+    them there.
+    ``on`` False: the ``Costs`` arrays hold the metric already."""
+
+    on: bool
+    kappa: float
+    umax: float
+    term: NDArray[np.float64]  # (C,) the epoch's first slot's terms
+    zmask: NDArray[np.bool_]  # (C,) True where the taxi is counted in the first slot
+    fixed: NDArray[np.int64]  # (S,) a super-edge's cost if it enters no cell, else -1
+
+
+@compiled
+def no_lazy() -> Lazy:
+    """The ``Lazy`` of a search whose ``Costs`` hold the metric."""
+    return Lazy(
+        False,
+        0.0,
+        1.0,
+        np.zeros(0),
+        np.zeros(0, dtype=np.bool_),
+        np.zeros(0, dtype=np.int64),
+    )
+
+
+@compiled_inline
+def kappa_cost(t: float, u: float, umax: float, kappa: float) -> int:
+    """Algorithm 1's edge cost ``t (1 - kappa u / umax)`` in whole microseconds, at least 1 (kappa 0: the
+    travel time)."""
+    c = t * (1.0 - kappa * (u / umax)) if kappa != 0.0 else t
+    q = int(np.rint(c * 1e6))
+    return q if q > 1 else 1
+
+
+@compiled_inline
+def lazy_edge(ed: Edges, lazy: Lazy, e: int) -> int:
+    """Edge ``e``'s cost under ``lazy``."""
+    u = 0.0
+    for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
+        c = ed.ec_cell[j]
+        if not lazy.zmask[c]:
+            u += lazy.term[c]
+    return kappa_cost(ed.time_s[e], u, lazy.umax, lazy.kappa)
+
+
+@compiled_inline
+def lazy_se(g: SearchGraph, ed: Edges, lazy: Lazy, s: int) -> int:
+    """Super-edge ``s``'s cost under ``lazy``."""
+    if lazy.fixed[s] >= 0:
+        return lazy.fixed[s]
+    total = 0
+    for p in range(g.se_ptr[s], g.se_ptr[s + 1]):
+        total += lazy_edge(ed, lazy, g.se_edges[p])
+    return total
+
+
+@compiled_inline
+def lazy_fill(g: SearchGraph, ed: Edges, costs: Costs, lazy: Lazy, s: int) -> None:
+    """Write super-edge ``s``'s cost under ``lazy``, and its edges', into ``costs``."""
+    total = 0
+    for p in range(g.se_ptr[s], g.se_ptr[s + 1]):
+        e = g.se_edges[p]
+        q = lazy_edge(ed, lazy, e)
+        costs.edge[e] = q
+        total += q
+    costs.se[s] = total
+
+
 @compiled
 def prepare_into(g: SearchGraph, edge_cost: NDArray[np.int64], se: NDArray[np.int64]) -> Costs:
     """``prepare`` writing the super-edge sums into ``se`` (length: the super-edges of ``g``)."""
@@ -133,25 +215,6 @@ def prepare(g: SearchGraph, edge_cost: NDArray[np.int64]) -> Costs:
     return costs
 
 
-class CellEdges(NamedTuple):
-    """The edges that enter cell ``c`` (cross into it after their first cell): ``edge[ptr[c]:ptr[c+1]]``."""
-
-    ptr: NDArray[np.int64]
-    edge: NDArray[np.int64]
-
-
-def _entering(ec_ptr: NDArray[np.int64], ec_cell: NDArray[np.int64], n_cells: int) -> CellEdges:
-    m = ec_ptr.shape[0] - 1
-    per_edge = np.diff(ec_ptr)
-    edge = np.repeat(np.arange(m, dtype=np.int64), per_edge)
-    first = np.zeros(ec_cell.shape[0], dtype=bool)
-    first[ec_ptr[:-1][per_edge > 0]] = True
-    pairs = np.unique(np.stack([ec_cell[~first], edge[~first]]), axis=1)  # (cell, edge), each once
-    ptr = np.zeros(n_cells + 1, dtype=np.int64)
-    np.add.at(ptr, pairs[0] + 1, 1)
-    return CellEdges(np.cumsum(ptr), pairs[1].astype(np.int64))
-
-
 @dataclass(frozen=True, slots=True, eq=False, weakref_slot=True)
 class RoadGraph:
     """A city's network for searching: the edges, the forward and the reverse search graphs."""
@@ -163,8 +226,7 @@ class RoadGraph:
     reverse: SearchGraph
     time_forward: Costs  # the travel time, prepared for ``forward``
     time_reverse: Costs
-    entering: CellEdges  # the edges that enter each cell
-    se_of: NDArray[np.int64]  # (m,) the forward super-edge each edge lies on
+    crossing: NDArray[np.int64]  # the edges that enter a cell (all but their first): ascending
     min_speed_mps: float
 
     @property
@@ -246,6 +308,8 @@ def road_graph(city: City) -> RoadGraph:
     rev_indptr = np.zeros(net.n_nodes + 1, dtype=np.int64)
     np.add.at(rev_indptr, head + 1, 1)
     reverse = _search_graph(np.cumsum(rev_indptr), tail[order], order, tie1, tie2, towards=0)
+    if not np.array_equal(forward.kept, reverse.kept):  # a chain interior has one way in and one out
+        raise AssertionError("the forward and reverse search graphs keep different nodes")
     speed = net.edge_length_m / np.maximum(net.edge_time_s, 1e-12)
     positive = speed[speed > 0]
     edges = Edges(
@@ -268,9 +332,15 @@ def road_graph(city: City) -> RoadGraph:
         reverse=reverse,
         time_forward=prepare(forward, edges.time_us),
         time_reverse=prepare(reverse, edges.time_us),
-        entering=_entering(edges.ec_ptr, edges.ec_cell, city.grid.n_cells),
-        se_of=np.repeat(np.arange(forward.se_tail.shape[0], dtype=np.int64), np.diff(forward.se_ptr))[
-            np.argsort(forward.se_edges, kind="stable")
-        ],
+        crossing=np.flatnonzero(np.diff(edges.ec_ptr) > 1).astype(np.int64),
         min_speed_mps=float(positive.min()) if positive.size else 1.0,
     )
+
+
+def fixed_super_edges(g: SearchGraph, ed: Edges, time: Costs) -> NDArray[np.int64]:
+    """Per super-edge of ``g``: its travel time (``time``, prepared for ``g``) if none of its edges enters a
+    cell, so that its cost is that under every kappa metric, else -1 (``Lazy.fixed``)."""
+    if g.se_ptr.shape[0] <= 1:
+        return np.zeros(0, dtype=np.int64)
+    crossing = (np.diff(ed.ec_ptr) > 1)[g.se_edges]
+    return np.where(np.logical_or.reduceat(crossing, g.se_ptr[:-1]), -1, time.se).astype(np.int64)

@@ -28,7 +28,17 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from services.graph import INF, Costs, Edges, RoadGraph, SearchGraph
+from services.graph import (
+    INF,
+    Costs,
+    Edges,
+    Lazy,
+    RoadGraph,
+    SearchGraph,
+    kappa_cost,
+    lazy_fill,
+    no_lazy,
+)
 from services.jit import compiled, compiled_inline
 
 __all__ = [
@@ -36,8 +46,13 @@ __all__ = [
     "Workspace",
     "workspace",
     "run",
+    "grow",
     "run_guided",
+    "guided",
+    "Guide",
+    "tree_guide",
     "landmarks",
+    "crossing_us",
     "resolve",
     "unfold",
     "unfold_many",
@@ -323,6 +338,20 @@ def _seed(
     return g.se_head[s], c, a, b, s, os
 
 
+@compiled_inline
+def _lazy_ends(
+    g: SearchGraph, ed: Edges, costs: Costs, lazy: Lazy, source: int, targets: NDArray[np.int64]
+) -> None:
+    """Cost, edge by edge, the super-edges a search's paths may start or end inside: the source's and the
+    interior targets' chains (``search.resolve`` reads their edges' costs)."""
+    for j in range(2):
+        if g.kept_of[source] < 0 and g.pos_se[source, j] >= 0:
+            lazy_fill(g, ed, costs, lazy, g.pos_se[source, j])
+        for t in targets:
+            if g.kept_of[t] < 0 and g.pos_se[t, j] >= 0:
+                lazy_fill(g, ed, costs, lazy, g.pos_se[t, j])
+
+
 @compiled
 def run(
     g: SearchGraph,
@@ -332,6 +361,21 @@ def run(
     limit: int,
     targets: NDArray[np.int64],
     ws: Workspace,
+) -> None:
+    """``grow`` with the metric held in ``costs``."""
+    grow(g, ed, costs, source, limit, targets, ws, no_lazy())
+
+
+@compiled
+def grow(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    limit: int,
+    targets: NDArray[np.int64],
+    ws: Workspace,
+    lazy: Lazy,
 ) -> None:
     """Grow the canonical shortest-path tree from ``source`` (all kept nodes with cost <= ``limit``).
 
@@ -343,6 +387,10 @@ def run(
     the lowest non-empty bucket is final, because anything that could still improve it would come along a
     super-edge from a node of the same bucket and so cost at least one width more. Within a bucket the
     order does not matter. Metrics too spread for the ring use a 4-ary heap on the cost instead.
+
+    With ``lazy.on`` the metric is computed as the search goes (``graph.Lazy``): each super-edge when it is
+    relaxed, the source's and the targets' chains edge by edge before the search starts; ``costs.width``
+    and ``costs.span`` must then bound every super-edge's cost from below and above.
     """
     cost = ws.cost
     tie1 = ws.tie1
@@ -357,6 +405,17 @@ def run(
     need = ws.need
     touched = ws.touched
     _reset(ws)
+    lazy_on = lazy.on
+    fixed = lazy.fixed
+    zmask = lazy.zmask
+    term = lazy.term
+    umax = lazy.umax
+    kappa = lazy.kappa
+    se_ptr = g.se_ptr
+    se_edges = g.se_edges
+    ec_ptr = ed.ec_ptr
+    ec_cell = ed.ec_cell
+    time_s = ed.time_s
     width = costs.width
     span = costs.span
     use_ring = span <= ring.shape[0]
@@ -368,6 +427,8 @@ def run(
     early = targets.shape[0] > 0
     size = 0  # queued nodes
     pos = 0  # ring: the bucket being emptied
+    if lazy.on:
+        _lazy_ends(g, ed, costs, lazy, source, targets)
     if not (early and remaining == 0):
         n_seeds = 1 if sk >= 0 else 2
         for j in range(n_seeds):
@@ -423,12 +484,24 @@ def run(
         b0 = tie2[k]
         stop = False
         for s in range(g.indptr[k], g.indptr[k + 1]):
-            c = d + se_cost[s]
-            if c > limit:
-                continue
             h = g.se_head[s]
             st = state[h]
             if st == -2:
+                continue
+            if not lazy_on:
+                c = d + se_cost[s]
+            elif fixed[s] >= 0:
+                c = d + fixed[s]
+            else:  # graph.lazy_se, written out: a call per super-edge would count references to every array
+                c = d
+                for p in range(se_ptr[s], se_ptr[s + 1]):
+                    e = se_edges[p]
+                    u = 0.0
+                    for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
+                        if not zmask[ec_cell[j]]:
+                            u += term[ec_cell[j]]
+                    c += kappa_cost(time_s[e], u, umax, kappa)
+            if c > limit:
                 continue
             a = a0 + g.se_tie1[s]
             b = b0 + g.se_tie2[s]
@@ -574,15 +647,50 @@ def _bound(lm: NDArray[np.int64], tl: NDArray[np.int64], v: int) -> int:
     return best
 
 
+class Guide(NamedTuple):
+    """Where ``guided`` reads its potential (the first that is given): a landmark table ``lm`` (n, 2L)
+    (``landmarks``; the travel-time bound, ties 0); an in-tree's labels, the arrays of the reverse
+    workspace it was grown in (``tree_*``, (K,) each: kept indices are the same both ways), grown to
+    ``cutoff - 1`` and not stopped early, so that a node it did not settle costs at least ``cutoff``; or
+    ``pot`` (3, K), a label per kept node."""
+
+    pot: NDArray[np.int64]
+    lm: NDArray[np.int64]
+    tree_cost: NDArray[np.int64]
+    tree_tie1: NDArray[np.int64]
+    tree_tie2: NDArray[np.int64]
+    tree_state: NDArray[np.int64]
+    cutoff: int
+
+
+@compiled
+def tree_guide(tree: Workspace, limit: int) -> Guide:
+    """The ``Guide`` of the in-tree grown in ``tree`` to ``limit`` (``run`` with no targets)."""
+    return Guide(
+        np.zeros((3, 0), dtype=np.int64),
+        np.zeros((0, 0), dtype=np.int64),
+        tree.cost,
+        tree.tie1,
+        tree.tie2,
+        tree.state,
+        limit + 1,
+    )
+
+
 @compiled_inline
-def _potential(
-    pot: NDArray[np.int64], lm: NDArray[np.int64], tl: NDArray[np.int64], v: int, h: int
-) -> tuple[int, int, int]:
-    """``run_guided``'s potential of kept node ``h`` (original node ``v``): the landmarks' bound, ties 0,
-    when the target's row ``tl`` is given (non-empty), else ``pot``'s column ``h``."""
+def _potential(gd: Guide, tl: NDArray[np.int64], v: int, h: int) -> tuple[int, int, int]:
+    """``guided``'s potential of kept node ``h`` (original node ``v``); ``tl`` is the target's row of the
+    landmark table (empty: no landmarks). An in-tree's potential is its label where it settled ``h``, else
+    ``(cutoff, 0, 0)``: no more than any unsettled node's label, and within one super-edge's cost of
+    every settled node's (each settled label is below ``cutoff``), so it never drops along a super-edge by
+    more than the super-edge's label under a metric no cheaper than the in-tree's."""
     if tl.shape[0] > 0:
-        return _bound(lm, tl, v), 0, 0
-    return pot[0, h], pot[1, h], pot[2, h]
+        return _bound(gd.lm, tl, v), 0, 0
+    if gd.tree_state.shape[0] > 0:
+        if gd.tree_state[h] == -2:
+            return gd.tree_cost[h], gd.tree_tie1[h], gd.tree_tie2[h]
+        return gd.cutoff, 0, 0
+    return gd.pot[0, h], gd.pot[1, h], gd.pot[2, h]
 
 
 @compiled
@@ -596,10 +704,27 @@ def run_guided(
     ws: Workspace,
     lm: NDArray[np.int64],
 ) -> None:
+    """``guided`` with the potential ``pot`` or the landmark table ``lm`` (shape (0, 0): none), the metric
+    held in ``costs``."""
+    none = np.zeros(0, dtype=np.int64)
+    guided(g, ed, costs, source, target, ws, Guide(pot, lm, none, none, none, none, 0), no_lazy())
+
+
+@compiled
+def guided(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    target: int,
+    ws: Workspace,
+    gd: Guide,
+    lazy: Lazy,
+) -> None:
     """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*).
 
-    ``pot`` (3, kept nodes) is a potential on labels, ``(cost, tie1, tie2)`` per kept node (cost ``INF``:
-    the node cannot reach the target), that never drops by more than a super-edge's label along it:
+    The potential (``Guide``) is a label per kept node, ``(cost, tie1, tie2)`` (cost ``INF``: the node
+    cannot reach the target), that never drops by more than a super-edge's label along it:
     ``pot[:, u] <= label(u, v) + pot[:, v]`` lexicographically. The labels to the target under any metric no
     dearer on any edge are one (a lexicographic shortest-path label obeys the triangle inequality). Nodes
     are taken in the order of label + potential, compared lexicographically: along a super-edge that key
@@ -607,10 +732,8 @@ def run_guided(
     same for every path to a node, each node's label -- read with ``resolve`` and ``unfold`` as after
     ``run`` -- is the one ``run`` gives it. With the labels of the cheaper metric as potential, a search
     whose metric differs from it nowhere on the canonical path goes straight along that path. The search
-    stops when the target can be resolved and settles no node that cannot reach it.
-
-    With a landmark table ``lm`` (``landmarks``; shape (0, 0): none) the potential is its travel-time
-    bound instead (ties 0), computed for the nodes the search reaches; ``pot`` is not read.
+    stops when the target can be resolved and settles no node that cannot reach it. ``lazy``: as in
+    ``grow``.
     """
     cost = ws.cost
     tie1 = ws.tie1
@@ -619,19 +742,33 @@ def run_guided(
     heap = ws.nxt
     hkey = ws.hkey
     _reset(ws)
+    se_cost = costs.se
+    lazy_on = lazy.on
+    fixed = lazy.fixed
+    zmask = lazy.zmask
+    term = lazy.term
+    umax = lazy.umax
+    kappa = lazy.kappa
+    se_ptr = g.se_ptr
+    se_edges = g.se_edges
+    ec_ptr = ed.ec_ptr
+    ec_cell = ed.ec_cell
+    time_s = ed.time_s
     ws.info[0] = source
     sk = g.kept_of[source]
     tgt = np.empty(1, dtype=np.int64)
     tgt[0] = target
     n_touched, remaining = _need_targets(g, source, tgt, ws)
-    tl = lm[target] if lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
+    tl = gd.lm[target] if gd.lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
+    if lazy.on:
+        _lazy_ends(g, ed, costs, lazy, source, tgt)
     size = 0
     if remaining > 0:
         for j in range(1 if sk >= 0 else 2):
             h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
             if h < 0:
                 continue
-            p0, p1, p2 = _potential(pot, lm, tl, g.kept[h], h)
+            p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
             if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
                 continue
             if cost[h] == INF and not ws.need[h]:
@@ -665,10 +802,22 @@ def run_guided(
             st = state[h]
             if st == -2:
                 continue
-            p0, p1, p2 = _potential(pot, lm, tl, g.kept[h], h)
+            p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
             if p0 >= INF:
                 continue
-            c = d + costs.se[s]
+            if not lazy_on:
+                c = d + se_cost[s]
+            elif fixed[s] >= 0:
+                c = d + fixed[s]
+            else:  # graph.lazy_se, written out as in ``grow``
+                c = d
+                for p in range(se_ptr[s], se_ptr[s + 1]):
+                    e = se_edges[p]
+                    u = 0.0
+                    for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
+                        if not zmask[ec_cell[j]]:
+                            u += term[ec_cell[j]]
+                    c += kappa_cost(time_s[e], u, umax, kappa)
             a = a0 + g.se_tie1[s]
             b = b0 + g.se_tie2[s]
             if _less(c, a, b, cost[h], tie1[h], tie2[h]):
@@ -1040,3 +1189,12 @@ def _landmark_table(graph: RoadGraph, count: int) -> NDArray[np.int64]:
         both = np.where((there < INF) & (back < INF), there + back, -1)
         spread = both if i == 0 else np.minimum(spread, both)
     return table
+
+
+def crossing_us(graph: RoadGraph) -> int:
+    """How long, at least, the network takes to cross: the longest fastest path to or from a landmark (each
+    picked farthest from the ones before, so one of them lies near the end of a longest path), in whole
+    microseconds. A lower bound on the diameter, the same every time for a network."""
+    table = landmarks(graph)
+    finite = table[table < INF]
+    return int(finite.max()) if finite.size else 0

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from services import algorithm1, search
-from services.algorithm1 import plan_one, plan_routes, route_pair
+from services.algorithm1 import Drive, plan_one, plan_routes, route_pair
 from services.algorithm2 import improve_routes
 from services.citydata import load_city
 from services.dispatch import decide
@@ -108,26 +108,25 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
             assert p.time_s[i, j] == pytest.approx(t, rel=1e-12)
             assert p.length_m[i, j] == pytest.approx(length, rel=1e-12)
             with Pads(graph).take() as pad:
-                route, fastest = route_pair(graph, gn, counted, i, src, int(targets[j]), kappa, pad)
+                drive = Drive(i, src, int(targets[j]), int(p.d0_us[i, j]))
+                route = route_pair(graph, gn, counted, drive, KAPPAS, KAPPAS.index(kappa), pad)
+                fastest = route_pair(graph, gn, counted, drive, KAPPAS, 0, pad)
             assert route.tolist() == edges
             assert fastest.tolist() == ref.tree_path(
                 graph, ref.canonical_tree(graph, graph.edges.time_us, src)[1], src, int(targets[j])
             )
 
 
-@pytest.mark.parametrize(("per_tree", "keep"), [(8, True), (8, False), (0, True)])
+@pytest.mark.parametrize("per_tree", [8, 0])
 def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_cells_lie(
-    per_tree: int, keep: bool, monkeypatch: pytest.MonkeyPatch
+    per_tree: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """From the POIs' in-trees, a taxi is searched again (goal-directed) only for a (kappa, POI) whose
     in-tree route enters a cell it is counted in: over these instances that happens, most routes come
     from the in-trees, and the routes equal one tree per taxi and kappa bit for bit (the check above, here
-    on many taxis and cells), whether the taxis' own costs are kept between its searches
-    (``algorithm1.Patches``) or patched afresh for each. With ``GUIDED_PER_TREE`` 0 every taxi with a
-    fastest route entering its counted cells grows its own kappa > 0 trees instead: the same routes again."""
+    on many taxis and cells). With ``GUIDED_PER_TREE`` 0 every taxi with a fastest route entering its
+    counted cells grows its own kappa > 0 trees instead: the same routes again."""
     monkeypatch.setattr(algorithm1, "GUIDED_PER_TREE", per_tree)
-    if not keep:
-        monkeypatch.setattr(algorithm1, "PATCH_BYTES", 0)
     own, guided, forward, trees = 0, 0, 0, 0
     for seed in range(6):
         rng, city, now, k0, _counts, _ = instance(seed)
@@ -205,8 +204,8 @@ def test_when_most_taxis_search_on_their_own_no_kappa_in_trees_are_grown(
 
 def test_a_taxi_counted_where_utility_peaks_gets_its_own_normalization() -> None:
     """Every cell but one heavily counted: the edges entering that cell carry the largest utility. A taxi
-    counted there has a lower largest utility, so its costs are not the others' patched: they are built
-    whole (and the next taxi's are patched again from a clean base)."""
+    counted there has a lower largest utility, so its costs are not the base's raised where it is counted:
+    it grows its own trees under its own normalization, and the routes are the book's."""
     rng = np.random.default_rng(3)
     city = lattice(rng)
     now = T0 + 900.0
@@ -247,8 +246,9 @@ def test_plan_one_equals_plan_routes_for_one_target(seed: int) -> None:
             graph, gn, counted, np.array([src] * len(taxis)), np.array([tgt]), now, KAPPAS, 1, pads
         )
         with pads.take() as pad:
-            _, fastest = route_pair(graph, gn, counted, i, src, tgt, 0.0, pad)
-            route = plan_one(graph, gn, counted, i, src, tgt, fastest, KAPPAS, now, pad)
+            drive = Drive(i, src, tgt, int(plans.d0_us[i, 0]))
+            fastest = route_pair(graph, gn, counted, drive, KAPPAS, 0, pad)
+            route = plan_one(graph, gn, counted, drive, fastest, KAPPAS, now, pad)
         assert route.kappa == KAPPAS[plans.kappa_index[i, 0]]
         assert (route.gain, route.time_s, route.length_m) == (
             plans.gain[i, 0],
@@ -373,8 +373,9 @@ def test_algorithm2_against_the_book(workers: int) -> None:
         routes, fastest = [], []
         for i, (src, edges, dst) in enumerate(start):
             with pads.take() as pad:
-                _, f = route_pair(graph, gn, counted, i, src, dst, 0.0, pad)
-                routes.append(plan_one(graph, gn, counted, i, src, dst, f, KAPPAS, now, pad))
+                drive = Drive(i, src, dst, int(INF))
+                f = route_pair(graph, gn, counted, drive, KAPPAS, 0, pad)
+                routes.append(plan_one(graph, gn, counted, drive, f, KAPPAS, now, pad))
             fastest.append(f)
             assert routes[-1].edges.tolist() == edges
         got = improve_routes(city, graph, counts, taxis, counted, routes, fastest, now, k0, 3, workers, pads)
