@@ -23,10 +23,10 @@ Scope = Literal["read", "dispatch", "admin"]
 SCOPES: tuple[Scope, ...] = ("read", "dispatch", "admin")
 DivergenceName = Literal["kl", "burg", "j", "chi2", "modified_chi2", "hellinger", "variation"]
 
-SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR = 1.0
+SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR = 0.94
 """ζ's default: a low-cost sensor kit amortized over its service hours plus the incentive that keeps an
 instrumented driver accepting orders (the sources and the arithmetic: docs/FLEET.md, "The subsidy ζ")."""
-SUBSIDY_SWEEP_DEFAULT = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
+SUBSIDY_SWEEP_DEFAULT = (0.0, 0.2, 0.3, 0.4, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 """The subsidies at which every solve also reports each method's choice (the trade-off curve)."""
 
 
