@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-sim bench-dro bench-cluster bench-hardening openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service openapi dashboard
 
 install: $(STAMP)
 
@@ -51,7 +51,7 @@ fleet-experiment: $(STAMP)
 	$(PY) -m research fleet-experiment $(ARGS)
 
 # Every benchmark; each writes its own section of docs/PERFORMANCE.md.
-bench: bench-epoch bench-sim bench-dro bench-cluster bench-hardening
+bench: bench-epoch bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service
 
 bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
@@ -70,7 +70,12 @@ bench-dro: $(STAMP)
 bench-cluster: $(STAMP)
 	$(PY) -m bench.bench_cluster $(ARGS)
 
-# Issue 9's probes: hostile body, stalled connection, frozen Redis, schemathesis, Redis Cluster replay.
+# The whole service as `make run` starts it: a solve request to the recommendation, epochs while it solves;
+# also the README's dashboard screenshot.
+bench-fleet-service: $(STAMP)
+	$(PY) -m bench.bench_fleet_service
+
+# The hardening probes: hostile body, stalled connection, frozen Redis, schemathesis, Redis Cluster replay.
 bench-hardening: $(STAMP)
 	$(PY) -m bench.bench_hardening
 

@@ -83,7 +83,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
             f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.port}/v1/cities",
             flush=True,
         )
-    uvicorn.Server(server_config(create_app(settings, tune_gc=True), settings)).run()
+    embed = settings.embeds_worker()
+    if embed:
+        print(
+            "fleet worker: running inside the service (memory store; SD_WORKER_EMBEDDED=off leaves it "
+            "out): it solves before every hour of the horizon and on POST .../fleet/solve",
+            flush=True,
+        )
+    app = create_app(settings, tune_gc=True, embed_worker=embed)
+    uvicorn.Server(server_config(app, settings)).run()
     return 0
 
 

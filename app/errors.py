@@ -28,6 +28,7 @@ __all__ = [
     "Unavailable",
     "StoreUnavailableError",
     "Busy",
+    "NoWorker",
     "InternalError",
     "format_loc",
 ]
@@ -215,6 +216,12 @@ class Busy(Unavailable):
     """Too many concurrent commits on one city, or every solve slot taken; retry."""
 
     kind = "busy"
+
+
+class NoWorker(Unavailable):
+    """No fleet worker serving the city has been seen recently: a queued solve would wait for nobody."""
+
+    kind = "no_worker"
 
 
 class InternalError(ServiceError):

@@ -23,6 +23,7 @@ from app.api.inputs import Limits
 from app.api.limits import BodyLimit
 from app.cities import CityRegistry
 from app.errors import ServiceError
+from app.fleet_desk import FleetDesk
 from app.metrics import Metrics
 from app.ports import Store
 from app.schemas.dispatch import read_epoch, render_epoch
@@ -75,18 +76,18 @@ def create_app(
     decide: DecideFn | None = None,
     clock: Callable[[], float] | None = None,
     tune_gc: bool = False,
+    embed_worker: bool = False,
 ) -> FastAPI:
     """Build the FastAPI app; a store passed in is the caller's to close, one built here is closed here.
-    ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window.
-    ``tune_gc`` (the ``run`` command's: the process is the service's alone) sets the garbage collector for
-    a long-lived heap (``GC_THRESHOLD``, and start-up's objects frozen once the cities are warm)."""
+    ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window and of
+    the fleet worker's heartbeats. ``tune_gc`` (the ``run`` command's: the process is the service's alone)
+    sets the garbage collector for a long-lived heap (``GC_THRESHOLD``, and start-up's objects frozen once
+    the cities are warm). ``embed_worker`` runs the fleet worker in this process for the app's lifetime,
+    on the same store (``app.worker.embedded``; its first pass waits for the warm-up)."""
     settings = settings or Settings()
     owns_store = store is None
-    the_store = BoundedStore(
-        store if store is not None else make_store(settings),
-        settings.store_concurrency,
-        settings.store_queue_s,
-    )
+    raw_store = store if store is not None else make_store(settings)
+    the_store = BoundedStore(raw_store, settings.store_concurrency, settings.store_queue_s)
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
     service = DispatchService(
@@ -103,6 +104,13 @@ def create_app(
         **({} if clock is None else {"clock": clock}),
     )
 
+    fleet_desk = FleetDesk(
+        the_registry,
+        the_store,
+        stale_s=settings.worker_stale_s,
+        **({} if clock is None else {"clock": clock}),
+    )
+
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
         # load and warm the cities in the background; /readyz answers 503 until that has finished, so a
@@ -114,9 +122,17 @@ def create_app(
         threading.Thread(
             target=_warm, args=(the_registry, tune_gc, warmed), name="warm-cities", daemon=True
         ).start()
+        worker = None
+        if embed_worker:
+            from app.worker.embedded import EmbeddedWorker
+
+            worker = EmbeddedWorker(settings, raw_store, the_registry, ready=warmed)
+            worker.start()
         try:
             yield
         finally:
+            if worker is not None:
+                worker.stop()
             if owns_store:
                 the_store.close()
 
@@ -129,6 +145,7 @@ def create_app(
     )
     app.state.settings = settings
     app.state.service = service
+    app.state.fleet = fleet_desk
     app.state.metrics = metrics
     install_error_handlers(app, metrics)
 

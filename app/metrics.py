@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
+import math
+
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Counter,
+    Gauge,
+    Histogram,
+    generate_latest,
+)
 
 __all__ = ["Metrics", "CONTENT_TYPE"]
 
@@ -39,10 +48,22 @@ class Metrics:
             "sd_commit_retries", "Epoch solves repeated after a version mismatch.", registry=self.registry
         )
         self.errors = Counter("sd_errors", "Error responses by kind.", ["kind"], registry=self.registry)
+        self.worker_heartbeat_age = Gauge(
+            "sd_fleet_worker_heartbeat_age_seconds",
+            "Seconds since the newest fleet worker heartbeat of each city (+Inf: none kept), read from the "
+            "store when scraped.",
+            ["city"],
+            registry=self.registry,
+        )
         for step in ("1", "2"):
             self.matches.labels(step=step)
         for outcome in ("committed", "replayed"):
             self.epochs.labels(outcome=outcome)
+
+    def set_heartbeat_ages(self, ages: dict[str, float | None]) -> None:
+        """The heartbeat age of every city (``None``: no heartbeat kept, shown as +Inf)."""
+        for city, age in ages.items():
+            self.worker_heartbeat_age.labels(city=city).set(math.inf if age is None else age)
 
     def render(self) -> bytes:
         """The Prometheus text exposition."""

@@ -24,6 +24,8 @@ __all__ = [
     "PublishResult",
     "SolveRequest",
     "EnqueueResult",
+    "SolveProgress",
+    "WorkerBeat",
     "Store",
 ]
 
@@ -72,7 +74,7 @@ class EpochCommit:
     task_updates: Sequence[Task]
     response_json: str
     retention_s: int = 8 * 86400  # how long counts, visits and epoch records are kept
-    demand_json: str | None = None  # the epoch's requests, recorded for the fleet-sizing worker (issue 4)
+    demand_json: str | None = None  # the epoch's requests, recorded for the fleet-sizing worker
     # Unique per commit attempt and stored with the record: when the store applied this very commit but
     # its reply was lost and the client library sent it again, the store finds its own nonce and answers
     # ``committed`` (not ``duplicate``), so the caller reports the commit it made.
@@ -170,6 +172,45 @@ class EnqueueResult:
     created: bool
 
 
+@dataclass(frozen=True, slots=True)
+class SolveProgress:
+    """A fleet solve in progress: the hour solved for, what asked for it, when it started and where its
+    simulation runs stand (``runs_done`` of ``runs_total`` finished, ``runs_cached`` of them read from the
+    cache, ``runs_failed`` of them raised; ``runs_running`` on a process now)."""
+
+    interval: int
+    trigger: Literal["schedule", "request"]
+    request_id: str | None
+    started_at_s: float
+    runs_total: int = 0
+    runs_done: int = 0
+    runs_cached: int = 0
+    runs_running: int = 0
+    runs_failed: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class WorkerBeat:
+    """One fleet worker's heartbeat for one city (docs/FLEET.md, "Heartbeat and status").
+
+    ``worker_id`` names the worker (host, process and a random suffix); ``seen_at_s`` is when it wrote the
+    beat (POSIX seconds); ``embedded`` tells a worker inside the API process (``python -m app run`` on the
+    memory store) from a ``python -m app worker`` process. ``solving`` is the city's solve in progress, if
+    any; ``next_interval`` the hour of the next scheduled solve, due at ``next_due_at_s``.
+    """
+
+    worker_id: str
+    seen_at_s: float
+    started_at_s: float
+    host: str
+    pid: int
+    embedded: bool
+    poll_s: float
+    solving: SolveProgress | None = None
+    next_interval: int | None = None
+    next_due_at_s: float | None = None
+
+
 class Store(Protocol):
     def ping(self) -> None:
         """Raise ``StoreUnavailable`` when the store cannot be reached."""
@@ -216,7 +257,7 @@ class Store(Protocol):
     def recorded_demand(self, city: str, day: str) -> list[str]:
         """The ``demand_json`` of the epochs committed on UTC day ``day`` (``YYYYMMDD``), in commit order."""
 
-    # -- fleet sizing (issue 4; docs/FLEET.md) --------------------------------------------------------
+    # -- fleet sizing (docs/FLEET.md) ------------------------------------------------------------------
 
     def publish_recommendation(self, city: str, record: FleetRecord, history_limit: int) -> PublishResult:
         """Atomically, if ``record.version`` is the current version plus one (0 when none): make ``record``
@@ -244,5 +285,16 @@ class Store(Protocol):
 
     def claim_solve_request(self, city: str) -> SolveRequest | None:
         """Take the pending request off the queue (exactly one claimant gets it), if any."""
+
+    def pending_solve_request(self, city: str) -> SolveRequest | None:
+        """The pending request, if any, left on the queue."""
+
+    def record_worker_beat(self, city: str, beat: WorkerBeat, keep_s: float) -> None:
+        """Record ``beat`` as its worker's latest for the city (replacing that worker's previous one). Beats
+        of any worker seen more than ``keep_s`` before this one are dropped, and the city's beats are
+        forgotten ``keep_s`` after the last one written."""
+
+    def worker_beats(self, city: str) -> list[WorkerBeat]:
+        """The latest beat of every worker the city keeps, newest first."""
 
     def close(self) -> None: ...

@@ -10,11 +10,24 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from services.parallel import default_workers
 
-__all__ = ["Scope", "Settings", "SCOPES", "DivergenceName"]
+__all__ = [
+    "Scope",
+    "Settings",
+    "SCOPES",
+    "DivergenceName",
+    "SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR",
+    "SUBSIDY_SWEEP_DEFAULT",
+]
 
 Scope = Literal["read", "dispatch", "admin"]
 SCOPES: tuple[Scope, ...] = ("read", "dispatch", "admin")
 DivergenceName = Literal["kl", "burg", "j", "chi2", "modified_chi2", "hellinger", "variation"]
+
+SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR = 0.94
+"""ζ's default: a low-cost sensor kit amortized over its service hours plus the incentive that keeps an
+instrumented driver accepting orders (the sources and the arithmetic: docs/FLEET.md, "The subsidy ζ")."""
+SUBSIDY_SWEEP_DEFAULT = (0.0, 0.2, 0.3, 0.4, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
+"""The subsidies at which every solve also reports each method's choice (the trade-off curve)."""
 
 
 class Settings(BaseSettings):
@@ -147,7 +160,16 @@ class Settings(BaseSettings):
         description="Worst-case completion rate of reachable POI tasks every choice must meet (null: off).",
     )
     worker_subsidy_cny_per_vehicle_hour: float = Field(
-        default=0.0, ge=0.0, description="ζ: subsidy per instrumented vehicle-hour in the total cost."
+        default=SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR,
+        ge=0.0,
+        description="ζ: cost per instrumented vehicle-hour in the total cost (default: a sensor kit "
+        "amortized over its service hours plus the driver incentive, derived in docs/FLEET.md).",
+    )
+    worker_subsidy_sweep: list[float] = Field(
+        default_factory=lambda: list(SUBSIDY_SWEEP_DEFAULT),
+        max_length=32,
+        description="Other values of ζ at which each solve also reports the chosen sizes (the trade-off "
+        "curve on the dashboard), JSON list; the configured ζ is always among them.",
     )
     worker_rolling_days: int = Field(
         default=7, ge=2, le=366, description="DRO_RH: history days kept after conditioning on the day so far."
@@ -200,6 +222,27 @@ class Settings(BaseSettings):
     worker_history: int = Field(
         default=100, ge=1, le=10000, description="Recommendation history kept per city."
     )
+    worker_embedded: Literal["auto", "on", "off"] = Field(
+        default="auto",
+        description="Run the fleet worker inside `python -m app run` (auto: with the memory store, where no "
+        "other process could share its results).",
+    )
+    worker_nice: int = Field(
+        default=10,
+        ge=0,
+        le=19,
+        description="Niceness added to the worker's simulation processes, so that epochs come first.",
+    )
+    worker_heartbeat_s: float = Field(
+        default=2.0, gt=0.0, le=300.0, description="How often a running worker writes its heartbeat."
+    )
+    worker_stale_s: float = Field(
+        default=30.0,
+        gt=0.0,
+        le=86400.0,
+        description="A worker whose last heartbeat is older than this is gone: POST fleet/solve answers 503 "
+        "no_worker.",
+    )
 
     @field_validator("tokens")
     @classmethod
@@ -220,6 +263,29 @@ class Settings(BaseSettings):
         if self.worker_run_cache == "auto":
             return "redis" if self.store == "redis" else "disk"
         return self.worker_run_cache
+
+    @model_validator(mode="after")
+    def _heartbeat_fresh(self) -> Settings:
+        if self.worker_stale_s <= self.worker_heartbeat_s:
+            raise ValueError(
+                f"SD_WORKER_STALE_S ({self.worker_stale_s}) must exceed SD_WORKER_HEARTBEAT_S "
+                f"({self.worker_heartbeat_s}): a live worker would look gone between two beats"
+            )
+        return self
+
+    def embeds_worker(self) -> bool:
+        """Whether ``python -m app run`` runs the fleet worker in its own process (``auto``: on the memory
+        store, whose results no other process could read)."""
+        if self.worker_embedded == "auto":
+            return self.store == "memory"
+        return self.worker_embedded == "on"
+
+    @field_validator("worker_subsidy_sweep")
+    @classmethod
+    def _sweep_sane(cls, value: list[float]) -> list[float]:
+        if any(not (v >= 0.0 and v < float("inf")) for v in value):
+            raise ValueError("subsidies must be finite and non-negative")
+        return sorted(set(value))
 
     @field_validator("worker_sizes")
     @classmethod

@@ -31,12 +31,9 @@ from app.errors import (
 )
 from app.ports import (
     CityState,
-    EnqueueResult,
     EpochCommit,
-    FleetRecord,
     PutTasksResult,
     RewindResult,
-    SolveRequest,
     Store,
     StoredEpoch,
 )
@@ -458,31 +455,6 @@ class DispatchService:
             except Exception as exc:  # a broken city bundle makes the instance not ready, not crashed
                 raise Unavailable(f"city {name!r} failed to load: {exc}") from exc
         return names
-
-    # ------------------------------------------------------------------ fleet sizing (read side)
-
-    def recommendation(self, name: str) -> tuple[City, FleetRecord]:
-        """The city and its current fleet recommendation (``NoData``, a 404, before the first solve)."""
-        city = self.city(name)
-        record = self.store.current_recommendation(name)
-        if record is None:
-            raise NoData(
-                f"no fleet recommendation for {name!r} yet: the worker (python -m app worker) publishes one "
-                "before every hour of the horizon; POST .../fleet/solve asks for one now"
-            )
-        return city, record
-
-    def recommendation_history(self, name: str, limit: int) -> tuple[City, list[FleetRecord]]:
-        """The city and up to ``limit`` of its solves, newest first."""
-        city = self.city(name)
-        return city, self.store.recommendation_history(name, limit)
-
-    def request_solve(
-        self, name: str, request_id: str, now_s: float, by: str | None
-    ) -> tuple[City, EnqueueResult]:
-        """Queue a solve of the coming hour for the worker (a pending request is joined, not duplicated)."""
-        city = self.city(name)
-        return city, self.store.enqueue_solve_request(name, SolveRequest(request_id, now_s, by))
 
     # ------------------------------------------------------------------ committed epochs
 

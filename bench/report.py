@@ -24,6 +24,7 @@ ORDER = (
     "experiment",
     "dro",
     "worker",
+    "fleet-service",
     "cluster",
     "hardening",
 )  # section order in the document

@@ -102,7 +102,7 @@ def experiment_main(argv: Sequence[str]) -> int:
 
 def fleet_experiment_main(argv: Sequence[str]) -> int:
     """Train on some demand days, choose N1 by Deterministic / DRO / DRO_RH, test on held-out days."""
-    from research.fleet import FleetExperimentConfig, run_fleet_experiment
+    from research.fleet import DEFAULT_ZETAS, FleetExperimentConfig, run_fleet_experiment
     from services.fleet import FleetInputError
 
     ap = argparse.ArgumentParser(
@@ -125,7 +125,7 @@ def fleet_experiment_main(argv: Sequence[str]) -> int:
     ap.add_argument("--vary-tasks", action="store_true", help="redraw the POI tasks every day")
     ap.add_argument("--divergence", default="kl")
     ap.add_argument("--alpha", type=float, default=0.05)
-    ap.add_argument("--zetas", type=_floats, default=(0.0, 0.5, 1.0, 2.0), help="subsidies, CNY/vehicle-hour")
+    ap.add_argument("--zetas", type=_floats, default=DEFAULT_ZETAS, help="subsidies, CNY/vehicle-hour")
     ap.add_argument("--keep", type=int, default=7, help="DRO_RH: history days kept after conditioning")
     ap.add_argument(
         "--reach-s", type=float, default=1200.0, help="tasks due this close to the end do not count"

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from app.cities import CityRegistry
+from app.settings import SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR
 from app.simulation import RunResult, RunSpec
 from app.simulation.outcomes import day_outcomes, hourly_volumes
 from research.runs import city_of, run_all, versions
@@ -58,6 +59,10 @@ class Variant:
         return self.n0
 
 
+DEFAULT_ZETAS = (0.0, 0.5, SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR, 2.0)
+"""The subsidies the experiment decides at, the worker's default ζ among them (docs/FLEET.md)."""
+
+
 @dataclass(frozen=True, slots=True)
 class FleetExperimentConfig:
     city: str = "chengdu"
@@ -72,7 +77,7 @@ class FleetExperimentConfig:
     vary_tasks: bool = False
     divergence: str = "kl"
     alpha: float = 0.05
-    zetas: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0)
+    zetas: tuple[float, ...] = DEFAULT_ZETAS
     keep: int = 7  # DRO_RH: history days kept after conditioning on the hours observed
     reach_s: float = 1200.0  # tasks due this close to the end of the horizon do not count for completion
     completion_target: float | None = None

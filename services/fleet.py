@@ -71,6 +71,8 @@ __all__ = [
     "similar_days",
     "rolling_hour",
     "plan_fleet",
+    "SubsidyPoint",
+    "subsidy_sweep",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -613,3 +615,55 @@ def plan_fleet(
         costs=cm,
         target=t,
     )
+
+
+# ------------------------------------------------------------------------------------- subsidy sweep
+
+
+@dataclass(frozen=True, slots=True)
+class SubsidyPoint:
+    """What each method chooses at one subsidy ζ (CNY per instrumented vehicle-hour), from the same samples:
+    Deterministic and DRO for the day, DRO_RH for the hour the sweep was asked for."""
+
+    subsidy_cny_per_vehicle_hour: float
+    deterministic: Choice
+    dro: Choice
+    dro_rh: Choice
+
+
+def subsidy_sweep(
+    outcomes: Mapping[int, DayOutcomes],
+    volumes: ArrayLike,
+    subsidies: Sequence[float],
+    *,
+    hour: int,
+    ambiguity: Ambiguity | None = None,
+    interval_hours: float = 1.0,
+    observed: ArrayLike = (),
+    keep: int = 7,
+    target: float | None = None,
+) -> tuple[SubsidyPoint, ...]:
+    """The trade-off curve: every method's choice at each of ``subsidies`` (ascending, duplicates once).
+
+    Each point is decided exactly as :func:`plan_fleet` decides with ``CostModel(ζ, interval_hours)``: the
+    same outcomes, the same conditioning of DRO_RH on ``observed`` for interval ``hour``, the same
+    ``target``. Because ζ x shifts every sample of size ``x`` alike, the chosen size never grows with ζ.
+
+    Raises
+    ------
+    FleetInputError
+        A subsidy that is negative or not finite, or any input :func:`plan_fleet` would refuse.
+    """
+    amb = ambiguity or Ambiguity()
+    t = _check_target(target)
+    items = _check_outcomes(outcomes)
+    v = np.asarray(volumes, dtype=np.float64)
+    if v.shape != items[0][1].cost_cny.shape:
+        raise FleetInputError("volumes", f"need shape {items[0][1].cost_cny.shape}, got {v.shape}")
+    points = []
+    for z in sorted({float(z) for z in subsidies}):
+        cm = CostModel(z, interval_hours)
+        daily = candidate_table(outcomes, amb, cm)
+        rh = rolling_hour(outcomes, v, observed, hour, keep=keep, ambiguity=amb, costs=cm, target=t)
+        points.append(SubsidyPoint(z, choose(daily, "deterministic", t), choose(daily, "dro", t), rh.choice))
+    return tuple(points)

@@ -28,6 +28,7 @@ from app.ports import (
     Store,
     StoredEpoch,
     StoreUnavailable,
+    WorkerBeat,
 )
 from services.model import IntervalKey, Task, TaxiId
 
@@ -145,6 +146,18 @@ class BoundedStore:
     def claim_solve_request(self, city: str) -> SolveRequest | None:
         """Forwarded within a slot."""
         return self._call(lambda: self.inner.claim_solve_request(city))
+
+    def pending_solve_request(self, city: str) -> SolveRequest | None:
+        """Forwarded within a slot."""
+        return self._call(lambda: self.inner.pending_solve_request(city))
+
+    def record_worker_beat(self, city: str, beat: WorkerBeat, keep_s: float) -> None:
+        """Forwarded within a slot."""
+        self._call(lambda: self.inner.record_worker_beat(city, beat, keep_s))
+
+    def worker_beats(self, city: str) -> list[WorkerBeat]:
+        """Forwarded within a slot."""
+        return self._call(lambda: self.inner.worker_beats(city))
 
     def close(self) -> None:
         """Close the wrapped store (no slot: closing must work while calls hang)."""

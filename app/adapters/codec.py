@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from app.ports import FleetRecord, PutTasksResult, SolveRequest
+from app.ports import FleetRecord, PutTasksResult, SolveProgress, SolveRequest, WorkerBeat
 from services.model import Task, TaskId, TaxiId
 
 __all__ = [
@@ -27,6 +27,8 @@ __all__ = [
     "solve_request_from_json",
     "check_fleet_record",
     "new_lock_token",
+    "worker_beat_to_json",
+    "worker_beat_from_json",
 ]
 
 
@@ -167,3 +169,56 @@ def check_fleet_record(record: FleetRecord, status: str, history_limit: int) -> 
 def new_lock_token() -> str:
     """A random lock token (only its holder can release the lock)."""
     return secrets.token_hex(16)
+
+
+def worker_beat_to_json(beat: WorkerBeat) -> str:
+    """Compact, key-sorted JSON of a worker's heartbeat."""
+    p = beat.solving
+    solving: dict[str, Any] | None = None
+    if p is not None:
+        solving = {
+            "interval": int(p.interval),
+            "trigger": p.trigger,
+            "request_id": p.request_id,
+            "started_at_s": float(p.started_at_s),
+            "runs": [p.runs_total, p.runs_done, p.runs_cached, p.runs_running, p.runs_failed],
+        }
+    doc: dict[str, Any] = {
+        "id": beat.worker_id,
+        "seen_at_s": float(beat.seen_at_s),
+        "started_at_s": float(beat.started_at_s),
+        "host": beat.host,
+        "pid": int(beat.pid),
+        "embedded": bool(beat.embedded),
+        "poll_s": float(beat.poll_s),
+        "solving": solving,
+        "next_interval": None if beat.next_interval is None else int(beat.next_interval),
+        "next_due_at_s": None if beat.next_due_at_s is None else float(beat.next_due_at_s),
+    }
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def worker_beat_from_json(text: str) -> WorkerBeat:
+    """Inverse of ``worker_beat_to_json``."""
+    doc = json.loads(text)
+    s = doc.get("solving")
+    solving = None
+    if s is not None:
+        total, done, cached, running, failed = (int(v) for v in s["runs"])
+        solving = SolveProgress(
+            int(s["interval"]), s["trigger"], s.get("request_id"), float(s["started_at_s"]),
+            total, done, cached, running, failed,
+        )  # fmt: skip
+    nxt, due = doc.get("next_interval"), doc.get("next_due_at_s")
+    return WorkerBeat(
+        worker_id=str(doc["id"]),
+        seen_at_s=float(doc["seen_at_s"]),
+        started_at_s=float(doc["started_at_s"]),
+        host=str(doc["host"]),
+        pid=int(doc["pid"]),
+        embedded=bool(doc["embedded"]),
+        poll_s=float(doc["poll_s"]),
+        solving=solving,
+        next_interval=None if nxt is None else int(nxt),
+        next_due_at_s=None if due is None else float(due),
+    )

@@ -22,6 +22,7 @@ from app.ports import (
     RewindResult,
     SolveRequest,
     StoredEpoch,
+    WorkerBeat,
 )
 from services.ledger import Ledger, apply_decision
 from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
@@ -44,6 +45,7 @@ class _City:
     fleet_history: list[FleetRecord] = field(default_factory=list)  # newest first
     locks: dict[str, tuple[str, float]] = field(default_factory=dict)  # name -> (token, expires at)
     solve_queue: list[SolveRequest] = field(default_factory=list)
+    workers: dict[str, tuple[WorkerBeat, float]] = field(default_factory=dict)  # id -> (beat, expires at)
     done_at: dict[TaskId, float] = field(default_factory=dict)  # epoch time a task finished at
     # (interval, taxi) -> (its visited cells' set in the ledger, that set's size, the (interval, cell) pairs):
     # the pairs load_state hands out, built again only when the set grew or was replaced (sets only grow)
@@ -239,6 +241,7 @@ class MemoryStore:
                 fleet_history=old.fleet_history,
                 locks=old.locks,
                 solve_queue=old.solve_queue,
+                workers=old.workers,
             )
             for key in [k for k in self._expires_at if k[0] == city]:
                 del self._expires_at[key]  # their heap entries no longer match: skipped when popped
@@ -348,6 +351,32 @@ class MemoryStore:
         with self._lock:
             c = self._city(city)
             return c.solve_queue.pop(0) if c.solve_queue else None
+
+    def pending_solve_request(self, city: str) -> SolveRequest | None:
+        """The pending request, if any (left queued)."""
+        with self._lock:
+            c = self._city(city)
+            return c.solve_queue[0] if c.solve_queue else None
+
+    def record_worker_beat(self, city: str, beat: WorkerBeat, keep_s: float) -> None:
+        """Keep ``beat`` as its worker's latest; every kept beat lives ``keep_s`` on this store's clock from
+        now (as the Redis key does) and beats seen ``keep_s`` before this one are dropped."""
+        if not keep_s > 0:
+            raise ValueError(f"keep_s must be positive, got {keep_s}")
+        with self._lock:
+            c = self._city(city, create=True)
+            until = self._clock() + keep_s
+            cutoff = beat.seen_at_s - keep_s
+            c.workers = {w: (b, until) for w, (b, _) in c.workers.items() if b.seen_at_s >= cutoff}
+            c.workers[beat.worker_id] = (beat, until)
+
+    def worker_beats(self, city: str) -> list[WorkerBeat]:
+        """The kept beats, newest first."""
+        with self._lock:
+            c = self._city(city)
+            now = self._clock()
+            alive = [b for b, until in c.workers.values() if until > now]
+            return sorted(alive, key=lambda b: (-b.seen_at_s, b.worker_id))
 
     def close(self) -> None:
         """Nothing to release."""

@@ -35,6 +35,8 @@ from app.adapters.codec import (
     task_from_json,
     task_to_json,
     utc_day,
+    worker_beat_from_json,
+    worker_beat_to_json,
 )
 from app.adapters.redis_client import redis_client
 from app.ports import (
@@ -49,6 +51,7 @@ from app.ports import (
     SolveRequest,
     StoredEpoch,
     StoreUnavailable,
+    WorkerBeat,
 )
 from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
 
@@ -60,6 +63,7 @@ __all__ = [
     "PUBLISH_RECOMMENDATION_LUA",
     "RELEASE_LOCK_LUA",
     "ENQUEUE_SOLVE_LUA",
+    "WORKER_BEAT_LUA",
 ]
 
 COMMIT_EPOCH_LUA = """
@@ -191,6 +195,23 @@ redis.call('RPUSH', KEYS[1], ARGV[1])
 return {1, ARGV[1]}
 """
 
+WORKER_BEAT_LUA = """
+-- Record a fleet worker's heartbeat for one city (docs/FLEET.md, "Heartbeat and status").
+-- KEYS[1] hash worker id -> beat JSON, KEYS[2] zset worker id by the time it was seen.
+-- ARGV[1] worker id, ARGV[2] beat JSON, ARGV[3] its seen time, ARGV[4] the cutoff (beats seen before it
+-- are dropped), ARGV[5] how long the city's beats are kept after this one, in ms.
+redis.call('HSET', KEYS[1], ARGV[1], ARGV[2])
+redis.call('ZADD', KEYS[2], ARGV[3], ARGV[1])
+local old = redis.call('ZRANGEBYSCORE', KEYS[2], '-inf', '(' .. ARGV[4])
+if #old > 0 then
+  redis.call('HDEL', KEYS[1], unpack(old))
+  redis.call('ZREM', KEYS[2], unpack(old))
+end
+redis.call('PEXPIRE', KEYS[1], ARGV[5])
+redis.call('PEXPIRE', KEYS[2], ARGV[5])
+return #old
+"""
+
 
 LOAD_STATE_LUA = """
 -- Read a city's state for one epoch in one call (a consistent snapshot, as a script runs alone).
@@ -218,6 +239,7 @@ _SCRIPTS = {
     "publish": PUBLISH_RECOMMENDATION_LUA,
     "release": RELEASE_LOCK_LUA,
     "enqueue": ENQUEUE_SOLVE_LUA,
+    "beat": WORKER_BEAT_LUA,
     "load_state": LOAD_STATE_LUA,
 }
 
@@ -567,6 +589,35 @@ class RedisStore:
         with self._guard("claiming a solve request"):
             raw = cast(str | None, self._client.lpop(self._key(city, "fleet", "requests")))
         return None if raw is None else solve_request_from_json(raw)
+
+    def pending_solve_request(self, city: str) -> SolveRequest | None:
+        """``LINDEX 0`` of the queue: the pending request, left queued."""
+        with self._guard("reading the solve queue"):
+            raw = cast(str | None, self._client.lindex(self._key(city, "fleet", "requests"), 0))
+        return None if raw is None else solve_request_from_json(raw)
+
+    def record_worker_beat(self, city: str, beat: WorkerBeat, keep_s: float) -> None:
+        """One script: the beat into the city's hash of workers, older workers' beats pruned, both keys
+        living ``keep_s`` from now."""
+        if not keep_s > 0:
+            raise ValueError(f"keep_s must be positive, got {keep_s}")
+        keys = [self._key(city, "fleet", "workers"), self._key(city, "fleet", "workers", "seen")]
+        args = [
+            beat.worker_id,
+            worker_beat_to_json(beat),
+            format_time(beat.seen_at_s),
+            format_time(beat.seen_at_s - keep_s),
+            str(max(1, round(keep_s * 1000))),
+        ]
+        with self._guard("recording a worker heartbeat"):
+            self._eval("beat", keys, args)
+
+    def worker_beats(self, city: str) -> list[WorkerBeat]:
+        """The kept beats, newest first."""
+        with self._guard("reading worker heartbeats"):
+            raw = cast(dict[str, str], self._client.hgetall(self._key(city, "fleet", "workers")))
+        beats = [worker_beat_from_json(v) for v in raw.values()]
+        return sorted(beats, key=lambda b: (-b.seen_at_s, b.worker_id))
 
     def close(self) -> None:
         """Release the connections."""

@@ -12,6 +12,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from app.api.inputs import Limits
 from app.errors import Forbidden, Unauthorized
+from app.fleet_desk import FleetDesk
 from app.metrics import Metrics
 from app.settings import Scope, Settings
 from app.usecases import DispatchService
@@ -19,6 +20,7 @@ from app.usecases import DispatchService
 __all__ = [
     "Principal",
     "ServiceDep",
+    "FleetDep",
     "MetricsDep",
     "SettingsDep",
     "LimitsDep",
@@ -35,6 +37,12 @@ async def get_service(request: Request) -> DispatchService:
     return service
 
 
+async def get_fleet(request: Request) -> FleetDesk:
+    """The app's fleet-sizing use cases."""
+    fleet: FleetDesk = request.app.state.fleet
+    return fleet
+
+
 async def get_metrics(request: Request) -> Metrics:
     """The app's metrics."""
     metrics: Metrics = request.app.state.metrics
@@ -48,6 +56,7 @@ async def get_settings(request: Request) -> Settings:
 
 
 ServiceDep = Annotated[DispatchService, Depends(get_service)]
+FleetDep = Annotated[FleetDesk, Depends(get_fleet)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

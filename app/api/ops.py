@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Response
+import logging
 
-from app.api.deps import MetricsDep, ServiceDep, SettingsDep
+from fastapi import APIRouter, Response
+from starlette.concurrency import run_in_threadpool
+
+from app.api.deps import FleetDep, MetricsDep, ServiceDep, SettingsDep
 from app.api.responses import errors
 from app.metrics import CONTENT_TYPE
 from app.schemas.ops import HealthOut, ReadyOut
@@ -12,6 +15,8 @@ from app.schemas.ops import HealthOut, ReadyOut
 __all__ = ["router"]
 
 router = APIRouter(tags=["ops"])
+
+log = logging.getLogger(__name__)
 
 
 @router.get("/healthz", response_model=HealthOut, summary="The process is up")
@@ -40,6 +45,12 @@ def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
     response_class=Response,
     responses={200: {"content": {CONTENT_TYPE.split(";")[0]: {"schema": {"type": "string"}}}}},
 )
-async def metrics(m: MetricsDep) -> Response:
-    """Prometheus text exposition of this instance's metrics."""
+async def metrics(m: MetricsDep, fleet: FleetDep) -> Response:
+    """Prometheus text exposition of this instance's metrics. The fleet worker's heartbeat age per city is
+    read from the store (off the event loop); when the store cannot answer, those gauges keep their last
+    values and the rest is served all the same."""
+    try:
+        m.set_heartbeat_ages(await run_in_threadpool(fleet.heartbeat_ages))
+    except Exception as exc:  # noqa: BLE001 - a scrape never fails for the store's sake
+        log.warning("metrics: worker heartbeats unreadable: %s", exc)
     return Response(content=m.render(), media_type=CONTENT_TYPE)

@@ -19,7 +19,7 @@ _DESCRIPTIONS = {
     422: "The request failed validation (`validation_error`); `fields` names the offending values.",
     500: "Unexpected failure (`internal`), logged.",
     503: "The store cannot be reached (`store_unavailable`), or too many concurrent commits or epochs being "
-    "solved (`busy`).",
+    "solved (`busy`); for POST .../fleet/solve, no fleet worker has been seen recently (`no_worker`).",
 }
 
 

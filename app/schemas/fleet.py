@@ -15,7 +15,7 @@ from pydantic import Field
 
 from app.ports import FleetRecord
 from app.schemas.common import ResponseModel
-from services.fleet import CandidateTable, Choice, RollingHour
+from services.fleet import CandidateTable, Choice, RollingHour, SubsidyPoint
 from services.rfc3339 import format_time
 
 if TYPE_CHECKING:  # the worker's machinery stays out of the API process
@@ -30,6 +30,8 @@ __all__ = [
     "ObservedOut",
     "SimulationOut",
     "SolveStatsOut",
+    "SubsidyPointOut",
+    "subsidy_note",
     "RecommendationBody",
     "FleetRecommendationOut",
     "FleetHistoryEntryOut",
@@ -195,6 +197,47 @@ class SolveStatsOut(ResponseModel):
         return cls(runs=stats.runs, cached_runs=stats.cached_runs, wall_s=stats.wall_s, jobs=stats.jobs)
 
 
+class SubsidyPointOut(ResponseModel):
+    """Each method's choice had ζ been this value (same samples, same days, same conditioning)."""
+
+    subsidy_cny_per_vehicle_hour: float
+    deterministic: int
+    dro: int
+    dro_rh: int = Field(description="DRO_RH's size for the hour solved for.")
+    dro_objective: float = Field(description="DRO's worst-case total cost per hour at its choice, CNY.")
+
+    @classmethod
+    def of(cls, point: SubsidyPoint) -> SubsidyPointOut:
+        """From the core's sweep point."""
+        return cls(
+            subsidy_cny_per_vehicle_hour=point.subsidy_cny_per_vehicle_hour,
+            deterministic=point.deterministic.size,
+            dro=point.dro.size,
+            dro_rh=point.dro_rh.size,
+            dro_objective=point.dro.objective,
+        )
+
+
+def subsidy_note(subsidy: float, sweep: tuple[SubsidyPoint, ...]) -> str:
+    """One sentence on how the choice depends on ζ: DRO's size over the sweep's range of subsidies."""
+    head = (
+        f"The sizes depend on the subsidy ζ = {subsidy:g} CNY per instrumented vehicle-hour "
+        "(SD_WORKER_SUBSIDY_CNY_PER_VEHICLE_HOUR; its default, a sensor kit amortized over its service hours "
+        "plus the driver incentive, is derived in docs/FLEET.md)"
+    )
+    if not sweep:
+        return head + "."
+    runs: list[tuple[int, float, float]] = []  # (DRO size, first ζ, last ζ) over the sweep, ascending ζ
+    for p in sweep:
+        z = p.subsidy_cny_per_vehicle_hour
+        if runs and runs[-1][0] == p.dro.size:
+            runs[-1] = (runs[-1][0], runs[-1][1], z)
+        else:
+            runs.append((p.dro.size, z, z))
+    parts = [f"{x} at ζ = {a:g}" if a == b else f"{x} for ζ in [{a:g}, {b:g}]" for x, a, b in runs]
+    return f"{head}: on these samples DRO picks " + ", ".join(parts) + " (subsidy_sweep)."
+
+
 class RecommendationBody(ResponseModel):
     """A fleet-sizing recommendation as the worker publishes it."""
 
@@ -206,6 +249,14 @@ class RecommendationBody(ResponseModel):
     request_id: str | None
     objective: str = Field(description="What the methods minimize.")
     subsidy_cny_per_vehicle_hour: float = Field(description="ζ, the subsidy per instrumented vehicle-hour.")
+    subsidy_note: str = Field(
+        default="", description="How the choice depends on ζ (what DRO picks over subsidy_sweep)."
+    )
+    subsidy_sweep: list[SubsidyPointOut] = Field(
+        default_factory=list,
+        description="Each method's choice at a few subsidies (the configured ζ among them), from the same "
+        "samples: the trade-off curve.",
+    )
     completion_target: float | None = Field(
         description="Worst-case completion rate on reachable tasks every choice must meet (null: none)."
     )
@@ -272,6 +323,8 @@ def recommendation_body(rec: Recommendation) -> RecommendationBody:
         request_id=rec.request_id,
         objective=rec.objective,
         subsidy_cny_per_vehicle_hour=cfg.subsidy_cny_per_vehicle_hour,
+        subsidy_note=subsidy_note(cfg.subsidy_cny_per_vehicle_hour, rec.sweep),
+        subsidy_sweep=[SubsidyPointOut.of(p) for p in rec.sweep],
         completion_target=cfg.completion_target,
         chosen=ChosenOut(
             deterministic=plan.deterministic.size,

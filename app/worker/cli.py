@@ -13,13 +13,10 @@ from typing import Any, get_args
 from pydantic import ValidationError
 
 from app.cities import CityRegistry
-from app.schemas.fleet import render_recommendation
 from app.settings import DivergenceName, Settings
-from app.simulation import ResultCache, RunCache, Runner, make_executor
-from app.worker.service import FleetWorker, WorkerMetrics
-from app.worker.sizing import FleetSizing, SizingConfig
+from app.worker.assembly import assemble_worker, make_runner
 
-__all__ = ["main", "parser", "settings_from_args", "make_runner"]
+__all__ = ["main", "parser", "settings_from_args", "make_runner"]  # make_runner: app.worker.assembly
 
 log = logging.getLogger("app.worker")
 
@@ -69,7 +66,10 @@ def parser() -> argparse.ArgumentParser:
         help="worst-case completion rate of reachable POI tasks each choice must meet, or 'off' (default)",
     )
     p.add_argument(
-        "--subsidy", type=float, default=None, help="ζ, CNY per instrumented vehicle-hour (default 0)"
+        "--subsidy",
+        type=float,
+        default=None,
+        help="ζ, CNY per instrumented vehicle-hour (default: docs/FLEET.md)",
     )
     p.add_argument("--rolling-days", type=int, default=None, help="DRO_RH: days kept after conditioning (7)")
     p.add_argument("--tasks", type=int, default=None, help="POI tasks per run (default 85)")
@@ -109,26 +109,6 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     return Settings(**given)
 
 
-def make_runner(settings: Settings) -> Runner:
-    """The runner the settings describe: its run cache (disk or Redis) and its executor."""
-    cache: ResultCache
-    if settings.run_cache_kind() == "redis":
-        from app.adapters.redis_client import redis_client
-        from app.adapters.run_cache import RedisRunCache
-
-        client = redis_client(settings.redis_url)
-        cache = RedisRunCache(client, settings.redis_prefix, ttl_s=settings.retention_s)
-    else:
-        cache = RunCache(settings.var_dir / "fleet-runs")
-    executor = make_executor(
-        settings.worker_jobs,
-        settings.worker_executor,
-        scheduler=settings.dask_scheduler,
-        timeout_s=settings.dask_timeout_s,
-    )
-    return Runner(cache, executor)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the worker; exit code 0, or 1 when ``--once`` did not publish, 2 for bad options."""
     args = parser().parse_args(list(sys.argv[1:] if argv is None else argv))
@@ -156,30 +136,27 @@ def main(argv: Sequence[str] | None = None) -> int:
             settings.worker_days,
         )
     if settings.store == "memory":
-        log.warning("SD_STORE=memory: recommendations live in this process only; use SD_STORE=redis")
+        if not args.once:
+            print(
+                "python -m app worker: SD_STORE=memory: no API could read this worker's results. On the "
+                "memory store `python -m app run` runs the worker inside the service; a separate worker "
+                "needs SD_STORE=redis (or use --once to solve once and print the outcome)",
+                file=sys.stderr,
+            )
+            return 2
+        log.warning("SD_STORE=memory: this solve's recommendation lives in this process only")
 
     from app.main import make_store
 
     store = make_store(settings)
-    runner = make_runner(settings)
+    parts = assemble_worker(settings, store, registry, cities, embedded=False)
+    worker = parts.worker
     if settings.worker_executor == "dask":
         log.info("simulation runs go to the Dask scheduler at %s", settings.dask_scheduler)
-    metrics = WorkerMetrics()
     if settings.worker_metrics_port is not None and not args.once:
         from prometheus_client import start_http_server
 
-        start_http_server(settings.worker_metrics_port, registry=metrics.registry)
-    sizing = FleetSizing(
-        store,
-        runner,
-        SizingConfig.from_settings(settings),
-        render=render_recommendation,
-        cities=registry,
-        progress=metrics.progress,
-    )
-    worker = FleetWorker(
-        sizing, cities, lead_s=settings.worker_lead_s, poll_s=settings.worker_poll_s, metrics=metrics
-    )
+        start_http_server(settings.worker_metrics_port, registry=parts.metrics.registry)
     try:
         if args.once:
             ok = True
@@ -200,8 +177,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         signal.signal(signal.SIGTERM, on_signal)
         signal.signal(signal.SIGINT, on_signal)
-        worker.run(stop)
+        parts.serve(stop)
         return 0
     finally:
-        runner.close()
+        parts.runner.close()
         store.close()

@@ -12,15 +12,19 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, nullcontext
+from typing import Literal
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
 from app.ports import StoreUnavailable
 from app.simulation import Progress
+from app.worker.heartbeat import WorkerStatus
 from app.worker.schedule import coming_interval, due_interval
 from app.worker.sizing import FleetSizing, SolveOutcome
 from services.city import Horizon
+from services.model import IntervalKey
 
 __all__ = ["WorkerMetrics", "FleetWorker"]
 
@@ -83,13 +87,16 @@ class FleetWorker:
         poll_s: float = 5.0,
         clock: Callable[[], float] = time.time,
         metrics: WorkerMetrics | None = None,
+        status: WorkerStatus | None = None,
     ) -> None:
+        """``status`` (the heartbeat's) learns of every solve and each city's next scheduled one."""
         self.sizing = sizing
         self.cities = list(cities)
         self.lead_s = lead_s
         self.poll_s = poll_s
         self.clock = clock
         self.metrics = metrics or WorkerMetrics()
+        self.status = status
         self._attempted: dict[str, int] = {}  # city -> the last hour this worker tried on schedule
         self._horizons: dict[str, Horizon] = {}
 
@@ -107,6 +114,23 @@ class FleetWorker:
             log.info("fleet %s, interval %d: another worker is solving it", outcome.city, outcome.interval)
         return outcome
 
+    @contextmanager
+    def _solving(
+        self, city: str, target: int, trigger: Literal["schedule", "request"], request_id: str | None = None
+    ) -> Iterator[None]:
+        """The heartbeat shows the solve for the block."""
+        with self.status.solving(city, target, trigger, request_id) if self.status else nullcontext():
+            yield
+
+    def next_scheduled(self, city: str) -> tuple[IntervalKey, float]:
+        """The hour this worker will solve next on schedule and when that solve is due (the coming hour,
+        or the one after it when this worker already tried the coming one)."""
+        hz = self.horizon(city)
+        k = coming_interval(hz, self.clock())
+        if self._attempted.get(city) == k:
+            k = coming_interval(hz, hz.interval_start_s(k))
+        return k, hz.interval_start_s(k) - self.lead_s
+
     def requested(self, city: str) -> SolveOutcome | None:
         """Claim the city's pending request, if any, and solve the coming hour for it. When another worker
         holds that hour's lock the request goes back on the queue for the next poll."""
@@ -114,7 +138,8 @@ class FleetWorker:
         if request is None:
             return None
         target = coming_interval(self.horizon(city), self.clock())
-        outcome = self.sizing.solve(city, target, request=request)
+        with self._solving(city, target, "request", request.request_id):
+            outcome = self.sizing.solve(city, target, request=request)
         if outcome.status == "busy":
             self.sizing.requeue(city, request)
         return self._done(outcome)
@@ -124,7 +149,8 @@ class FleetWorker:
         target = due_interval(self.horizon(city), self.clock(), self.lead_s)
         if target is None or self._attempted.get(city) == target:
             return None
-        outcome = self.sizing.solve(city, target)
+        with self._solving(city, target, "schedule"):
+            outcome = self.sizing.solve(city, target)
         if outcome.status != "busy":  # busy: try again at the next poll (the holder may fail)
             self._attempted[city] = target
         return self._done(outcome)
@@ -142,19 +168,26 @@ class FleetWorker:
                     break
                 if outcome is not None:
                     outcomes.append(outcome)
+            if self.status is not None:
+                self.status.schedule(city, *self.next_scheduled(city))
         return outcomes
 
     def once(self, city: str) -> SolveOutcome:
         """Solve the coming hour now (even if already solved), unless another worker is solving it."""
         target = coming_interval(self.horizon(city), self.clock())
-        return self._done(self.sizing.solve(city, target, force=True))
+        with self._solving(city, target, "schedule"):
+            return self._done(self.sizing.solve(city, target, force=True))
 
     def run(self, stop: threading.Event) -> None:
-        """Tick every ``poll_s`` seconds until ``stop`` is set."""
+        """Tick every ``poll_s`` seconds until ``stop`` is set (a pass that raises is logged, and the loop
+        goes on at the next poll: a worker that dies silently would leave requests to nobody)."""
         cities = ", ".join(self.cities)
         log.info(
             "fleet worker: %s; polling every %.0f s, solving %.0f s ahead", cities, self.poll_s, self.lead_s
         )
         while not stop.is_set():
-            self.tick()
+            try:
+                self.tick()
+            except Exception:
+                log.exception("fleet worker: a pass failed; next pass in %.0f s", self.poll_s)
             stop.wait(self.poll_s)

@@ -25,7 +25,7 @@ from app.simulation import ExecutorUnavailable, ProgressFn, RunJob, Runner, RunR
 from app.simulation.outcomes import day_outcomes, hourly_volumes
 from app.worker.recorded import demand_from_records, local_day_records, recorded_days
 from services.city import City
-from services.fleet import Ambiguity, CostModel, FleetPlan, plan_fleet
+from services.fleet import Ambiguity, CostModel, FleetPlan, SubsidyPoint, plan_fleet, subsidy_sweep
 from services.model import IntervalKey
 from services.sim.demand import DemandSet
 
@@ -64,6 +64,7 @@ class SizingConfig:
     ambiguity: Ambiguity = Ambiguity()
     completion_target: float | None = None
     subsidy_cny_per_vehicle_hour: float = 0.0
+    subsidy_sweep: tuple[float, ...] = ()
     rolling_days: int = 7
     reach_s: float = 1200.0
     vary_tasks: bool = False
@@ -90,6 +91,7 @@ class SizingConfig:
             ambiguity=Ambiguity(s.worker_divergence, s.worker_alpha, s.worker_support, s.worker_bins),
             completion_target=s.worker_completion_target,
             subsidy_cny_per_vehicle_hour=s.worker_subsidy_cny_per_vehicle_hour,
+            subsidy_sweep=tuple(s.worker_subsidy_sweep),
             rolling_days=s.worker_rolling_days,
             reach_s=s.worker_reach_s,
             vary_tasks=s.worker_vary_tasks,
@@ -200,7 +202,8 @@ class Recommendation:
     """A solve's result for hour ``target`` of ``city``: the plan and what it was computed from.
 
     ``objective`` names what the methods minimize; ``requests_per_day`` counts the requests of each history
-    day; ``observed`` is what the target's day showed before the solve; ``tasks`` the tasks every day carried.
+    day; ``observed`` is what the target's day showed before the solve; ``tasks`` the tasks every day carried;
+    ``sweep`` every method's choice at the configured subsidy and the sweep's others (the trade-off curve).
     """
 
     city: City
@@ -215,6 +218,7 @@ class Recommendation:
     observed: Observed
     tasks: TaskSet
     objective: str = OBJECTIVE
+    sweep: tuple[SubsidyPoint, ...] = ()
 
     @property
     def position(self) -> int:
@@ -348,13 +352,26 @@ class FleetSizing:
         res: dict[tuple[int, int], RunResult] = {key: batch.results[job.key] for key, job in jobs.items()}
         n_days = len(window.days)
         runs = {x: [res[(x, i)] for i in range(n_days)] for x in cfg.sizes}
+        tau = city.horizon.interval_s / 3600.0
+        volumes = hourly_volumes(runs[cfg.sizes[0]])
         try:
             outcomes = {x: day_outcomes(r, city.horizon, cfg.reach_s) for x, r in runs.items()}
             plan = plan_fleet(
                 outcomes,
-                hourly_volumes(runs[cfg.sizes[0]]),
+                volumes,
                 cfg.ambiguity,
-                CostModel(cfg.subsidy_cny_per_vehicle_hour, city.horizon.interval_s / 3600.0),
+                CostModel(cfg.subsidy_cny_per_vehicle_hour, tau),
+                observed=observed.requests_per_hour,
+                keep=cfg.rolling_days,
+                target=cfg.completion_target,
+            )
+            sweep = subsidy_sweep(
+                outcomes,
+                volumes,
+                (*cfg.subsidy_sweep, cfg.subsidy_cny_per_vehicle_hour),
+                hour=city.horizon.position(target),
+                ambiguity=cfg.ambiguity,
+                interval_hours=tau,
                 observed=observed.requests_per_hour,
                 keep=cfg.rolling_days,
                 target=cfg.completion_target,
@@ -364,8 +381,9 @@ class FleetSizing:
         requests = tuple(r.n_requests for r in runs[cfg.sizes[0]])
         stats = SolveStats(len(batch.results), batch.cached, batch.wall_s, self.runner.workers)
         return Recommendation(
-            city, target, plan, cfg, window, requests, stats, trigger, request_id, observed, tasks
-        )
+            city, target, plan, cfg, window, requests, stats, trigger, request_id, observed, tasks,
+            sweep=sweep,
+        )  # fmt: skip
 
     def solve(
         self, city_name: str, target: IntervalKey, *, request: SolveRequest | None = None, force: bool = False

@@ -13,12 +13,13 @@ export class ApiError extends Error {
   }
 }
 
-/** A client for one bearer token. `get(path)` resolves to the parsed body or rejects with an ApiError. */
+/** A client for one bearer token. `send(method, path)` resolves to the parsed body or rejects with an
+ * ApiError; `get(path)` is `send("GET", path)`. */
 export function apiClient(token) {
-  async function get(path) {
+  async function send(method, path) {
     let response;
     try {
-      response = await fetch(path, { headers: { Authorization: `Bearer ${token}` }, cache: "no-store" });
+      response = await fetch(path, { method, headers: { Authorization: `Bearer ${token}` }, cache: "no-store" });
     } catch (err) {
       throw new ApiError(0, "unreachable", `the service cannot be reached: ${err.message}`);
     }
@@ -31,6 +32,7 @@ export function apiClient(token) {
     }
     throw new ApiError(response.status, body?.error ?? "http_error", body?.detail ?? response.statusText);
   }
+  const get = (path) => send("GET", path);
 
   const city = (name) => `v1/cities/${encodeURIComponent(name)}`;
   return {
@@ -44,6 +46,8 @@ export function apiClient(token) {
     tasks: (name) => get(`${city(name)}/tasks`),
     recommendation: (name) => get(`${city(name)}/fleet/recommendation`),
     history: (name, limit) => get(`${city(name)}/fleet/recommendations?limit=${limit}`),
+    fleetStatus: (name) => get(`${city(name)}/fleet/status`),
+    solve: (name) => send("POST", `${city(name)}/fleet/solve`),
   };
 }
 

@@ -96,3 +96,45 @@ export function historyChart(canvas) {
     },
   };
 }
+
+/** The chosen size at each subsidy of the recommendation's sweep (same samples), a step per method, and the
+ * configured ζ marked: what a different setting would recommend. */
+export function sweepChart(canvas) {
+  const chart = new Chart(canvas, {
+    type: "line",
+    data: { datasets: [] },
+    options: {
+      ...BASE,
+      parsing: false,
+      scales: {
+        x: { type: "linear", title: { display: true, text: "ζ, CNY per instrumented vehicle-hour" } },
+        y: { title: { display: true, text: "chosen N1" }, beginAtZero: true },
+      },
+    },
+  });
+  return {
+    update(rec) {
+      const pts = (key) => rec.subsidy_sweep.map((p) => ({ x: p.subsidy_cny_per_vehicle_hour, y: p[key] }));
+      const here = rec.subsidy_sweep.filter((p) => p.subsidy_cny_per_vehicle_hour === rec.subsidy_cny_per_vehicle_hour);
+      chart.data.datasets = [
+        { label: "DRO", data: pts("dro"), borderColor: "#b2182b", backgroundColor: "#b2182b", stepped: "before" },
+        { label: `DRO_RH ${rec.interval.slice(11)}`, data: pts("dro_rh"), borderColor: "#053061", backgroundColor: "#053061", stepped: "before", borderDash: [6, 4] },
+        { label: "Deterministic", data: pts("deterministic"), borderColor: "#878787", backgroundColor: "#878787", stepped: "before" },
+        {
+          type: "scatter",
+          label: `ζ = ${rec.subsidy_cny_per_vehicle_hour} (set)`,
+          data: here.map((p) => ({ x: p.subsidy_cny_per_vehicle_hour, y: p.dro })),
+          pointRadius: 7,
+          pointStyle: "rectRot",
+          backgroundColor: "#f4a582",
+          borderColor: "#b2182b",
+        },
+      ];
+      chart.update();
+    },
+    clear() {
+      chart.data.datasets = [];
+      chart.update();
+    },
+  };
+}

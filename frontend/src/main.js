@@ -6,7 +6,7 @@ import "leaflet/dist/leaflet.css";
 import "./style.css";
 
 import { ApiError, apiClient, orNoData } from "./api.js";
-import { historyChart, kpiChart } from "./charts.js";
+import { historyChart, kpiChart, sweepChart } from "./charts.js";
 import { dayIntervals, dayIntervalsOn, spanText } from "./horizon.js";
 import { HEAT, ROUTE_COLOURS, TASK_COLOURS, createMap, nodePositions } from "./map.js";
 
@@ -39,6 +39,7 @@ const state = {
 const map = createMap($("map"));
 const kpi = kpiChart($("kpi-chart"));
 const history = historyChart($("history-chart"));
+const sweep = sweepChart($("sweep-chart"));
 
 // ----------------------------------------------------------------------------------------------- status
 
@@ -260,13 +261,58 @@ async function refreshTasks() {
   for (const [status, n] of Object.entries(by)) text(`tasks-${status}`, String(n));
 }
 
+const ago = (s) => (s < 90 ? `${Math.round(s)} s` : s < 5400 ? `${Math.round(s / 60)} min` : `${(s / 3600).toFixed(1)} h`);
+const hhmm = (rfc) => rfc.slice(11, 16);
+
+/** The worker line, the solve in progress with its runs, from GET .../fleet/status. */
+function showWorker(st) {
+  const w = st.worker;
+  const line = $("fleet-worker");
+  line.classList.toggle("gone", !w.seen);
+  if (w.seen) {
+    const where = w.workers[0]?.embedded ? " (inside the service)" : ` (${w.workers[0]?.host})`;
+    const parts = [`worker: last heartbeat ${ago(w.heartbeat_age_s)} ago${where}`];
+    if (st.pending_request) parts.push("a solve request is queued");
+    if (st.next_scheduled) parts.push(`next scheduled solve: hour ${st.next_scheduled.interval.replace("T", " ")} at ${hhmm(st.next_scheduled.due_at)}`);
+    line.textContent = parts.join(" · ");
+  } else {
+    const last = w.heartbeat_age_s === null ? "never seen" : `last heartbeat ${ago(w.heartbeat_age_s)} ago`;
+    line.textContent = `no fleet worker (${last}): a solve request would wait for nobody; ${w.hint}`;
+  }
+  const s = st.solving;
+  $("fleet-solving").hidden = !s;
+  if (s) {
+    const why = s.trigger === "request" ? "requested" : "scheduled";
+    text("fleet-solving-text", `solving: ${s.runs_done} of ${s.runs_total || "?"} runs (hour ${s.interval.slice(11)}, ${why}, ${ago(s.elapsed_s)})`);
+    $("fleet-progress").max = Math.max(1, s.runs_total);
+    $("fleet-progress").value = s.runs_done;
+  }
+}
+
+$("solve-now").addEventListener("click", async () => {
+  const name = state.city;
+  const button = $("solve-now");
+  button.disabled = true;
+  try {
+    const r = await state.api.solve(name);
+    text("solve-answer", `${r.status.replace("_", " ")} (request ${r.request_id.slice(0, 8)}…)`);
+  } catch (err) {
+    text("solve-answer", err instanceof ApiError ? `${err.detail} (${err.status} ${err.kind})` : String(err.message ?? err));
+  } finally {
+    button.disabled = false;
+  }
+  run(refreshFleet);
+});
+
 async function refreshFleet() {
   const name = state.city;
-  const [rec, hist] = await Promise.all([
+  const [rec, hist, st] = await Promise.all([
     orNoData(state.api.recommendation(name)),
     state.api.history(name, 48),
+    state.api.fleetStatus(name),
   ]);
   if (name !== state.city) return;
+  showWorker(st);
   $("fleet-none").hidden = Boolean(rec);
   $("fleet-body").hidden = !rec;
   if (rec) {
@@ -276,10 +322,14 @@ async function refreshFleet() {
     text("fleet-dro-rh", String(rec.chosen.dro_rh));
     text("fleet-target", rec.completion_target === null ? "none" : String(rec.completion_target));
     text("fleet-method", `${rec.divergence}, α = ${rec.alpha}, ${rec.data_window.n_days} ${rec.data_window.source} days`);
-    text("fleet-version", `version ${rec.version}, computed ${rec.computed_at.replace("T", " ")}`);
+    text("fleet-version", `version ${rec.version}, computed ${rec.computed_at.slice(0, 19).replace("T", " ")} in ${rec.solve.wall_s.toFixed(0)} s (${rec.solve.runs} runs, ${rec.solve.cached_runs} cached)`);
+    text("fleet-window", `history: ${rec.data_window.source} — ${rec.data_window.note}`);
+    text("fleet-subsidy", rec.subsidy_note);
     kpi.update(rec);
+    sweep.update(rec);
   } else {
     kpi.clear();
+    sweep.clear();
   }
   history.update(hist.entries);
   const rows = hist.entries.slice(0, 6).map((e) => {

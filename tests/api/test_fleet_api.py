@@ -4,11 +4,13 @@ and error bodies, over the memory and the Redis store."""
 from __future__ import annotations
 
 import datetime as dt
+import time
 
 import pytest
+from fastapi.testclient import TestClient
 
 from app.cities import CityRegistry
-from app.ports import FleetRecord, Store
+from app.ports import FleetRecord, SolveProgress, SolveRequest, Store, WorkerBeat
 from app.schemas.fleet import render_recommendation
 from app.worker.sizing import (
     HistoryDay,
@@ -92,6 +94,25 @@ def body_json(
         TaskSet("synthetic", None),
     )
     return render_recommendation(rec)
+
+
+def beat(age_s: float = 1.0, **kw: object) -> WorkerBeat:
+    """A worker's heartbeat written ``age_s`` seconds ago."""
+    now = time.time()
+    base: dict[str, object] = {
+        "started_at_s": now - 600.0,
+        "host": "box-1",
+        "pid": 77,
+        "embedded": False,
+        "poll_s": 5.0,
+    }
+    return WorkerBeat("box-1:77:abc", now - age_s, **(base | kw))  # type: ignore[arg-type]
+
+
+def store_of(client: TestClient) -> Store:
+    """The app's store."""
+    store: Store = client.app.state.service.store  # type: ignore[attr-defined]
+    return store
 
 
 def publish(store: Store, registry: CityRegistry, version: int, at: dt.datetime, **kw: object) -> FleetRecord:
@@ -226,6 +247,7 @@ def test_history_lists_published_and_failed_solves_newest_first(
 
 def test_solve_request_is_queued_not_solved(make_client: MakeClient, any_store: Store) -> None:
     client = make_client(store=any_store, tokens=WITH_ADMIN)
+    any_store.record_worker_beat(CITY, beat(), 3600.0)
     r = client.post(f"{BASE}/solve", headers=auth(ADMIN))
     assert r.status_code == 202, r.text
     first = r.json()
@@ -252,7 +274,11 @@ def test_scopes(make_client: MakeClient) -> None:
         r = client.post(f"{BASE}/solve", headers=auth(token))
         assert r.status_code == 403 and r.json()["error"] == "forbidden" and "admin" in r.json()["detail"]
     assert client.post(f"{BASE}/solve").status_code == 401
+    store_of(client).record_worker_beat(CITY, beat(), 3600.0)
     assert client.post(f"{BASE}/solve", headers=auth(ADMIN)).status_code == 202
+    assert client.get(f"{BASE}/status").status_code == 401
+    assert client.get(f"{BASE}/status", headers=auth(DISPATCH)).status_code == 403
+    assert client.get(f"{BASE}/status", headers=auth(READ)).status_code == 200
 
 
 def test_an_unreadable_stored_document_is_a_500_with_the_error_shape(make_client: MakeClient) -> None:
@@ -263,3 +289,89 @@ def test_an_unreadable_stored_document_is_a_500_with_the_error_shape(make_client
     r = client.get(f"{BASE}/recommendation", headers=auth(READ))
     assert r.status_code == 500
     assert r.json()["error"] == "internal" and "version 1 cannot be read" in r.json()["detail"]
+
+
+@pytest.mark.parametrize("age_s", [None, 31.0, 3000.0])
+def test_a_solve_request_with_no_worker_seen_is_503_no_worker_and_queues_nothing(
+    make_client: MakeClient, any_store: Store, age_s: float | None
+) -> None:
+    client = make_client(store=any_store, tokens=WITH_ADMIN)  # SD_WORKER_STALE_S: 30 s by default
+    if age_s is not None:
+        any_store.record_worker_beat(CITY, beat(age_s), 3600.0)
+    r = client.post(f"{BASE}/solve", headers=auth(ADMIN))
+    assert r.status_code == 503, r.text
+    body = r.json()
+    assert body["error"] == "no_worker" and body["fields"] == []
+    assert "python -m app worker" in body["detail"] and "in the last 30 s" in body["detail"]
+    assert ("never" if age_s is None else f"last seen {age_s:.0f} s ago (box-1)") in body["detail"]
+    assert any_store.pending_solve_request(CITY) is None
+    status = client.get(f"{BASE}/status", headers=auth(READ)).json()
+    assert status["worker"]["seen"] is False and "python -m app worker" in status["worker"]["hint"]
+    assert status["pending_request"] is None
+
+
+def test_the_stale_limit_is_a_setting(make_client: MakeClient, any_store: Store) -> None:
+    client = make_client(store=any_store, tokens=WITH_ADMIN, worker_stale_s=120.0)
+    any_store.record_worker_beat(CITY, beat(90.0), 3600.0)
+    assert client.post(f"{BASE}/solve", headers=auth(ADMIN)).status_code == 202
+
+
+def test_status_shows_the_worker_its_solve_the_request_the_last_and_the_next_solve(
+    make_client: MakeClient, registry: CityRegistry, any_store: Store
+) -> None:
+    client = make_client(store=any_store, tokens=WITH_ADMIN)
+    k = target(registry)
+    hz = registry.get(CITY).horizon
+    now = time.time()
+    solving = SolveProgress(int(k), "request", "req-7", now - 42.0, 60, 17, 5, 2, 0)
+    live = beat(2.0, solving=solving, next_interval=int(k) + 1, next_due_at_s=now + 900.0, embedded=True)
+    gone = WorkerBeat("box-2:9:def", now - 500.0, now - 900.0, "box-2", 9, False, 5.0)
+    any_store.record_worker_beat(CITY, gone, 3600.0)
+    any_store.record_worker_beat(CITY, live, 3600.0)
+    any_store.enqueue_solve_request(CITY, SolveRequest("req-8", now - 3.0, "tok-…"))
+    any_store.record_solve_failure(CITY, FleetRecord("failed", now - 60.0, int(k), reason="boom"), 10)
+    r = client.get(f"{BASE}/status", headers=auth(READ))
+    assert r.status_code == 200, r.text
+    st = r.json()
+    assert st["city"] == CITY and st["now"].endswith("+08:00")
+    w = st["worker"]
+    assert w["seen"] is True and w["hint"] is None and w["stale_after_s"] == 30.0
+    assert 2.0 <= w["heartbeat_age_s"] < 10.0
+    assert [(x["id"], x["live"], x["embedded"]) for x in w["workers"]] == [
+        ("box-1:77:abc", True, True),
+        ("box-2:9:def", False, False),
+    ]
+    s = st["solving"]
+    assert (s["interval"], s["trigger"], s["request_id"], s["worker"]) == (
+        hz.label(k),
+        "request",
+        "req-7",
+        "box-1:77:abc",
+    )
+    assert (s["runs_total"], s["runs_done"], s["runs_cached"], s["runs_running"]) == (60, 17, 5, 2)
+    assert 42.0 <= s["elapsed_s"] < 50.0
+    assert st["pending_request"]["request_id"] == "req-8"
+    assert st["last_solve"] == {
+        "status": "failed",
+        "computed_at": st["last_solve"]["computed_at"],
+        "interval": hz.label(k),
+        "version": None,
+        "reason": "boom",
+        "request_id": None,
+    }
+    assert st["next_scheduled"]["interval"] == hz.label(k + 1)
+    # a solve by a worker that is gone is not "in progress"
+    any_store.record_worker_beat(CITY, beat(100.0, solving=solving), 3600.0)
+    st = client.get(f"{BASE}/status", headers=auth(READ)).json()
+    assert st["solving"] is None and st["worker"]["seen"] is False and st["next_scheduled"] is None
+
+
+def test_metrics_expose_the_heartbeat_age(make_client: MakeClient, any_store: Store) -> None:
+    client = make_client(store=any_store)
+    text = client.get("/metrics").text
+    assert f'sd_fleet_worker_heartbeat_age_seconds{{city="{CITY}"}} +Inf' in text
+    any_store.record_worker_beat(CITY, beat(12.0), 3600.0)
+    line = next(
+        x for x in client.get("/metrics").text.splitlines() if x.startswith("sd_fleet_worker_heartbeat_age")
+    )
+    assert 12.0 <= float(line.rsplit(" ", 1)[1]) < 20.0

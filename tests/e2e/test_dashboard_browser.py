@@ -6,7 +6,9 @@ Chromium. The test types a token, as a person would, and checks what the page sh
 cells coloured where Lambda > 0 (in the DOM and in the pixels of a screenshot), the route count of the
 last epoch (in the panel and on the map), the coverage rate and Gamma, the recommendation's chosen sizes,
 a new epoch arriving by polling, the interval slider, and that every request goes to the service itself.
-The screenshot is saved as docs/figures/dashboard.png (the README shows it).
+No fleet worker runs beside this service: the page says so, and "Solve now" shows the API's refusal (403
+without the admin scope, 503 `no_worker` with it). The README's screenshot comes from
+`bench/bench_fleet_service.py`, which runs the whole service with its worker.
 """
 
 from __future__ import annotations
@@ -46,10 +48,9 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--disable-sync",
 ]
-SCREENSHOT = ROOT / "docs" / "figures" / "dashboard.png"
 CITY = "chengdu"
 SHANGHAI = ZoneInfo("Asia/Shanghai")
-READ, WRITE = "dash-read-token-0001", "dash-write-token-001"
+READ, WRITE, ADMIN = "dash-read-token-0001", "dash-write-token-001", "dash-admin-token-001"
 T0 = dt.datetime(2026, 11, 23, 8, 40, tzinfo=SHANGHAI)
 HEAT = ["#ffffb2", "#fed976", "#feb24c", "#fd8d3c", "#fc4e2a", "#e31a1c", "#b10026"]  # the page's scale
 MAP_BACKGROUND = (0xFB, 0xFB, 0xF8)
@@ -146,7 +147,8 @@ def test_the_dashboard_shows_coverage_routes_and_the_recommendation(
     prefix = f"dash{uuid.uuid4().hex[:10]}"
     city = load_city(ROOT / "app" / "data" / "cities" / CITY)
     tasks, snapshots = _scenario(city)
-    with running_service(redis_url, prefix, {READ: ["read"], WRITE: ["read", "dispatch"]}) as url:
+    tokens = {READ: ["read"], WRITE: ["read", "dispatch"], ADMIN: ["read", "admin"]}
+    with running_service(redis_url, prefix, tokens) as url:
         api = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {WRITE}"}, timeout=60)
         replay = HttpDispatcher(api, CITY, city)
         replay.add_tasks(tasks)
@@ -230,6 +232,10 @@ def test_the_dashboard_shows_coverage_routes_and_the_recommendation(
         expect(page.locator("#fleet-target")).to_have_text("none" if target is None else str(target))
         expect(page.locator("#fleet-hour")).to_have_text(rec["interval"].replace("T", " "))
         expect(page.locator("#history-count")).to_have_text("2")
+        # no worker beside this service: the page says so, and a solve request is refused, not queued
+        expect(page.locator("#fleet-worker")).to_contain_text("no fleet worker (never seen)")
+        page.click("#solve-now")
+        expect(page.locator("#solve-answer")).to_contain_text("lacks the 'admin' scope (403 forbidden)")
 
         # what a person sees: in the screenshot, a sensed cell shows its heat colour, an unsensed one the map
         shot = Image.open(BytesIO(page.screenshot()))
@@ -251,8 +257,7 @@ def test_the_dashboard_shows_coverage_routes_and_the_recommendation(
         expect(page.locator("#route-count")).to_have_text(str(n_routes))
         expect(page.locator("path.route")).to_have_count(n_routes)
         expect(page.locator("path.cell.sensed")).to_have_count(want["coverage"]["n_cells_covered"])
-        SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(SCREENSHOT), full_page=True)
+        page.screenshot(path=str(tmp_path / "dashboard.png"), full_page=True)
 
         # the slider: the next interval (the trips run on into it) shows that interval's cells
         label = want["epoch"]["stats"]["interval"]
@@ -278,9 +283,27 @@ def test_the_dashboard_shows_coverage_routes_and_the_recommendation(
         expect(page.locator("#fleet-none")).to_be_visible()
         expect(page.locator("#error")).to_be_hidden()
 
+        # an admin asks for a solve: 503 no_worker, with how to start a worker; nothing was queued
+        page.click("#logout")
+        _connect(page, ADMIN)
+        expect(page.locator("#epoch-id")).to_have_text(snapshots[-1].epoch_id)
+        page.click("#solve-now")
+        answer = page.locator("#solve-answer")
+        expect(answer).to_contain_text("no fleet worker serving 'chengdu' has been seen")
+        expect(answer).to_contain_text("python -m app worker")
+        expect(answer).to_contain_text("(503 no_worker)")
+        status = api.get(f"/v1/cities/{CITY}/fleet/status").json()
+        assert status["pending_request"] is None and status["worker"]["seen"] is False
+
         context.close()
         api.close()
     assert problems == []
-    # the wrong token; Manhattan's recommendation before the worker published one (the page says so)
-    assert sorted(set(refused)) == [(401, "/v1/cities"), (404, "/v1/cities/manhattan/fleet/recommendation")]
+    # the wrong token; Manhattan's recommendation before the worker published one (the page says so); the
+    # solve requests: without the admin scope, and with it but no worker
+    assert sorted(set(refused)) == [
+        (401, "/v1/cities"),
+        (403, f"/v1/cities/{CITY}/fleet/solve"),
+        (404, "/v1/cities/manhattan/fleet/recommendation"),
+        (503, f"/v1/cities/{CITY}/fleet/solve"),
+    ]
     assert requests and all(u.startswith(f"{url}/") for u in requests), sorted(set(requests))

@@ -38,6 +38,7 @@ from app.simulation import (
     run_job,
 )
 from app.worker import main as worker_main
+from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker
 from app.worker.sizing import FleetSizing, SizingConfig, SolveOutcome
 from services.sim.demand import DemandSet, Request
@@ -85,17 +86,28 @@ def make_store(request: pytest.FixtureRequest) -> Iterator[Callable[[], Store]]:
 
 
 def worker(
-    store: Store, cache: Path, clock: Clock, config: SizingConfig = TINY, runner: Runner | None = None
+    store: Store,
+    cache: Path,
+    clock: Clock,
+    config: SizingConfig = TINY,
+    runner: Runner | None = None,
+    status: WorkerStatus | None = None,
 ) -> FleetWorker:
+    progress = None if status is None else status.progress
     sizing = FleetSizing(
-        store, runner or Runner(RunCache(cache)), config, render=render_recommendation, clock=clock
+        store,
+        runner or Runner(RunCache(cache)),
+        config,
+        render=render_recommendation,
+        clock=clock,
+        progress=progress,
     )
-    return FleetWorker(sizing, [CITY], lead_s=3600.0, poll_s=0.05, clock=clock)
+    return FleetWorker(sizing, [CITY], lead_s=3600.0, poll_s=0.05, clock=clock, status=status)
 
 
-def client_for(store: Store) -> TestClient:
+def client_for(store: Store, clock: Callable[[], float] | None = None) -> TestClient:
     settings = Settings(tokens={TOKEN: ["read"], ADMIN: ["admin"]})
-    return TestClient(create_app(settings, store=store))
+    return TestClient(create_app(settings, store=store, clock=clock))
 
 
 def auth(token: str = TOKEN) -> dict[str, str]:
@@ -223,6 +235,12 @@ def fail_size_4(job: RunJob) -> RunResult:
     return run_job(job)
 
 
+def slow_run_job(job: RunJob) -> RunResult:
+    """A simulation that takes 0.2 s longer (so that a test can watch a solve's progress)."""
+    time.sleep(0.2)
+    return run_job(job)
+
+
 def test_a_failing_simulation_keeps_the_last_good_recommendation(
     make_store: Callable[[], Store], tmp_path: Path
 ) -> None:
@@ -265,31 +283,61 @@ def test_a_failing_simulation_keeps_the_last_good_recommendation(
 
 
 def test_an_admin_request_is_picked_up_at_the_next_poll(tmp_path: Path) -> None:
+    """No heartbeat: the request is refused (503 no_worker) and nothing queued. With the worker beating, the
+    request is queued, the status shows the solve with its runs while it runs, then the recommendation."""
     store = MemoryStore()
     clock = Clock(local(23, 12, 30))  # after the horizon: nothing is due on schedule
-    w = worker(store, tmp_path, clock)
+    status = WorkerStatus(embedded=False, poll_s=0.05, clock=clock)
+    slow = Runner(RunCache(tmp_path), run_fn=slow_run_job)  # each run takes 0.2 s more: progress to see
+    w = worker(store, tmp_path, clock, runner=slow, status=status)
     assert w.tick() == []
-    with client_for(store) as client:
-        r = client.post(f"/v1/cities/{CITY}/fleet/solve", headers=auth(ADMIN))
-        assert r.status_code == 202, r.text
-        request_id = r.json()["request_id"]
-        assert client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth()).status_code == 404
-        stop = threading.Event()
-        loop = threading.Thread(target=w.run, args=(stop,))
-        loop.start()
+    heartbeat = Heartbeat(store, status, [CITY], interval_s=0.05)
+    solve_url, status_url = f"/v1/cities/{CITY}/fleet/solve", f"/v1/cities/{CITY}/fleet/status"
+    with client_for(store, clock) as client:
+        r = client.post(solve_url, headers=auth(ADMIN))
+        assert r.status_code == 503 and r.json()["error"] == "no_worker", r.text
+        assert store.pending_solve_request(CITY) is None
+        heartbeat.start()
         try:
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                r = client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth())
-                if r.status_code == 200:
-                    break
-                time.sleep(0.05)
+            r = client.post(solve_url, headers=auth(ADMIN))
+            assert r.status_code == 202, r.text
+            request_id = r.json()["request_id"]
+            st = client.get(status_url, headers=auth()).json()
+            assert st["worker"]["seen"] and st["pending_request"]["request_id"] == request_id
+            assert st["next_scheduled"] == {
+                "interval": "2026-11-24T08:00",
+                "due_at": "2026-11-24T07:00:00+08:00",
+            }
+            assert client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth()).status_code == 404
+            stop = threading.Event()
+            loop = threading.Thread(target=w.run, args=(stop,))
+            loop.start()
+            seen: list[dict[str, Any]] = []
+            try:
+                deadline = time.monotonic() + 60
+                while time.monotonic() < deadline:
+                    st = client.get(status_url, headers=auth()).json()
+                    if st["solving"] is not None:
+                        seen.append(st["solving"])
+                    r = client.get(f"/v1/cities/{CITY}/fleet/recommendation", headers=auth())
+                    if r.status_code == 200:
+                        break
+                    time.sleep(0.05)
+            finally:
+                stop.set()
+                loop.join()
         finally:
-            stop.set()
-            loop.join()
+            heartbeat.stop()
         rec = r.json()
         assert r.status_code == 200 and rec["request_id"] == request_id and rec["trigger"] == "request"
         assert rec["interval"] == "2026-11-24T08:00"  # the coming hour of the horizon
+        assert seen and {s["request_id"] for s in seen} == {request_id}
+        assert {s["runs_total"] for s in seen if s["runs_total"]} == {6}  # 2 sizes x 3 days
+        done = [s["runs_done"] for s in seen]
+        assert done == sorted(done) and len(set(done)) > 1, done  # progress moved while it was watched
+        st = client.get(status_url, headers=auth()).json()
+        assert st["solving"] is None and st["pending_request"] is None
+        assert st["last_solve"]["status"] == "published" and st["last_solve"]["request_id"] == request_id
     assert w.tick() == []  # the request was consumed
 
 

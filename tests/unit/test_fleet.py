@@ -24,6 +24,7 @@ from services.fleet import (
     rolling_hour,
     similar_days,
     size_table,
+    subsidy_sweep,
 )
 from services.fleet_eval import realized_by_hour, realized_fixed, rolling_decisions
 
@@ -179,6 +180,40 @@ def test_the_subsidy_shifts_every_worst_case_by_zeta_x() -> None:
             assert paid.row(x).cost.worst_case == pytest.approx(
                 base.row(x).cost.worst_case + 1.5 * x, rel=1e-7
             )
+
+
+def test_the_sweep_finds_the_middle_size_between_the_break_evens() -> None:
+    """Step 3 cost 30, 25, 22 CNY/h at N1 = 10, 20, 30 on every day and hour: 30 is cheapest below ζ = 0.3
+    (25 + 20ζ = 22 + 30ζ), 10 above ζ = 0.5 (30 + 10ζ = 25 + 20ζ), 20 in between; every method agrees (the
+    samples have no spread, so the worst case is the mean)."""
+    o = {x: outcomes([[c] * 4 for _ in range(5)]) for x, c in ((10, 30.0), (20, 25.0), (30, 22.0))}
+    points = subsidy_sweep(o, np.full((5, 4), 100.0), [1.0, 0.0, 0.35, 0.35], hour=2, keep=3)
+    assert [p.subsidy_cny_per_vehicle_hour for p in points] == [0.0, 0.35, 1.0]
+    for p, want in zip(points, (30, 20, 10), strict=True):
+        assert (p.deterministic.size, p.dro.size, p.dro_rh.size) == (want, want, want)
+    assert points[1].dro.objective == pytest.approx(25.0 + 20 * 0.35)
+
+
+def test_each_point_of_the_sweep_is_the_plan_at_that_subsidy() -> None:
+    rng = np.random.default_rng(21)
+    o = {x: outcomes((rng.uniform(20, 40, (8, 4)) - 0.2 * x).tolist(), 3, 3) for x in (10, 20, 30, 40)}
+    volumes = rng.uniform(50, 150, (8, 4))
+    observed = volumes[3, :2] * 1.05
+    zetas = [0.0, 0.1, 0.2, 0.3, 0.5, 1.0]
+    points = subsidy_sweep(o, volumes, zetas, hour=3, interval_hours=0.5, observed=observed, keep=5)
+    sizes = []
+    for z, p in zip(zetas, points, strict=True):
+        plan = plan_fleet(o, volumes, costs=CostModel(z, 0.5), observed=observed, keep=5)
+        assert p.deterministic == plan.deterministic and p.dro == plan.dro
+        assert p.dro_rh == plan.rolling[3].choice
+        sizes.append(p.dro.size)
+    assert sizes == sorted(sizes, reverse=True)  # a dearer vehicle-hour never buys a larger fleet
+
+
+def test_a_bad_subsidy_in_the_sweep_names_the_parameter() -> None:
+    o = {10: outcomes([[1.0], [2.0]]), 20: outcomes([[1.0], [2.0]])}
+    with pytest.raises(FleetInputError, match="subsidy_cny_per_vehicle_hour"):
+        subsidy_sweep(o, [[1.0], [1.0]], [0.0, -0.5], hour=0)
 
 
 def test_rows_carry_the_engine_values_and_the_box_lp() -> None:

@@ -9,7 +9,7 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import get_args
+from typing import Any, get_args
 from zoneinfo import ZoneInfo
 
 import pytest
@@ -19,7 +19,12 @@ from app.adapters import MemoryStore
 from app.cities import CityRegistry
 from app.ports import EpochCommit
 from app.schemas.fleet import render_recommendation
-from app.settings import DivergenceName, Settings
+from app.settings import (
+    SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR,
+    SUBSIDY_SWEEP_DEFAULT,
+    DivergenceName,
+    Settings,
+)
 from app.simulation import (
     RunCache,
     RunJob,
@@ -397,13 +402,32 @@ def test_settings_and_config() -> None:
     cfg = SizingConfig.from_settings(s)
     assert cfg.sizes == (20, 40) and cfg.days == 3 and cfg.ambiguity.divergence == "burg"
     assert cfg.lookback_days == 4 and cfg.completion_target is None
-    assert cfg.subsidy_cny_per_vehicle_hour == 0.0 and cfg.rolling_days == 7 and not cfg.vary_tasks
+    assert cfg.subsidy_cny_per_vehicle_hour == SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR > 0.0
+    assert cfg.subsidy_sweep == SUBSIDY_SWEEP_DEFAULT and cfg.rolling_days == 7 and not cfg.vary_tasks
+    assert Settings(worker_subsidy_sweep=[2.0, 0.5, 2.0]).worker_subsidy_sweep == [0.5, 2.0]
     assert Settings(tokens={"abcdefgh12": ["admin"]}).tokens == {"abcdefgh12": ["admin"]}
-    for bad in ({"worker_sizes": [10, 10]}, {"worker_sizes": [0]}, {"worker_days": 1}, {"worker_alpha": 1.0}):
+    bad_settings: list[dict[str, Any]] = [
+        {"worker_sizes": [10, 10]},
+        {"worker_sizes": [0]},
+        {"worker_days": 1},
+        {"worker_alpha": 1.0},
+        {"worker_subsidy_sweep": [-1.0]},
+        {"worker_subsidy_sweep": [float("inf")]},
+        {"worker_heartbeat_s": 30.0, "worker_stale_s": 30.0},
+        {"worker_nice": 20},
+        {"worker_embedded": "yes"},
+    ]
+    for bad in bad_settings:
         with pytest.raises(ValidationError):
             Settings(**bad)
     with pytest.raises(ValueError, match="days"):
         SizingConfig(days=1)
+
+
+def test_the_service_embeds_the_worker_on_the_memory_store_unless_told() -> None:
+    assert Settings().embeds_worker() and not Settings(store="redis").embeds_worker()
+    assert Settings(store="redis", worker_embedded="on").embeds_worker()
+    assert not Settings(worker_embedded="off").embeds_worker()
 
 
 def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -1,0 +1,96 @@
+"""One fleet worker put together from the settings: its runner (run cache and executor), sizing, loop,
+metrics and heartbeat. ``python -m app worker`` and the worker embedded in ``python -m app run``
+(``app.worker.embedded``) are built the same way."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from app.cities import CityRegistry
+from app.ports import Store
+from app.schemas.fleet import render_recommendation
+from app.settings import Settings
+from app.simulation import Progress, ResultCache, RunCache, Runner, make_executor
+from app.worker.heartbeat import Heartbeat, WorkerStatus
+from app.worker.service import FleetWorker, WorkerMetrics
+from app.worker.sizing import FleetSizing, SizingConfig
+
+__all__ = ["make_runner", "AssembledWorker", "assemble_worker"]
+
+
+def make_runner(settings: Settings, *, in_process: bool = True) -> Runner:
+    """The runner the settings describe: its run cache (disk or Redis) and its executor. With
+    ``in_process`` False the runs never execute in this process (one local process at least): the API's
+    embedded worker keeps the simulations out of the process that answers epochs."""
+    cache: ResultCache
+    if settings.run_cache_kind() == "redis":
+        from app.adapters.redis_client import redis_client
+        from app.adapters.run_cache import RedisRunCache
+
+        client = redis_client(settings.redis_url)
+        cache = RedisRunCache(client, settings.redis_prefix, ttl_s=settings.retention_s)
+    else:
+        cache = RunCache(settings.var_dir / "fleet-runs")
+    executor = make_executor(
+        settings.worker_jobs,
+        settings.worker_executor,
+        scheduler=settings.dask_scheduler,
+        timeout_s=settings.dask_timeout_s,
+        nice=settings.worker_nice,
+        in_process=in_process,
+    )
+    return Runner(cache, executor)
+
+
+@dataclass(frozen=True, slots=True)
+class AssembledWorker:
+    """A worker's parts: the loop, its heartbeat (not started), the runner to close, its metrics."""
+
+    worker: FleetWorker
+    heartbeat: Heartbeat
+    runner: Runner
+    metrics: WorkerMetrics
+    status: WorkerStatus
+
+    def serve(self, stop: threading.Event) -> None:
+        """Beat and run the loop until ``stop`` is set; then stop beating (the runner stays open)."""
+        self.heartbeat.start()
+        try:
+            self.worker.run(stop)
+        finally:
+            self.heartbeat.stop()
+
+
+def assemble_worker(
+    settings: Settings, store: Store, registry: CityRegistry, cities: Sequence[str], *, embedded: bool
+) -> AssembledWorker:
+    """The worker of ``cities`` on ``store``, as the settings configure it (``embedded``: inside the API
+    process, its runs on local processes whatever ``SD_WORKER_JOBS`` says)."""
+    runner = make_runner(settings, in_process=not embedded)
+    metrics = WorkerMetrics()
+    status = WorkerStatus(embedded=embedded, poll_s=settings.worker_poll_s)
+
+    def progress(p: Progress) -> None:
+        metrics.progress(p)
+        status.progress(p)
+
+    sizing = FleetSizing(
+        store,
+        runner,
+        SizingConfig.from_settings(settings),
+        render=render_recommendation,
+        cities=registry,
+        progress=progress,
+    )
+    worker = FleetWorker(
+        sizing,
+        cities,
+        lead_s=settings.worker_lead_s,
+        poll_s=settings.worker_poll_s,
+        metrics=metrics,
+        status=status,
+    )
+    heartbeat = Heartbeat(store, status, cities, interval_s=settings.worker_heartbeat_s)
+    return AssembledWorker(worker, heartbeat, runner, metrics, status)
