@@ -22,6 +22,7 @@ from app.adapters import MemoryStore
 from app.main import create_app
 from app.serve import serve_app_in_thread
 from app.settings import Settings
+from app.worker.heartbeat import Heartbeat, WorkerStatus
 
 TOKEN = "schemathesis-token-0001"
 MAX_EXAMPLES = 10  # per operation and phase: about 800 requests, a minute on two cores
@@ -32,7 +33,13 @@ def run_schemathesis(max_examples: int) -> tuple[int, str]:
     binary = shutil.which("st", path=str(Path(sys.executable).parent))
     assert binary is not None, "schemathesis is a dev dependency: pip install -e '.[dev]'"
     settings = Settings(tokens={TOKEN: ["read", "dispatch", "admin"]}, store="memory", log_level="error")
-    app = create_app(settings, store=MemoryStore())
+    store = MemoryStore()
+    app = create_app(settings, store=store)
+    # a fleet worker's heartbeat (it never solves): a solve request is queued, as a deployment answers it
+    beats = Heartbeat(
+        store, WorkerStatus(embedded=False, poll_s=2.0), ["chengdu", "manhattan"], interval_s=2.0
+    )
+    beats.start()
     with serve_app_in_thread(app, settings) as url:
         cmd = [binary, "run", f"{url}/openapi.json", "--max-examples", str(max_examples),
                "--generation-deterministic", "--header", f"Authorization: Bearer {TOKEN}",
@@ -40,6 +47,7 @@ def run_schemathesis(max_examples: int) -> tuple[int, str]:
                "--request-timeout", "60", "--warnings", "off", "--no-color"]  # fmt: skip
         with tempfile.TemporaryDirectory() as scratch:  # schemathesis keeps a cache in its working directory
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=900, check=False, cwd=scratch)
+    beats.stop()
     return done.returncode, done.stdout + done.stderr
 
 
