@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 from services.city import City
 from services.model import Rider, RiderId, RiderMatch, Snapshot, Task, TaskAssignment, TaskId, Taxi, TaxiId
 
-__all__ = ["Load", "Demand", "RecordedDemand", "CentresDemand", "Platform"]
+__all__ = ["Load", "Demand", "RecordedDemand", "CentresDemand", "Centres", "Platform"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,6 +120,30 @@ class CentresDemand:
 
 class NearCentres(Protocol):
     def __call__(self, rng: np.random.Generator, n: int) -> NDArray[np.int64]: ...
+
+
+class Centres:
+    """Nodes drawn around centres: each draw picks a centre by weight, moves from it by a normal offset of
+    standard deviation ``spread_m`` on each axis, and snaps to the nearest node."""
+
+    def __init__(self, city: City, xy: NDArray[np.float64], weight: NDArray[np.float64], spread_m: float):
+        self._tree = cKDTree(np.column_stack((city.network.x_m, city.network.y_m)))
+        self._xy = np.asarray(xy, dtype=np.float64)
+        self._weight = np.asarray(weight, dtype=np.float64) / float(np.sum(weight))
+        self._spread = spread_m
+
+    def __call__(self, rng: np.random.Generator, n: int) -> NDArray[np.int64]:
+        pick = rng.choice(len(self._weight), size=n, p=self._weight)
+        _, idx = self._tree.query(self._xy[pick] + rng.normal(0.0, self._spread, (n, 2)))
+        return np.asarray(idx, dtype=np.int64).reshape(n)
+
+    @classmethod
+    def on_bbox(cls, city: City, spread_m: float) -> Centres:
+        """Four centres of a city at fixed places of its bounding box (a larger one in the middle-west)."""
+        x, y = city.network.x_m, city.network.y_m
+        lo, hi = np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
+        at = np.array([[0.35, 0.45], [0.7, 0.7], [0.65, 0.25], [0.25, 0.8]])
+        return cls(city, lo + at * (hi - lo), np.array([0.4, 0.2, 0.2, 0.2]), spread_m)
 
 
 @dataclass(slots=True)

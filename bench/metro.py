@@ -856,7 +856,7 @@ def _half_side(city: City) -> float:
     return float(max(np.abs(dx).max(), np.abs(dy).max()))
 
 
-def _centre_layout(city: City) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def centre_layout(city: City) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The centres' projected x/y (k, 2) and their weights (k,) summing to 1."""
     side = 2.0 * _half_side(city)
     lon, lat = _to_lonlat(_CENTRES[:, 0] * side, _CENTRES[:, 1] * side, side)
@@ -873,7 +873,7 @@ def centres(city: City) -> NDArray[np.float64]:
     float64 (5, 2)
         Projected x/y in metres (``city.network.x_m``/``y_m``), the main centre first.
     """
-    return _centre_layout(city)[0]
+    return centre_layout(city)[0]
 
 
 def near_centres(
@@ -899,7 +899,7 @@ def near_centres(
     -------
     int64 (n,)
     """
-    pos, weight = _centre_layout(city)
+    pos, weight = centre_layout(city)
     net = city.network
     pick = rng.choice(pos.shape[0], size=n, p=weight)
     pts = pos[pick] + rng.normal(0.0, spread_m, (n, 2))

@@ -35,7 +35,6 @@ __all__ = [
     "no_lazy",
     "kappa_cost",
     "lazy_edge",
-    "lazy_se",
     "lazy_fill",
     "fixed_super_edges",
     "prepare",
@@ -164,17 +163,6 @@ def lazy_edge(ed: Edges, lazy: Lazy, e: int) -> int:
         if not lazy.zmask[c]:
             u += lazy.term[c]
     return kappa_cost(ed.time_s[e], u, lazy.umax, lazy.kappa)
-
-
-@compiled_inline
-def lazy_se(g: SearchGraph, ed: Edges, lazy: Lazy, s: int) -> int:
-    """Super-edge ``s``'s cost under ``lazy``."""
-    if lazy.fixed[s] >= 0:
-        return lazy.fixed[s]
-    total = 0
-    for p in range(g.se_ptr[s], g.se_ptr[s + 1]):
-        total += lazy_edge(ed, lazy, g.se_edges[p])
-    return total
 
 
 @compiled_inline

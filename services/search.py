@@ -492,7 +492,7 @@ def grow(
                 c = d + se_cost[s]
             elif fixed[s] >= 0:
                 c = d + fixed[s]
-            else:  # graph.lazy_se, written out: a call per super-edge would count references to every array
+            else:  # graph.lazy_edge summed, written out: a call per super-edge would count references to arrays
                 c = d
                 for p in range(se_ptr[s], se_ptr[s + 1]):
                     e = se_edges[p]
@@ -809,7 +809,7 @@ def guided(
                 c = d + se_cost[s]
             elif fixed[s] >= 0:
                 c = d + fixed[s]
-            else:  # graph.lazy_se, written out as in ``grow``
+            else:  # graph.lazy_edge summed, written out as in ``grow``
                 c = d
                 for p in range(se_ptr[s], se_ptr[s + 1]):
                     e = se_edges[p]

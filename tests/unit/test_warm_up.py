@@ -38,22 +38,24 @@ def compiled_functions() -> dict[str, object]:
 def new_signatures_after_warm_up(scenario: str, epochs: int) -> dict[str, list[int]]:
     """Warm the scenario's city up, then solve ``epochs`` of its epochs (committing their visits) on one and
     two threads; the functions whose signature count grew, with the counts before and after."""
-    from bench.bench_epoch import SCENARIOS, load
-    from bench.bench_epoch import epochs as seeded_epochs
+    from bench.bench_epoch import SCENARIOS, Epochs, load_city
     from services.dispatch import decide, warm_up
     from services.ledger import Ledger, apply_decision, ledger_view
 
     functions = compiled_functions()
     sc = SCENARIOS[scenario]
-    city = load(sc)
+    city = load_city(sc)
     warm_up(city)
     before = {k: len(f.signatures) for k, f in functions.items()}  # type: ignore[attr-defined]
     ledger = Ledger()
-    for e, (snap, tasks) in enumerate(seeded_epochs(city, sc, epochs)):
+    feed = Epochs(sc, city)
+    for e in range(epochs):
+        snap, tasks = feed.next()
         ledger.tasks.update({t.id: t for t in tasks})
         view = ledger_view(ledger, (t.id for t in snap.taxis if t.instrumented), city.grid.n_cells)
         d = decide(city, view, snap, list(ledger.tasks.values()), workers=1 + e % 2)
         apply_decision(ledger, d.visits, d.task_updates)
+        feed.apply(d)
     after = {k: len(f.signatures) for k, f in functions.items()}  # type: ignore[attr-defined]
     return {k: [before[k], after[k]] for k in functions if after[k] != before[k]}
 
