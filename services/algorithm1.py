@@ -61,7 +61,18 @@ from services.jit import compiled, compiled_inline
 from services.pads import Pad, Pads
 from services.parallel import parallel_map
 
-__all__ = ["Plans", "Route", "Drive", "Scratch", "scratch", "plan_routes", "plan_one", "route_pair", "kit"]
+__all__ = [
+    "Plans",
+    "Route",
+    "Drive",
+    "Scratch",
+    "scratch",
+    "plan_routes",
+    "plan_one",
+    "route_pair",
+    "evaluate",
+    "kit",
+]
 
 
 GUIDED_PER_TREE = 16
@@ -720,6 +731,28 @@ def route_pair(
     if tl.wsf.info[1] == -1:
         raise ValueError(f"node {leg.target} cannot be reached from node {leg.source}")
     return route
+
+
+@compiled
+def _evaluate(
+    ed: Edges, gn: Gains, sc: Scratch, counted: Counted, i: int, edges: NDArray[np.int64], depart_s: float
+) -> tuple[float, float, float, int]:
+    """``gains.eval_path`` of taxi ``i``'s path: gain, time, length, largest slot reached."""
+    mark(sc.zmask, counted, i, True)
+    sid = sc.next_stamp[0]
+    sc.next_stamp[0] = sid + 1
+    g, _gq, t, length, ms = eval_path(ed, gn, sc.zmask, sc.stamp, sid, edges, depart_s)
+    mark(sc.zmask, counted, i, False)
+    return g, t, length, ms
+
+
+def evaluate(
+    graph: RoadGraph, gn: Gains, counted: Counted, i: int, edges: NDArray[np.int64], depart_s: float, pad: Pad
+) -> tuple[float, float, float, int]:
+    """Taxi ``i``'s path evaluated against ``gn`` (Eq. 3): its gain, travel time, length and the largest slot
+    it reaches (a slot beyond the table gains nothing)."""
+    g, t, length, ms = _evaluate(graph.edges, gn, scratch(pad, gn), counted, i, edges, float(depart_s))
+    return float(g), float(t), float(length), int(ms)
 
 
 @compiled

@@ -9,6 +9,7 @@ non-decreasing by construction (the tests check it against a recomputation).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections import Counter
 from collections.abc import Sequence
@@ -16,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from services.algorithm1 import Drive, Route, plan_one
+from services.algorithm1 import Drive, Route, evaluate, plan_one
 from services.city import City
 from services.gains import Counted, gain_table, joint_utility, route_pairs
 from services.graph import RoadGraph
@@ -90,6 +91,7 @@ def improve_routes(
     passes = 0
     accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
     planned_at = [-1] * len(routes)
+    accepted_by = [False] * len(routes)  # the route is a re-plan's
     for _ in range(city.params.max_iter):
         passes += 1
         changed = False
@@ -114,6 +116,7 @@ def improve_routes(
                 u_new = joint_utility(city, counts.counts, trial)
                 if u_new > history[-1] * (1 + 1e-12) + 1e-300:
                     routes[a] = cand
+                    accepted_by[a] = True
                     pairs[a] = cand_pairs
                     total = trial
                     dense[a] = slots_cells(cand_pairs)
@@ -127,4 +130,33 @@ def improve_routes(
                     break
         if not changed:
             break
-    return routes, history, passes
+    return (
+        _own_gains(city, graph, counts, counted, routes, accepted_by, depart_s, k0, n_slots, pads),
+        history,
+        passes,
+    )
+
+
+def _own_gains(
+    city: City,
+    graph: RoadGraph,
+    counts: CountsView,
+    counted: Counted,
+    routes: list[Route],
+    replanned: Sequence[bool],
+    depart_s: float,
+    k0: int,
+    n_slots: int,
+    pads: Pads,
+) -> list[Route]:
+    """The routes with a re-planned route's gain taken against the epoch's counts, as every Step 3 route's
+    is (a re-plan evaluates its candidates against the counts plus the other routes' visits)."""
+    out = list(routes)
+    with pads.take() as pad:
+        for i, r in enumerate(routes):
+            if not replanned[i]:
+                continue
+            gn = gain_table(city, counts.counts, k0, max(n_slots, r.max_slot + 1), depart_s)
+            g, _t, _l, _ms = evaluate(graph, gn, counted, i, r.edges, depart_s, pad)
+            out[i] = dataclasses.replace(r, gain=g)
+    return out

@@ -492,7 +492,7 @@ def grow(
                 c = d + se_cost[s]
             elif fixed[s] >= 0:
                 c = d + fixed[s]
-            else:  # graph.lazy_edge summed, written out: a call per super-edge would count references to arrays
+            else:  # graph.lazy_edge summed, written out (a call per super-edge counts references to arrays)
                 c = d
                 for p in range(se_ptr[s], se_ptr[s + 1]):
                     e = se_edges[p]
