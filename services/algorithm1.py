@@ -356,7 +356,8 @@ def _kappas_to(
             continue
         costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
         search.run(kt.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), tl.wsr)
-        search.unfold_many(kt.rg, ed, costs, limit, nodes, tl.wsr, reached)
+        if not search.unfold_many(kt.rg, ed, costs, limit, nodes, tl.wsr, reached):
+            raise AssertionError("a discounted route costs more than the fastest path's time")
         guide = search.tree_guide(tl.wsr, limit)
         for r in range(n):
             a = who[r]
@@ -427,7 +428,8 @@ def _from_taxi(
             costs, lazy = _own_metric(kt, sc, pb.gn, q, kappa, umax)
             search.grow(kt.fg, ed, costs, src, limit, nodes, ws, lazy)
             grown += 1
-            search.unfold_many(kt.fg, ed, costs, limit, nodes, ws, reached)
+            if not search.unfold_many(kt.fg, ed, costs, limit, nodes, ws, reached):
+                raise AssertionError("a discounted route costs more than the fastest path's time")
             ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, nodes, pb.depart_s, sc.tree, g, t, length)
             max_slot = max(max_slot, ms)
             for r in range(near.shape[0]):
