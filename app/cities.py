@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import sys
@@ -305,6 +306,14 @@ def import_city_cli(
     parser.add_argument("--source", default="", help="attribution line for the data")
     parser.add_argument("--out", type=Path, default=default_out, help="directory of imported cities")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing city of that name")
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=JSON",
+        help="a dispatch parameter of the city (docs/METHOD.md), e.g. step3_reach_s=600 or "
+        "step3_reach_s=null; repeat for more",
+    )
     try:
         args = parser.parse_args(list(argv))
     except SystemExit as exc:  # argparse has printed the usage
@@ -321,6 +330,16 @@ def import_city_cli(
     if args.out is None:
         print("import-city: --out DIR is required", file=err)
         return 2
+    params: dict[str, Any] = {}
+    for item in args.param:
+        key, sep, text = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError("expected NAME=JSON")
+            params[key.strip()] = json.loads(text)
+        except ValueError as exc:
+            print(f"import-city: --param {item!r}: {exc}", file=err)
+            return 2
     try:
         target, result, city = _import(
             kind,
@@ -333,7 +352,7 @@ def import_city_cli(
             n_intervals=args.intervals,
             epoch_s=200,
             cell_m=args.cell_m,
-            params=None,
+            params=params,
             source=args.source,
             overwrite=args.overwrite,
         )

@@ -161,8 +161,12 @@ class DispatchParams:
     unit_cost_cny_per_km: float = 1.5
     subsidy_cny_per_vehicle_hour: float = 0.0
     active_sensing: bool = True  # Step 3 on/off
-    reach_s: float | None = 900.0  # Step 3: a POI considers the taxis within this travel time (None: all)
-    reach_above_s: float = 3600.0  # ... on networks that take longer than this to cross (docs/METHOD.md)
+    step3_reach_s: float | None = (
+        900.0  # Step 3: a POI considers the taxis within this travel time (None: all)
+    )
+    step3_reach_above_s: float = (
+        3600.0  # ... on networks that take longer than this to cross (docs/METHOD.md)
+    )
 
     def __post_init__(self) -> None:
         if not 0.0 < self.rho < 1.0:
@@ -173,8 +177,12 @@ class DispatchParams:
             raise ValueError("kappas must contain 0 and lie in [0, 1)")
         if self.max_iter < 0:
             raise ValueError("max_iter must be non-negative")
-        if (self.reach_s is not None and not self.reach_s > 0) or not self.reach_above_s >= 0:
-            raise ValueError("reach_s must be positive (or null: no reach) and reach_above_s non-negative")
+        if (
+            self.step3_reach_s is not None and not self.step3_reach_s > 0
+        ) or not self.step3_reach_above_s >= 0:
+            raise ValueError(
+                "step3_reach_s must be positive (or null: no reach), step3_reach_above_s non-negative"
+            )
 
 
 @dataclass(frozen=True, slots=True, eq=False)

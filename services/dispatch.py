@@ -60,7 +60,7 @@ from services.pads import Pads, pads_for
 from services.parallel import parallel_map
 from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
 
-__all__ = ["decide", "warm_up", "path_nodes", "INITIAL_SLOTS", "PHI_BITS"]
+__all__ = ["decide", "warm_up", "step3_reach", "step3_reach_us", "path_nodes", "INITIAL_SLOTS", "PHI_BITS"]
 
 INITIAL_SLOTS = 3
 """Intervals (from the epoch's own) whose gains are tabulated first; more are added if a path needs them."""
@@ -135,12 +135,20 @@ def _step1(
 
 def step3_reach_us(city: City, graph: RoadGraph) -> int:
     """Step 3's reach in whole microseconds (``INF``: every taxi is a candidate for every POI): the city's
-    ``reach_s`` on a network that takes longer than ``reach_above_s`` to cross (``search.crossing_us``),
-    none on a smaller one (docs/METHOD.md, "Step 3 at scale")."""
+    ``step3_reach_s`` on a network that takes longer than ``step3_reach_above_s`` to cross
+    (``search.crossing_us``), none on a smaller one (docs/METHOD.md section 4, "Step 3 at scale")."""
     p = city.params
-    if p.reach_s is None or search.crossing_us(graph) <= p.reach_above_s * US_PER_S:
+    if p.step3_reach_s is None or search.crossing_us(graph) <= p.step3_reach_above_s * US_PER_S:
         return INF
-    return int(round(p.reach_s * US_PER_S))
+    return int(round(p.step3_reach_s * US_PER_S))
+
+
+def step3_reach(city: City) -> tuple[float | None, float]:
+    """Step 3's reach on ``city`` in seconds (None: every taxi is a candidate for every POI) and the time the
+    network takes to cross (``search.crossing_us``), which decides whether the reach applies."""
+    graph = road_graph(city)
+    reach = step3_reach_us(city, graph)
+    return (None if reach >= INF else reach / US_PER_S), search.crossing_us(graph) / US_PER_S
 
 
 def _step3(

@@ -6,6 +6,7 @@ from pydantic import Field
 
 from app.schemas.common import ResponseModel
 from services.city import City
+from services.dispatch import step3_reach
 from services.grid import node_col_row
 
 __all__ = [
@@ -63,6 +64,18 @@ class ParamsOut(ResponseModel):
     unit_cost_cny_per_km: float
     subsidy_cny_per_vehicle_hour: float
     active_sensing: bool
+    step3_reach_s: float | None = Field(
+        description="Step 3's reach on this city: a POI considers the taxis whose fastest path to it takes "
+        "at most this many seconds; null: every vacant instrumented taxi is a candidate for every POI "
+        "(docs/METHOD.md section 4). It applies on networks that take longer than step3_reach_above_s to "
+        "cross."
+    )
+    step3_reach_configured_s: float | None = Field(description="The city's configured reach (null: none).")
+    step3_reach_above_s: float
+    crossing_s: float = Field(
+        description="How long the network takes to cross, at least: the longest fastest path to or from a "
+        "landmark (a lower bound on its diameter in travel time)."
+    )
 
 
 class CityOut(ResponseModel):
@@ -80,6 +93,7 @@ class CityOut(ResponseModel):
     def of(cls, city: City) -> CityOut:
         """Describe ``city``."""
         net, grid, hz, p = city.network, city.grid, city.horizon, city.params
+        reach, crossing = step3_reach(city)
         bbox = (
             (float(net.lon.min()), float(net.lat.min()), float(net.lon.max()), float(net.lat.max()))
             if net.n_nodes
@@ -119,6 +133,10 @@ class CityOut(ResponseModel):
                 unit_cost_cny_per_km=p.unit_cost_cny_per_km,
                 subsidy_cny_per_vehicle_hour=p.subsidy_cny_per_vehicle_hour,
                 active_sensing=p.active_sensing,
+                step3_reach_s=reach,
+                step3_reach_configured_s=p.step3_reach_s,
+                step3_reach_above_s=p.step3_reach_above_s,
+                crossing_s=round(crossing, 3),
             ),
             source=city.source,
         )

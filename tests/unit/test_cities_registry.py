@@ -179,3 +179,19 @@ def test_cli_errors(tmp_path: Path) -> None:
     assert import_city_cli(["BAD", "--osm", "a.osm", "--out", str(tmp_path)], stdout=out, stderr=err) != 0
     assert "invalid city name" in err.getvalue()
     assert out.getvalue() == ""
+
+
+def test_cli_import_sets_dispatch_parameters(tmp_path: Path) -> None:
+    """``--param NAME=JSON`` writes the city's dispatch parameters (here Step 3's reach, and none at all);
+    an unknown name or a value the parameter refuses is a usage error that writes nothing."""
+    n, e = _csv(tmp_path)
+    out, err = io.StringIO(), io.StringIO()
+    base = ["--nodes", str(n), "--edges", str(e), "--out", str(tmp_path / "c")]
+    assert import_city_cli(["tiny", *base, "--param", "step3_reach_s=600"], stdout=out, stderr=err) == 0
+    assert import_city_cli(["open", *base, "--param", "step3_reach_s=null"], stdout=out, stderr=err) == 0
+    reg = CityRegistry(user_dir=tmp_path / "c")
+    assert reg.get("tiny").params.step3_reach_s == 600.0
+    assert reg.get("open").params.step3_reach_s is None
+    for bad in ("no_such=1", "step3_reach_s=-5", "step3_reach_s", "step3_reach_s={"):
+        assert import_city_cli(["bad", *base, "--param", bad], stdout=out, stderr=err) == 2, bad
+    assert not (tmp_path / "c" / "bad").exists()

@@ -38,11 +38,11 @@ KAPPAS = (0.0, 0.3, 0.6, 0.9)
 
 @pytest.mark.parametrize("name", ["chengdu", "manhattan"])
 def test_no_reach_on_the_bundled_cities(name: str) -> None:
-    """Both bundled cities take less than the default ``reach_above_s`` (an hour) to cross, so every taxi
-    stays a candidate for every POI there: the paper-scale and city-scale decisions are the method's."""
+    """Both bundled cities take less than the default ``step3_reach_above_s`` (an hour) to cross, so every
+    taxi stays a candidate for every POI there: the paper-scale and city-scale decisions are the method's."""
     city = load_city(BUNDLES / name)
     graph = road_graph(city)
-    assert search.crossing_us(graph) < city.params.reach_above_s * US_PER_S
+    assert search.crossing_us(graph) < city.params.step3_reach_above_s * US_PER_S
     assert step3_reach_us(city, graph) == INF
 
 
@@ -54,16 +54,16 @@ def test_the_reach_applies_on_the_metropolitan_city() -> None:
     graph = road_graph(city)
     crossing = search.crossing_us(graph)
     assert crossing > 3600 * US_PER_S
-    assert step3_reach_us(city, graph) == int(city.params.reach_s * US_PER_S)  # type: ignore[operator]
+    assert step3_reach_us(city, graph) == int(city.params.step3_reach_s * US_PER_S)  # type: ignore[operator]
     lm = search.landmarks(graph)
     assert (lm[lm < INF] <= crossing).all()
 
 
 def _metro(reach_s: float | None) -> City:
     """The generated metropolitan city at a quarter of its size, its reach applied whatever it takes to
-    cross (``reach_above_s`` 0) or switched off."""
+    cross (``step3_reach_above_s`` 0) or switched off."""
     city = _small_metro()
-    return dataclasses.replace(city, params=DispatchParams(reach_s=reach_s, reach_above_s=0.0))
+    return dataclasses.replace(city, params=DispatchParams(step3_reach_s=reach_s, step3_reach_above_s=0.0))
 
 
 @cache
