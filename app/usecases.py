@@ -50,7 +50,7 @@ from services.model import (
     TaxiId,
 )
 from services.rfc3339 import format_time
-from services.sensing import coverage_rate, gamma
+from services.sensing.sensing import coverage_rate, gamma
 
 __all__ = [
     "CityCatalog",

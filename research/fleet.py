@@ -26,8 +26,9 @@ from app.simulation import RunResult, RunSpec
 from app.simulation.outcomes import day_outcomes, hourly_volumes
 from research.runs import city_of, run_all, versions
 from services.city import Horizon
-from services.dro import DIVERGENCES
-from services.fleet import (
+from services.fleet.dro import DIVERGENCES
+from services.fleet.evaluation import Realized, realized_by_hour, realized_fixed, rolling_decisions
+from services.fleet.sizing import (
     Ambiguity,
     CandidateTable,
     Choice,
@@ -38,7 +39,6 @@ from services.fleet import (
     plan_fleet,
     rolling_hour,
 )
-from services.fleet_eval import Realized, realized_by_hour, realized_fixed, rolling_decisions
 
 __all__ = ["FleetExperimentConfig", "Variant", "fleet_specs", "run_fleet_experiment"]
 

@@ -41,8 +41,8 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from services.city import City, DispatchParams, Horizon
-from services.grid import build_edge_cells, build_grid, touched_cells
-from services.network import Network, build_network, largest_strongly_connected
+from services.network.network import Network, build_network, largest_strongly_connected
+from services.sensing.grid import build_edge_cells, build_grid, touched_cells
 
 __all__ = [
     "CityDataError",

@@ -9,10 +9,9 @@
 3. Step 3 (Eq. 13-16): vacant instrumented taxis still free x open POIs (grouped by node); maximize
    matches, then the total phi of the enhanced A* routes (Algorithm 1); then Algorithm 2.
 
-Every assignment is exact (``services.assignment``): gains in fixed point whose sums are exact, waits in
-whole microseconds (the searches' own cost), phi to 2**-40 of the largest. Every path is the canonical
-shortest path of its cost (``services.graph``).
-"""
+Every assignment is exact (``services.matching.assignment``): gains in fixed point whose sums are exact,
+waits in whole microseconds (the searches' own cost), phi to 2**-40 of the largest. Every path is the
+canonical shortest path of its cost (``services.network.graph``)."""
 
 from __future__ import annotations
 
@@ -22,25 +21,11 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from services import search
-from services.algorithm1 import Drive, Route, plan_routes, route_pair
-from services.algorithm2 import improve_routes
-from services.assignment import lexicographic_assignment
 from services.city import City
-from services.gains import (
-    Counted,
-    Gains,
-    counted_csr,
-    counted_rows,
-    eval_pairs,
-    fixed_point_unit,
-    gain_table,
-    pair_gains_q,
-    path_facts,
-)
-from services.graph import INF, US_PER_S, RoadGraph, road_graph
+from services.kernel.parallel import parallel_map
 from services.ledger import Ledger, apply_decision, ledger_view
-from services.legs import Leg, pickups, trips
+from services.matching.assignment import lexicographic_assignment
+from services.matching.legs import Leg, pickups, trips
 from services.model import (
     CountsView,
     Decision,
@@ -56,8 +41,22 @@ from services.model import (
     TaxiId,
     Visit,
 )
-from services.pads import Pads, pads_for
-from services.parallel import parallel_map
+from services.network import search
+from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
+from services.network.pads import Pads, pads_for
+from services.routing.algorithm1 import Drive, Route, plan_routes, route_pair
+from services.routing.algorithm2 import improve_routes
+from services.sensing.gains import (
+    Counted,
+    Gains,
+    counted_csr,
+    counted_rows,
+    eval_pairs,
+    fixed_point_unit,
+    gain_table,
+    pair_gains_q,
+    path_facts,
+)
 from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
 
 __all__ = ["decide", "warm_up", "step3_reach", "step3_reach_us", "path_nodes", "INITIAL_SLOTS", "PHI_BITS"]

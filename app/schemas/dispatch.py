@@ -30,7 +30,7 @@ from app.schemas.tasks import TaskOut, task_doc, task_of
 from app.usecases import EpochResult, StoredDecision
 from services.city import City
 from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
-from services.network import Network
+from services.network.network import Network
 from services.rfc3339 import parse_rfc3339
 
 __all__ = [

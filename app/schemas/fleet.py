@@ -1,4 +1,5 @@
-"""Response models of the fleet-sizing API (docs/FLEET.md) and their conversion from ``services.fleet``.
+"""Response models of the fleet-sizing API (docs/FLEET.md) and their conversion from
+``services.fleet.sizing``.
 
 The worker publishes a recommendation (``app.worker.sizing.Recommendation``) as the JSON of
 :class:`RecommendationBody` (``render_recommendation``, which the worker is given); the API adds the store's
@@ -15,7 +16,7 @@ from pydantic import Field
 
 from app.ports import FleetRecord
 from app.schemas.common import ResponseModel
-from services.fleet import CandidateTable, Choice, RollingHour, SubsidyPoint
+from services.fleet.sizing import CandidateTable, Choice, RollingHour, SubsidyPoint
 from services.rfc3339 import format_time
 
 if TYPE_CHECKING:  # the worker's machinery stays out of the API process

@@ -20,7 +20,7 @@ from services.city import City
 from services.citydata import load_city, read_meta
 from services.dispatch import warm_up
 from services.model import Task, TaskId
-from services.network import SnapError
+from services.network.network import SnapError
 from services.sim.demand import DemandSet
 from services.sim.demand_chengdu import PoiDensity, chengdu_demand, poi_density, read_pois_csv
 from services.sim.demand_nyc import TripRecords, manhattan_demand, read_nyc_requests

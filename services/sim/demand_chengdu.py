@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from services.city import City
-from services.grid import cells_of_points
+from services.sensing.grid import cells_of_points
 from services.sim.demand import DemandFileError, DemandSet, Request, demand_rng
 
 __all__ = [

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.city import City
-from services.sensing import coverage_rate, gamma
+from services.sensing.sensing import coverage_rate, gamma
 from services.sim.engine import RunTrace
 
 __all__ = [

@@ -12,7 +12,7 @@ import pytest
 
 from app.cities import BUNDLED_DIR, CityRegistry, UnknownCity, import_city, import_city_cli
 from services.citydata import CityDataError, load_city
-from services.network import SnapError
+from services.network.network import SnapError
 
 NODES = "id,lon,lat\n1,104.000,30.000\n2,104.001,30.000\n3,104.001,30.001\n"
 EDGES = "u,v,length_m\n1,2,100\n2,3,110\n3,1,150\n"

@@ -21,7 +21,7 @@ from services.citydata import (
     save_bundle,
     validate_city_name,
 )
-from services.network import Network
+from services.network.network import Network
 
 # ---------------------------------------------------------------------------------------------- OSM
 

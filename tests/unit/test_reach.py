@@ -19,17 +19,17 @@ from numpy.typing import NDArray
 
 from bench import metro
 from bench.load import Centres, CentresDemand, Load, Platform
-from services import search
-from services.algorithm1 import Plans, plan_routes
-from services.assignment import lexicographic_assignment
 from services.city import City, DispatchParams
 from services.citydata import load_city
 from services.dispatch import PHI_BITS, decide, step3_reach_us
-from services.gains import Counted, Gains, counted_csr, gain_table
-from services.graph import INF, US_PER_S, RoadGraph, road_graph
 from services.ledger import Ledger, apply_decision, ledger_view
+from services.matching.assignment import lexicographic_assignment
 from services.model import CountsView, IntervalKey, Snapshot, Task
-from services.pads import Pads
+from services.network import search
+from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
+from services.network.pads import Pads
+from services.routing.algorithm1 import Plans, plan_routes
+from services.sensing.gains import Counted, Gains, counted_csr, gain_table
 from tests import reference as ref
 
 BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"

@@ -16,12 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services import algorithm1, search
-from services.algorithm1 import Drive, plan_one, plan_routes, route_pair
-from services.algorithm2 import improve_routes
 from services.citydata import load_city
 from services.dispatch import decide
-from services.gains import (
+from services.kernel.parallel import parallel_map
+from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
+from services.network import search
+from services.network.graph import INF, prepare, road_graph
+from services.network.pads import Pads
+from services.routing import algorithm1
+from services.routing.algorithm1 import Drive, plan_one, plan_routes, route_pair
+from services.routing.algorithm2 import improve_routes
+from services.sensing.gains import (
     counted_csr,
     eval_path,
     eval_tree,
@@ -32,11 +37,7 @@ from services.gains import (
     timed_pairs,
     tree_scratch,
 )
-from services.graph import INF, prepare, road_graph
-from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
-from services.pads import Pads
-from services.parallel import parallel_map
-from services.sensing import timed_cells
+from services.sensing.sensing import timed_cells
 from tests import reference as ref
 from tests.citymaker import T0, make_city
 

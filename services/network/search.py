@@ -3,13 +3,13 @@
 One Dijkstra serves every search of an epoch: the fastest-path trees of riders and POIs, the pickup
 searches bounded by the matching radius, the utility-discounted trees of Algorithm 1 and the legs of
 matched pairs. Costs are positive whole microseconds and ties are broken by the per-edge tie words
-(``services.graph``): a node's label is ``(cost, tie1, tie2)``, compared in that order, and the heap is
-keyed on ``cost`` alone. That is enough for an exact lexicographic search: every edge costs at least 1, so
-all labels that could still improve a node of cost ``c`` come from nodes of smaller cost, which are
+(``services.network.graph``): a node's label is ``(cost, tie1, tie2)``, compared in that order, and the
+heap is keyed on ``cost`` alone. That is enough for an exact lexicographic search: every edge costs at least
+1, so all labels that could still improve a node of cost ``c`` come from nodes of smaller cost, which are
 settled (and have relaxed their edges) before any node of cost ``c`` is taken from the heap.
 
-The search settles *kept* nodes only (``services.contraction``); a chain's interior node is resolved from
-the ends of its chain when asked for (``resolve``), and the predecessor edges of the original nodes on
+The search settles *kept* nodes only (``services.network.contraction``); a chain's interior node is resolved
+from the ends of its chain when asked for (``resolve``), and the predecessor edges of the original nodes on
 the tree path to a node are written when it is unfolded (``unfold``). Results are those of a plain
 Dijkstra with the same rule on the original network (``tests/unit/test_search.py`` checks this against a
 reference written in Python).
@@ -28,7 +28,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from services.graph import (
+from services.kernel.jit import compiled, compiled_inline
+from services.network.graph import (
     INF,
     Costs,
     Edges,
@@ -39,7 +40,6 @@ from services.graph import (
     lazy_fill,
     no_lazy,
 )
-from services.jit import compiled, compiled_inline
 
 __all__ = [
     "RING",

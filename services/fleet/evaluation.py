@@ -8,7 +8,7 @@ about which method is better.
 
 * :func:`realized_fixed`: one size all day (Deterministic, DRO).
 * :func:`rolling_decisions`: DRO_RH on a test day -- before every hour it conditions on the hours of *that*
-  day already past and decides (:func:`services.fleet.rolling_hour`).
+  day already past and decides (:func:`services.fleet.sizing.rolling_hour`).
 * :func:`realized_by_hour`: the cost of hour-by-hour sizes.
 
 Approximation: each run keeps one fleet size all day, so the cost of hour ``h`` at size ``x_h`` is taken from
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from services.fleet import (
+from services.fleet.sizing import (
     Ambiguity,
     CostModel,
     DayOutcomes,

@@ -7,20 +7,20 @@ pieces are the divergences (:mod:`.divergences`), the radius rule (:mod:`.radius
 (:mod:`.box_lp`). docs/DRO.md explains the engine.
 """
 
-from services.dro.box_lp import coordinate_bounds, solve_box_lp
-from services.dro.divergences import (
+from services.fleet.dro.box_lp import coordinate_bounds, solve_box_lp
+from services.fleet.dro.divergences import (
     DIVERGENCE_NAMES,
     DIVERGENCES,
     Divergence,
     divergence_value,
     get_divergence,
 )
-from services.dro.engine import DEFAULT_ALPHA, worst_case
-from services.dro.exact import dual_objective, solve_exact
-from services.dro.inputs import DroInputError
-from services.dro.radius import rho_from_alpha
-from services.dro.result import METHODS, Method, Status, WorstCase
-from services.dro.support import (
+from services.fleet.dro.engine import DEFAULT_ALPHA, worst_case
+from services.fleet.dro.exact import dual_objective, solve_exact
+from services.fleet.dro.inputs import DroInputError
+from services.fleet.dro.radius import rho_from_alpha
+from services.fleet.dro.result import METHODS, Method, Status, WorstCase
+from services.fleet.dro.support import (
     SUPPORT_KINDS,
     Support,
     SupportKind,

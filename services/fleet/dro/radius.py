@@ -7,8 +7,8 @@ import math
 
 from scipy.special import chdtri
 
-from services.dro.divergences import Divergence, get_divergence
-from services.dro.inputs import DroInputError, check_alpha
+from services.fleet.dro.divergences import Divergence, get_divergence
+from services.fleet.dro.inputs import DroInputError, check_alpha
 
 __all__ = ["rho_from_alpha"]
 

@@ -11,8 +11,8 @@ import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from services import search
-from services.graph import RoadGraph
+from services.network import search
+from services.network.graph import RoadGraph
 
 __all__ = ["Pad", "Pads", "pads_for"]
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from services.jit import compiled, compiled_inline
+from services.kernel.jit import compiled, compiled_inline
 
 __all__ = ["Assignment", "lexicographic_assignment"]
 

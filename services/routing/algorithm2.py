@@ -17,13 +17,13 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from services.algorithm1 import Drive, Route, evaluate, plan_one
 from services.city import City
-from services.gains import Counted, gain_table, joint_utility, route_pairs
-from services.graph import RoadGraph
+from services.kernel.parallel import parallel_map
 from services.model import CountsView, TaxiId
-from services.pads import Pads
-from services.parallel import parallel_map
+from services.network.graph import RoadGraph
+from services.network.pads import Pads
+from services.routing.algorithm1 import Drive, Route, evaluate, plan_one
+from services.sensing.gains import Counted, gain_table, joint_utility, route_pairs
 
 __all__ = ["improve_routes"]
 

@@ -11,11 +11,11 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from services import search
-from services.graph import US_PER_S, Costs, Edges, RoadGraph, SearchGraph
-from services.jit import compiled
-from services.pads import Pads
-from services.parallel import parallel_map
+from services.kernel.jit import compiled
+from services.kernel.parallel import parallel_map
+from services.network import search
+from services.network.graph import US_PER_S, Costs, Edges, RoadGraph, SearchGraph
+from services.network.pads import Pads
 
 __all__ = ["Pickups", "pickups", "trips", "Leg"]
 

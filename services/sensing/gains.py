@@ -4,9 +4,9 @@ A :class:`Gains` table holds, for the intervals ``k0 .. k0+S-1`` of an epoch (ro
 cell, the term ``mu_t s_g ((Lambda + 1)**rho - Lambda**rho)`` that a first visit adds, and a fixed-point
 copy of it: ``term_q = ceil(term / unit)`` for a positive term, 0 for a zero one. The fixed-point sums are
 exact and do not depend on the order of addition, which the exact assignments of Steps 1-3 need
-(``services.assignment``); a positive term never rounds to 0, so a path's fixed-point gain is positive
-exactly when its gain is. A taxi already counted in a (slot, cell) gains nothing there: the kernels take a
-*zero mask* per taxi instead of a copy of the table per taxi.
+(``services.matching.assignment``); a positive term never rounds to 0, so a path's fixed-point gain is
+positive exactly when its gain is. A taxi already counted in a (slot, cell) gains nothing there: the kernels
+take a *zero mask* per taxi instead of a copy of the table per taxi.
 
 Path evaluation (docs/METHOD.md section 3): edge ``i`` of a path starts at the departure time plus the
 running sum of the earlier edges' times; a crossing at ``start + fraction x edge time`` falls in the
@@ -17,16 +17,18 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services.city import City
-from services.graph import Edges, road_graph
-from services.jit import compiled, compiled_inline
+from services.kernel.jit import compiled, compiled_inline
 from services.model import IntervalKey, TaxiId
-from services.sensing import theta_gain
+from services.network.graph import Edges, road_graph
+from services.sensing.sensing import theta_gain
+
+if TYPE_CHECKING:
+    from services.city import City
 
 __all__ = [
     "Gains",

@@ -13,7 +13,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from services.dro.inputs import DroInputError, as_samples
+from services.fleet.dro.inputs import DroInputError, as_samples
 
 __all__ = ["SupportKind", "SUPPORT_KINDS", "Support", "binned_support", "sample_support", "make_support"]
 

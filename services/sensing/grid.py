@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from services.network import Network
+from services.network.network import Network
 
 __all__ = [
     "Grid",

@@ -18,8 +18,8 @@ The kappa = 0 cost is the travel time whatever the taxi, and a taxi's kappa > 0 
 largest utility is not the base's (every edge of the largest utility enters a cell it is counted in: its
 own normalization). So when an epoch has fewer POIs than taxis, the routes come from one in-tree per POI
 and kappa instead of one tree per taxi and kappa, and a taxi searches again only where its in-tree route
-enters one of its counted cells: the canonical path (``services.graph``) under the base costs avoids every
-edge where the taxi's costs differ, and those are nowhere lower, so it is the taxi's canonical path too.
+enters one of its counted cells: the canonical path (``services.network.graph``) under the base costs avoids
+every edge where the taxi's costs differ, and those are nowhere lower, so it is the taxi's canonical path too.
 Both ways give the same routes, and the tests check it. A taxi's own costs are computed as its searches
 reach each edge (``graph.Lazy``), never for the whole network.
 """
@@ -35,17 +35,10 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from services import search
-from services.gains import (
-    Counted,
-    Gains,
-    TreeScratch,
-    eval_path,
-    eval_tree,
-    mark,
-    tree_scratch,
-)
-from services.graph import (
+from services.kernel.jit import compiled, compiled_inline
+from services.kernel.parallel import parallel_map
+from services.network import search
+from services.network.graph import (
     INF,
     Costs,
     Edges,
@@ -57,9 +50,16 @@ from services.graph import (
     no_lazy,
     prepare_into,
 )
-from services.jit import compiled, compiled_inline
-from services.pads import Pad, Pads
-from services.parallel import parallel_map
+from services.network.pads import Pad, Pads
+from services.sensing.gains import (
+    Counted,
+    Gains,
+    TreeScratch,
+    eval_path,
+    eval_tree,
+    mark,
+    tree_scratch,
+)
 
 __all__ = [
     "Plans",

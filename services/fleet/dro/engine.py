@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from numpy.typing import ArrayLike
 
-from services.dro.box_lp import solve_box_lp
-from services.dro.divergences import DIVERGENCE_NAMES, DIVERGENCES, Divergence
-from services.dro.exact import solve_exact
-from services.dro.inputs import DroInputError, check_rho
-from services.dro.radius import rho_from_alpha
-from services.dro.result import METHODS, WorstCase
-from services.dro.support import make_support
+from services.fleet.dro.box_lp import solve_box_lp
+from services.fleet.dro.divergences import DIVERGENCE_NAMES, DIVERGENCES, Divergence
+from services.fleet.dro.exact import solve_exact
+from services.fleet.dro.inputs import DroInputError, check_rho
+from services.fleet.dro.radius import rho_from_alpha
+from services.fleet.dro.result import METHODS, WorstCase
+from services.fleet.dro.support import make_support
 
 __all__ = ["DEFAULT_ALPHA", "worst_case"]
 
@@ -37,15 +37,15 @@ def worst_case(
         One of ``kl`` (default), ``burg``, ``j``, ``chi2``, ``modified_chi2``, ``hellinger``, ``variation``.
     alpha, rho
         Either the significance level (default 0.05; ``ρ`` then follows Eq. (25) with ``m`` cells, see
-        :func:`~services.dro.radius.rho_from_alpha`) or the radius itself; not both.
+        :func:`~services.fleet.dro.radius.rho_from_alpha`) or the radius itself; not both.
     support
         ``"binned"`` (default; ``bins`` equal-width bins over ``[min, max]``, bin means as values) or
         ``"samples"`` (one cell per sample, ``m = M``).
     bins
         ``w``, the number of bins (``>= 2``).
     method
-        ``"exact"`` (default; :func:`~services.dro.exact.solve_exact` on the bin means) or ``"box_lp"`` (the
-        paper's Eq. (28) on the bin midpoints, binned support only).
+        ``"exact"`` (default; :func:`~services.fleet.dro.exact.solve_exact` on the bin means) or
+        ``"box_lp"`` (the paper's Eq. (28) on the bin midpoints, binned support only).
 
     Raises
     ------

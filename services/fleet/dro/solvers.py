@@ -8,7 +8,7 @@ is handed over *reduced*: the distinct values ``f`` of the cells with ``q > 0`` 
 summed, ``Σ q = 1``), normalized to ``Σ q f = 0`` and range at most 1, plus, for a divergence that lets
 mass pop, the value of the highest empty cell when it lies above every ``f`` (every other empty cell is
 dominated: a unit of mass costs ``L`` on any of them). Saturation, ``ρ = 0`` and a single value are dealt
-with by the caller (:mod:`services.dro.exact`).
+with by the caller (:mod:`services.fleet.dro.exact`).
 
 Every solver returns the worst-case ``p`` over the reduced cells, the mass popped to the empty cell, and
 the dual certificate ``(η, λ)`` of the convex dual (Ben-Tal et al. 2013)::
@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import brentq
 
-from services.dro.divergences import j_inverse_derivative
+from services.fleet.dro.divergences import j_inverse_derivative
 
 __all__ = ["Reduced", "ReducedSolution", "SOLVERS", "Unbracketed"]
 
@@ -373,7 +373,7 @@ def solve_j(r: Reduced, *, fast: bool = True) -> ReducedSolution:
     """J-divergence (``φ(t) = (t - 1) log t``, no closed-form φ*): the 2-D dual, by Newton or nested roots.
 
     The KKT point is ``p_j = q_j t_j`` with ``φ'(t_j) = (f_j - η)/λ`` (``φ'(t) = log t + 1 - 1/t``, inverted
-    by :func:`~services.dro.divergences.j_inverse_derivative`). Written from the top cell,
+    by :func:`~services.fleet.dro.divergences.j_inverse_derivative`). Written from the top cell,
     ``φ'(t_j) = c - a g_j`` with ``a = 1/λ``, ``c = φ'(t_top)`` and ``g_j = f_top - f_j >= 0`` (no
     cancellation however small λ gets). ``fast``: Newton's method on both equations first. Otherwise, or
     when it does not converge, nested roots: for each ``a`` the ``c`` with ``Σ q t = 1`` lies in

@@ -9,23 +9,25 @@ and lets point-to-point legs be searched from both ends, with every decision the
 straightforward one-search-per-taxi computation (``docs/DISPATCH.md``, "Canonical shortest paths").
 
 :class:`SearchGraph` is one direction of the network with its chains of degree-2 nodes contracted
-(``services.contraction``); :class:`Edges` holds the per-edge arrays. Both are ``NamedTuple`` s of arrays
-so that the compiled kernels (``services.search``, ``services.gains``, ``services.algorithm1``) take them
-as one typed argument each.
+(``services.network.contraction``); :class:`Edges` holds the per-edge arrays. Both are ``NamedTuple`` s
+of arrays so that the compiled kernels (``services.network.search``, ``services.sensing.gains``,
+``services.routing.algorithm1``) take them as one typed argument each.
 """
 
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services.city import City
-from services.contraction import contract
-from services.jit import compiled, compiled_inline
+from services.kernel.jit import compiled, compiled_inline
+from services.network.contraction import contract
+
+if TYPE_CHECKING:
+    from services.city import City
 
 __all__ = [
     "Edges",

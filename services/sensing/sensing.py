@@ -9,12 +9,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services.city import City
 from services.model import IntervalKey
+
+if TYPE_CHECKING:
+    from services.city import City
 
 __all__ = [
     "theta",

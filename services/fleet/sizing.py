@@ -26,7 +26,7 @@ the largest candidate win.
   When none does the method takes the size with the best completion and says ``target_met=False``.
 
 Ties (values equal within a relative ``1e-9``) are broken toward the **smaller** fleet and reported
-(``status="tie"``). The worst-case expectation is :func:`services.dro.worst_case` with the
+(``status="tie"``). The worst-case expectation is :func:`services.fleet.dro.worst_case` with the
 :class:`Ambiguity` given; every table row carries the paper's box LP (Eq. (28)) beside the exact value.
 
 Because ζ x is a constant for a given ``x``, the worst case of the total is the worst case of the Step 3
@@ -44,8 +44,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from services.dro import SUPPORT_KINDS, DroInputError, SupportKind, get_divergence, worst_case
-from services.dro.inputs import check_alpha
+from services.fleet.dro import SUPPORT_KINDS, DroInputError, SupportKind, get_divergence, worst_case
+from services.fleet.dro.inputs import check_alpha
 
 __all__ = [
     "TIE_RTOL",

@@ -18,10 +18,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linprog
 
-from services.dro.divergences import Divergence, divergence_value, get_divergence
-from services.dro.exact import check_problem
-from services.dro.inputs import check_rho
-from services.dro.result import Status, WorstCase
+from services.fleet.dro.divergences import Divergence, divergence_value, get_divergence
+from services.fleet.dro.exact import check_problem
+from services.fleet.dro.inputs import check_rho
+from services.fleet.dro.result import Status, WorstCase
 
 __all__ = ["coordinate_bounds", "solve_box_lp"]
 

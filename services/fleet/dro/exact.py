@@ -2,7 +2,7 @@
 
 :func:`solve_exact` reduces the problem (equal values merged, the one empty cell mass could usefully pop
 to kept), normalizes the values, handles ``ρ = 0``, a single value and saturation, then calls the
-divergence's solver in :mod:`services.dro.solvers` and maps the worst-case distribution back onto the
+divergence's solver in :mod:`services.fleet.dro.solvers` and maps the worst-case distribution back onto the
 given cells. :func:`dual_objective` evaluates the convex dual, so a returned ``(η, λ)`` certifies the value.
 """
 
@@ -13,10 +13,10 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from services.dro.divergences import Divergence, divergence_value, get_divergence
-from services.dro.inputs import DroInputError, check_rho
-from services.dro.result import Status, WorstCase
-from services.dro.solvers import SOLVERS, Reduced, Unbracketed
+from services.fleet.dro.divergences import Divergence, divergence_value, get_divergence
+from services.fleet.dro.inputs import DroInputError, check_rho
+from services.fleet.dro.result import Status, WorstCase
+from services.fleet.dro.solvers import SOLVERS, Reduced, Unbracketed
 
 __all__ = ["check_problem", "solve_exact", "dual_objective"]
 
@@ -59,7 +59,7 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
         Radius, ``>= 0``.
     divergence
         Name (``"kl"``, ``"burg"``, ``"j"``, ``"chi2"``, ``"modified_chi2"``, ``"hellinger"``,
-        ``"variation"``) or :class:`~services.dro.divergences.Divergence`.
+        ``"variation"``) or :class:`~services.fleet.dro.divergences.Divergence`.
 
     Returns
     -------
