@@ -9,5 +9,18 @@ section 4).
 
 from services.matching.assignment import Assignment, lexicographic_assignment
 from services.matching.legs import Leg, Pickups, pickups, trips
+from services.matching.steps import Match, Step1, select, step1_sensing_matches, step2_regular_matches
 
-__all__ = ["Pickups", "pickups", "trips", "Leg", "Assignment", "lexicographic_assignment"]
+__all__ = [
+    "Pickups",
+    "pickups",
+    "trips",
+    "Leg",
+    "Assignment",
+    "lexicographic_assignment",
+    "Match",
+    "Step1",
+    "select",
+    "step1_sensing_matches",
+    "step2_regular_matches",
+]

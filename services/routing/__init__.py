@@ -19,6 +19,7 @@ from services.routing.algorithm1 import (
     scratch,
 )
 from services.routing.algorithm2 import improve_routes
+from services.routing.step3 import PHI_BITS, Step3, step3_monitoring_routes, step3_reach, step3_reach_us
 
 __all__ = [
     "Plans",
@@ -31,5 +32,10 @@ __all__ = [
     "route_pair",
     "evaluate",
     "kit",
+    "PHI_BITS",
+    "Step3",
+    "step3_monitoring_routes",
+    "step3_reach",
+    "step3_reach_us",
     "improve_routes",
 ]

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.city import City
+from services.epoch import Epoch
 from services.kernel.parallel import parallel_map
 from services.model import CountsView, TaxiId
 from services.network.graph import RoadGraph
@@ -29,21 +30,16 @@ __all__ = ["improve_routes"]
 
 
 def improve_routes(
-    city: City,
-    graph: RoadGraph,
-    counts: CountsView,
+    ep: Epoch,
     taxi_ids: Sequence[TaxiId],
     counted: Counted,
     routes: list[Route],
     fastest: Sequence[NDArray[np.int64]],
-    depart_s: float,
-    k0: int,
     n_slots: int,
-    workers: int,
-    pads: Pads,
 ) -> tuple[list[Route], list[float], int]:
     """Algorithm 2 over ``routes`` (route ``i`` is taxi ``taxi_ids[i]``'s, row ``i`` of ``counted``;
-    ``fastest[i]`` its fastest path to the same POI). Returns the routes, the joint utility after the
+    ``fastest[i]`` its fastest path to the same POI), every route departing at ``ep.now`` on gain tables of
+    ``n_slots`` intervals from ``ep.k0``. Returns the routes, the joint utility after the
     initial matching and after each accepted re-plan, and the number of passes.
 
     The others' planned visits enter each re-plan's gain table as a dense count per (slot, cell), kept up
@@ -52,6 +48,15 @@ def improve_routes(
     ``workers`` threads) and taken in order; after an acceptance the rest of the batch is planned again
     against the new counts, so the outcome is that of one re-plan after the other.
     """
+    city, graph, counts, depart_s, k0, workers, pads = (
+        ep.city,
+        ep.graph,
+        ep.counts,
+        ep.now,
+        ep.k0,
+        ep.workers,
+        ep.pads,
+    )
     kappas = city.params.kappas
     visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
     pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
@@ -97,13 +102,7 @@ def improve_routes(
         changed = False
         i = 0
         while i < len(routes):
-            todo: list[int] = []
-            j = i
-            while j < len(routes) and len(todo) < batch:
-                if planned_at[j] != accepted:
-                    todo.append(j)
-                j += 1
-            i = j
+            todo, i = _next_batch(planned_at, accepted, i, batch)
             results = parallel_map(functools.partial(replan, total_n), todo, workers)
             for a, (cand, others_n) in zip(todo, results, strict=True):
                 planned_at[a] = accepted
@@ -135,6 +134,17 @@ def improve_routes(
         history,
         passes,
     )
+
+
+def _next_batch(planned_at: Sequence[int], accepted: int, i: int, batch: int) -> tuple[list[int], int]:
+    """Up to ``batch`` routes from ``i`` on not re-planned since the last acceptance, and where to go on."""
+    todo: list[int] = []
+    j = i
+    while j < len(planned_at) and len(todo) < batch:
+        if planned_at[j] != accepted:
+            todo.append(j)
+        j += 1
+    return todo, j
 
 
 def _own_gains(

@@ -21,7 +21,7 @@ from bench import metro
 from bench.load import Centres, CentresDemand, Load, Platform
 from services.city import City, DispatchParams
 from services.citydata import load_city
-from services.dispatch import PHI_BITS, decide, step3_reach_us
+from services.dispatch import decide
 from services.ledger import Ledger, apply_decision, ledger_view
 from services.matching.assignment import lexicographic_assignment
 from services.model import CountsView, IntervalKey, Snapshot, Task
@@ -29,6 +29,7 @@ from services.network import search
 from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
 from services.network.pads import Pads
 from services.routing.algorithm1 import Plans, plan_routes
+from services.routing.step3 import PHI_BITS, step3_reach_us
 from services.sensing.gains import Counted, Gains, counted_csr, gain_table
 from tests import reference as ref
 

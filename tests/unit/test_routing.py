@@ -18,6 +18,7 @@ import pytest
 
 from services.citydata import load_city
 from services.dispatch import decide
+from services.epoch import Epoch
 from services.kernel.parallel import parallel_map
 from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
 from services.network import search
@@ -379,7 +380,8 @@ def test_algorithm2_against_the_book(workers: int) -> None:
                 routes.append(plan_one(graph, gn, counted, drive, f, KAPPAS, now, pad))
             fastest.append(f)
             assert routes[-1].edges.tolist() == edges
-        got = improve_routes(city, graph, counts, taxis, counted, routes, fastest, now, k0, 3, workers, pads)
+        ep = Epoch(city, graph, counts, now, k0, workers, pads)
+        got = improve_routes(ep, taxis, counted, routes, fastest, 3)
         assert got[2] == expect[2]
         assert got[1] == pytest.approx(expect[1], rel=1e-12)
         assert [r.edges.tolist() for r in got[0]] == [e for _, e, _ in expect[0]]
