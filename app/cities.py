@@ -16,17 +16,8 @@ from typing import Any, Literal, TextIO
 from app.errors import UnknownCityError
 from app.settings import Settings
 from services.city import City
-from services.citydata import (
-    CityDataError,
-    CityMeta,
-    ImportResult,
-    load_city,
-    read_csv_network,
-    read_osm,
-    save_bundle,
-    sha256_of,
-    validate_city_name,
-)
+from services.citydata import CityDataError, CityMeta, load_city, save_bundle, sha256_of, validate_city_name
+from services.importers import ImportResult, read_csv_network, read_osm
 
 __all__ = [
     "BUNDLED_DIR",
