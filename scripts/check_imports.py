@@ -1,4 +1,4 @@
-"""Find import circles among the modules of ``services/``, ``app/`` and ``research/``; exit 1 when there is one.
+"""Find import circles among the modules of ``services/``, ``app/`` and ``research/``; exit 1 on one.
 
 Every import statement counts, wherever it is (at module level, inside a function, under
 ``if TYPE_CHECKING:``): a lazy import breaks a circle at run time, not in the design. ``from a.b import c``

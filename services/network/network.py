@@ -1,6 +1,6 @@
 """Road network as flat arrays: nodes with lon/lat and projected metres, directed edges in CSR order.
 
-Implementation owner: the cities work (see docs/DESIGN.md). Field names here are the contract.
+Field names here are the contract the importers, the bundles and the searches share.
 
 Build a network with :func:`build_network` (external ids in, indices out) and keep its largest strongly
 connected component with :func:`largest_strongly_connected`. Positions given as lon/lat snap to the nearest

@@ -1,6 +1,6 @@
 """The 1 km sensing grid G and the cells each edge crosses (docs/METHOD.md section 2).
 
-Implementation owner: the cities work (see docs/DESIGN.md). Field names here are the contract.
+Field names here are the contract the city, the gains and the GeoJSON documents share.
 
 Definitions (exact, so tests and clients can reproduce them):
 
