@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -44,20 +45,34 @@ class Pickups:
 _Found = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
 
 
+class _Tree(NamedTuple):
+    """The reverse search the pickups grow their in-trees with: the edges, the reverse graph, the pad's
+    reverse workspace and the travel-time costs."""
+
+    ed: Edges
+    rg: SearchGraph
+    ws: search.Workspace
+    time_costs: Costs
+
+
+class _Hits(NamedTuple):
+    """Per candidate (taxi) of a rider: whether its fastest pickup path is within the radius, that path's
+    wait (whole microseconds and seconds) and length."""
+
+    ok: NDArray[np.bool_]
+    wait_us: NDArray[np.int64]
+    wait_s: NDArray[np.float64]
+    length_m: NDArray[np.float64]
+
+
 @compiled
 def _within(
-    ed: Edges,
-    rg: SearchGraph,
-    ws: search.Workspace,
-    time_costs: Costs,
+    tree: _Tree,
     origin: int,
     limit_us: int,
     radius_m: float,
     nodes: NDArray[np.int64],
-    ok: NDArray[np.bool_],
-    wait_us: NDArray[np.int64],
-    wait_s: NDArray[np.float64],
-    length_m: NDArray[np.float64],
+    hits: _Hits,
     slot: NDArray[np.int64],
     uniq: NDArray[np.int64],
 ) -> None:
@@ -65,6 +80,8 @@ def _within(
     to the origin is at most ``radius_m`` long, with that path's wait and length. A node several taxis
     stand on is resolved and walked once (``slot``: -1 per node on entry and on return; ``uniq``: room for
     the distinct nodes)."""
+    ed, rg, ws, time_costs = tree.ed, tree.rg, tree.ws, tree.time_costs
+    ok, wait_us, wait_s, length_m = hits.ok, hits.wait_us, hits.wait_s, hits.length_m
     n_u = 0
     for i in range(nodes.shape[0]):
         v = nodes[i]
@@ -109,30 +126,22 @@ def _within(
 
 @compiled
 def _within_many(
-    ed: Edges,
-    rg: SearchGraph,
-    ws: search.Workspace,
-    time_costs: Costs,
+    tree: _Tree,
     origins: NDArray[np.int64],
     ptr: NDArray[np.int64],
     nodes: NDArray[np.int64],
     limit_us: int,
     radius_m: float,
-    ok: NDArray[np.bool_],
-    wait_us: NDArray[np.int64],
-    wait_s: NDArray[np.float64],
-    length_m: NDArray[np.float64],
+    hits: _Hits,
 ) -> None:
     """``_within`` for several riders in one call: rider ``q``'s candidates are ``nodes[ptr[q]:ptr[q+1]]``."""
-    slot = np.full(ws.pred.shape[0], -1, dtype=np.int64)
-    uniq = np.empty(ws.pred.shape[0], dtype=np.int64)
+    slot = np.full(tree.ws.pred.shape[0], -1, dtype=np.int64)
+    uniq = np.empty(tree.ws.pred.shape[0], dtype=np.int64)
     for q in range(origins.shape[0]):
         lo, hi = ptr[q], ptr[q + 1]
         if hi > lo:
-            _within(
-                ed, rg, ws, time_costs, origins[q], limit_us, radius_m, nodes[lo:hi], ok[lo:hi],
-                wait_us[lo:hi], wait_s[lo:hi], length_m[lo:hi], slot, uniq,
-            )  # fmt: skip
+            part = _Hits(hits.ok[lo:hi], hits.wait_us[lo:hi], hits.wait_s[lo:hi], hits.length_m[lo:hi])
+            _within(tree, origins[q], limit_us, radius_m, nodes[lo:hi], part, slot, uniq)
 
 
 def pickups(
@@ -179,10 +188,8 @@ def pickups(
         w_s = np.zeros(len(flat))
         length = np.zeros(len(flat))
         with pads.take() as pad:
-            _within_many(
-                ed, graph.reverse, pad.reverse, graph.time_reverse, orig, ptr, nodes, limit_us,
-                float(radius_m), ok, w_us, w_s, length,
-            )  # fmt: skip
+            tree = _Tree(ed, graph.reverse, pad.reverse, graph.time_reverse)
+            _within_many(tree, orig, ptr, nodes, limit_us, float(radius_m), _Hits(ok, w_us, w_s, length))
         out = []
         for q in range(len(rs)):
             sl = slice(ptr[q], ptr[q + 1])

@@ -102,29 +102,12 @@ def _interiors(
     return interior, dead_end
 
 
-def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contraction:
-    """Contract the degree-2 chains of the CSR graph ``(indptr, head)``.
-
-    Parameters
-    ----------
-    indptr : (n+1,) int
-        Out-edges of node ``u`` are edges ``indptr[u]:indptr[u+1]``.
-    head : (m,) int
-        Head node of each edge.
-
-    Returns
-    -------
-    Contraction
-        Kept nodes, super-edges and the position of every interior node.
-    """
-    indptr = np.asarray(indptr, dtype=np.int64)
-    head64 = np.asarray(head, dtype=np.int64)
-    n = int(indptr.shape[0] - 1)
-    m = int(head64.shape[0])
-    tail = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
-    interior, dead_end = _interiors(indptr, head64, tail)
-    ip = indptr.tolist()
-    hd = head64.tolist()
+def _chains(
+    ip: list[int], hd: list[int], tail: NDArray[np.int64], interior: NDArray[np.bool_]
+) -> list[list[int]]:
+    """The edges of every chain, walked from each kept node's out-edges; edges left over lie on cycles of
+    interior nodes only, and one node of each such cycle is kept (``interior`` is updated)."""
+    m = len(hd)
     edge_se = [-1] * m
     chains: list[list[int]] = []
 
@@ -148,22 +131,14 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
             interior[u] = False
             for f in range(ip[u], ip[u + 1]):
                 walk(f)
+    return chains
 
-    order = sorted(range(len(chains)), key=lambda s: chains[s][0])  # by first edge = by tail, CSR order
-    chains = [chains[s] for s in order]
-    n_se = len(chains)
-    kept = np.flatnonzero(~interior).astype(np.int64)
-    kept_of = np.full(n, -1, dtype=np.int64)
-    kept_of[kept] = np.arange(kept.shape[0], dtype=np.int64)
-    se_ptr = np.zeros(n_se + 1, dtype=np.int64)
-    se_ptr[1:] = np.cumsum([len(c) for c in chains])
-    se_edges = np.array([e for c in chains for e in c], dtype=np.int64)
-    se_tail = kept_of[tail[se_edges[se_ptr[:-1]]]] if n_se else np.zeros(0, dtype=np.int64)
-    se_head = kept_of[head64[se_edges[se_ptr[1:] - 1]]] if n_se else np.zeros(0, dtype=np.int64)
-    k_indptr = np.zeros(kept.shape[0] + 1, dtype=np.int64)
-    np.add.at(k_indptr, se_tail + 1, 1)
-    k_indptr = np.cumsum(k_indptr)
 
+def _positions(
+    chains: list[list[int]], hd: list[int], tail: NDArray[np.int64], interior: NDArray[np.bool_]
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Each chain's reverse chain (-1 none) and each interior node's (chain, offset) on at most two chains."""
+    n, m, n_se = len(interior), len(hd), len(chains)
     first_of = {c[0]: s for s, c in enumerate(chains)}
     edge_id = {(int(tail[e]), hd[e]): e for e in range(m)}
     se_rev = np.full(n_se, -1, dtype=np.int64)
@@ -188,6 +163,48 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
         for j, (s, off) in enumerate(ps):
             pos_se[v, j] = s
             pos_off[v, j] = off
+    return se_rev, pos_se, pos_off
+
+
+def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contraction:
+    """Contract the degree-2 chains of the CSR graph ``(indptr, head)``.
+
+    Parameters
+    ----------
+    indptr : (n+1,) int
+        Out-edges of node ``u`` are edges ``indptr[u]:indptr[u+1]``.
+    head : (m,) int
+        Head node of each edge.
+
+    Returns
+    -------
+    Contraction
+        Kept nodes, super-edges and the position of every interior node.
+    """
+    indptr = np.asarray(indptr, dtype=np.int64)
+    head64 = np.asarray(head, dtype=np.int64)
+    n = int(indptr.shape[0] - 1)
+    tail = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+    interior, dead_end = _interiors(indptr, head64, tail)
+    ip = indptr.tolist()
+    hd = head64.tolist()
+    chains = _chains(ip, hd, tail, interior)
+    order = sorted(range(len(chains)), key=lambda s: chains[s][0])  # by first edge = by tail, CSR order
+    chains = [chains[s] for s in order]
+    n_se = len(chains)
+    kept = np.flatnonzero(~interior).astype(np.int64)
+    kept_of = np.full(n, -1, dtype=np.int64)
+    kept_of[kept] = np.arange(kept.shape[0], dtype=np.int64)
+    se_ptr = np.zeros(n_se + 1, dtype=np.int64)
+    se_ptr[1:] = np.cumsum([len(c) for c in chains])
+    se_edges = np.array([e for c in chains for e in c], dtype=np.int64)
+    se_tail = kept_of[tail[se_edges[se_ptr[:-1]]]] if n_se else np.zeros(0, dtype=np.int64)
+    se_head = kept_of[head64[se_edges[se_ptr[1:] - 1]]] if n_se else np.zeros(0, dtype=np.int64)
+    k_indptr = np.zeros(kept.shape[0] + 1, dtype=np.int64)
+    np.add.at(k_indptr, se_tail + 1, 1)
+    k_indptr = np.cumsum(k_indptr)
+
+    se_rev, pos_se, pos_off = _positions(chains, hd, tail, interior)
     return Contraction(
         n_nodes=n,
         kept=kept,

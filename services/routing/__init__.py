@@ -9,12 +9,14 @@
 from services.routing.algorithm1 import (
     Drive,
     Plans,
+    Problem,
     Route,
     Scratch,
     evaluate,
     kit,
     plan_one,
     plan_routes,
+    problem,
     route_pair,
     scratch,
 )
@@ -23,6 +25,8 @@ from services.routing.step3 import PHI_BITS, Step3, step3_monitoring_routes, ste
 
 __all__ = [
     "Plans",
+    "Problem",
+    "problem",
     "Route",
     "Drive",
     "Scratch",

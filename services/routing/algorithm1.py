@@ -54,6 +54,7 @@ from services.network.pads import Pad, Pads
 from services.sensing.gains import (
     Counted,
     Gains,
+    TreeOut,
     TreeScratch,
     eval_path,
     eval_tree,
@@ -63,6 +64,8 @@ from services.sensing.gains import (
 
 __all__ = [
     "Plans",
+    "Problem",
+    "problem",
     "Route",
     "Drive",
     "Scratch",
@@ -396,6 +399,7 @@ def _from_taxi(
     g = np.zeros(p)
     t = np.zeros(p)
     length = np.zeros(p)
+    out = TreeOut(g, t, length)
     max_slot = 0
     grown = 0
     mark(sc.zmask, pb.counted, i, True)
@@ -407,9 +411,7 @@ def _from_taxi(
         label = np.empty((3, p), dtype=np.int64)
         search.labels(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, label)
         near = np.flatnonzero(reached)
-        ms = eval_tree(
-            ed, pb.gn, sc.zmask, ws.pred, src, pb.targets[near], pb.depart_s, sc.tree, g, t, length
-        )
+        ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, pb.targets[near], pb.depart_s, sc.tree, out)
         max_slot = max(max_slot, ms)
         for r in range(near.shape[0]):
             j = near[r]
@@ -430,7 +432,7 @@ def _from_taxi(
             grown += 1
             if not search.unfold_many(kt.fg, ed, costs, limit, nodes, ws, reached):
                 raise AssertionError("a discounted route costs more than the fastest path's time")
-            ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, nodes, pb.depart_s, sc.tree, g, t, length)
+            ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, nodes, pb.depart_s, sc.tree, out)
             max_slot = max(max_slot, ms)
             for r in range(near.shape[0]):
                 _fold(best, i, near[r], q, g[r], t[r], length[r])
@@ -480,22 +482,39 @@ class Plans:
         return self.kappa_index >= 0
 
 
-def plan_routes(
-    graph: RoadGraph,
+def problem(
     gn: Gains,
     counted: Counted,
     sources: NDArray[np.int64],
     targets: NDArray[np.int64],
-    depart_s: float,
     kappas: Sequence[float],
+    depart_s: float,
+    reach_us: int = INF,
+) -> Problem:
+    """Algorithm 1 from every source (taxi ``i``'s counted pairs in row ``i`` of ``counted``) to every target
+    within its reach (the fastest path takes at most ``reach_us``; ``INF``: every target), departing at
+    ``depart_s`` on the gains ``gn``, as the kernels take it."""
+    return Problem(
+        gn,
+        counted,
+        np.asarray(sources, np.int64),
+        np.asarray(targets, np.int64),
+        np.asarray(kappas, dtype=np.float64),
+        depart_s,
+        int(reach_us),
+    )
+
+
+def plan_routes(
+    graph: RoadGraph,
+    pb: Problem,
     workers: int,
     pads: Pads,
     *,
-    reach_us: int = INF,
     fastest_from_targets: bool | None = None,
 ) -> Plans:
-    """Algorithm 1 from every source (taxi ``i``'s counted pairs in ``counted``) to every target within its
-    reach (the fastest path takes at most ``reach_us``; ``INF``: every target).
+    """Algorithm 1 for the problem ``pb`` (see :func:`problem`): the best route from every source to every
+    target within its reach, on ``workers`` threads.
 
     When there are fewer than half as many targets as sources (``fastest_from_targets`` forces the choice),
     the routes come from one in-tree per target and kappa under the metric every taxi shares (the travel
@@ -511,18 +530,9 @@ def plan_routes(
     ValueError
         When a target cannot be reached from a source and there is no reach.
     """
-    f, p = len(sources), len(targets)
-    kap = np.asarray(kappas, dtype=np.float64)
+    gn, kap = pb.gn, pb.kappas
+    f, p = len(pb.sources), len(pb.targets)
     kt = kit(graph, tuple(kap.tolist()))
-    pb = Problem(
-        gn,
-        counted,
-        np.asarray(sources, np.int64),
-        np.asarray(targets, np.int64),
-        kap,
-        depart_s,
-        int(reach_us),
-    )
     best = _best(f, p)
     from_roots = (0 < 2 * p < f) if fastest_from_targets is None else (fastest_from_targets and p > 0)
     base = _base_kappa(kt, gn, kap, from_roots)
@@ -568,9 +578,9 @@ def plan_routes(
     rows = np.flatnonzero(own).tolist() if from_roots else list(range(f))
     done = parallel_map(taxis, rows, workers)
     slots += [ms for ms, _ in done]
-    if reach_us >= INF and f and p and (best.d0_us >= INF).any():
+    if pb.reach_us >= INF and f and p and (best.d0_us >= INF).any():
         a, j = np.argwhere(best.d0_us >= INF)[0]
-        raise ValueError(f"node {int(targets[j])} cannot be reached from node {int(sources[a])}")
+        raise ValueError(f"node {int(pb.targets[j])} cannot be reached from node {int(pb.sources[a])}")
     return Plans(
         kap,
         best.kappa,

@@ -17,12 +17,9 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from services.city import City
 from services.epoch import Epoch
 from services.kernel.parallel import parallel_map
-from services.model import CountsView, TaxiId
-from services.network.graph import RoadGraph
-from services.network.pads import Pads
+from services.model import TaxiId
 from services.routing.algorithm1 import Drive, Route, evaluate, plan_one
 from services.sensing.gains import Counted, gain_table, joint_utility, route_pairs
 
@@ -48,31 +45,16 @@ def improve_routes(
     ``workers`` threads) and taken in order; after an acceptance the rest of the batch is planned again
     against the new counts, so the outcome is that of one re-plan after the other.
     """
-    city, graph, counts, depart_s, k0, workers, pads = (
-        ep.city,
-        ep.graph,
-        ep.counts,
-        ep.now,
-        ep.k0,
-        ep.workers,
-        ep.pads,
-    )
+    city, graph, counts, depart_s, k0, pads = ep.city, ep.graph, ep.counts, ep.now, ep.k0, ep.pads
     kappas = city.params.kappas
     visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
     pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
     total: Counter[tuple[int, int]] = Counter()
     for ps in pairs:
         total.update(ps)
-    n_cells = city.grid.n_cells
-
-    def slots_cells(ps: set[tuple[int, int]]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        rows = np.array([k - k0 for k, _ in ps], dtype=np.int64)
-        cells = np.array([c for _, c in ps], dtype=np.int64)
-        keep = (rows >= 0) & (rows < n_slots)
-        return rows[keep], cells[keep]
-
+    slots_cells = functools.partial(_slots_cells, k0=k0, n_slots=n_slots)
     dense = [slots_cells(ps) for ps in pairs]
-    total_n = np.zeros((n_slots, n_cells), dtype=np.int64)
+    total_n = np.zeros((n_slots, city.grid.n_cells), dtype=np.int64)
     for rows, cells in dense:
         total_n[rows, cells] += 1  # a route's pairs are distinct
     history = [joint_utility(city, counts.counts, total)]
@@ -92,7 +74,7 @@ def improve_routes(
                 out.append((cand, others_n))
         return out
 
-    batch = 1 if workers <= 1 else 4 * workers
+    batch = 1 if ep.workers <= 1 else 4 * ep.workers
     passes = 0
     accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
     planned_at = [-1] * len(routes)
@@ -103,7 +85,7 @@ def improve_routes(
         i = 0
         while i < len(routes):
             todo, i = _next_batch(planned_at, accepted, i, batch)
-            results = parallel_map(functools.partial(replan, total_n), todo, workers)
+            results = parallel_map(functools.partial(replan, total_n), todo, ep.workers)
             for a, (cand, others_n) in zip(todo, results, strict=True):
                 planned_at[a] = accepted
                 if np.array_equal(cand.edges, routes[a].edges):
@@ -129,11 +111,7 @@ def improve_routes(
                     break
         if not changed:
             break
-    return (
-        _own_gains(city, graph, counts, counted, routes, accepted_by, depart_s, k0, n_slots, pads),
-        history,
-        passes,
-    )
+    return _own_gains(ep, counted, routes, accepted_by, n_slots), history, passes
 
 
 def _next_batch(planned_at: Sequence[int], accepted: int, i: int, batch: int) -> tuple[list[int], int]:
@@ -147,26 +125,27 @@ def _next_batch(planned_at: Sequence[int], accepted: int, i: int, batch: int) ->
     return todo, j
 
 
+def _slots_cells(
+    ps: set[tuple[int, int]], k0: int, n_slots: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The (slot, cell) pairs of ``ps`` (interval, cell) within the ``n_slots`` tabulated from ``k0``."""
+    rows = np.array([k - k0 for k, _ in ps], dtype=np.int64)
+    cells = np.array([c for _, c in ps], dtype=np.int64)
+    keep = (rows >= 0) & (rows < n_slots)
+    return rows[keep], cells[keep]
+
+
 def _own_gains(
-    city: City,
-    graph: RoadGraph,
-    counts: CountsView,
-    counted: Counted,
-    routes: list[Route],
-    replanned: Sequence[bool],
-    depart_s: float,
-    k0: int,
-    n_slots: int,
-    pads: Pads,
+    ep: Epoch, counted: Counted, routes: list[Route], replanned: Sequence[bool], n_slots: int
 ) -> list[Route]:
     """The routes with a re-planned route's gain taken against the epoch's counts, as every Step 3 route's
     is (a re-plan evaluates its candidates against the counts plus the other routes' visits)."""
     out = list(routes)
-    with pads.take() as pad:
+    with ep.pads.take() as pad:
         for i, r in enumerate(routes):
             if not replanned[i]:
                 continue
-            gn = gain_table(city, counts.counts, k0, max(n_slots, r.max_slot + 1), depart_s)
-            g, _t, _l, _ms = evaluate(graph, gn, counted, i, r.edges, depart_s, pad)
+            gn = gain_table(ep.city, ep.counts.counts, ep.k0, max(n_slots, r.max_slot + 1), ep.now)
+            g, _t, _l, _ms = evaluate(ep.graph, gn, counted, i, r.edges, ep.now, pad)
             out[i] = dataclasses.replace(r, gain=g)
     return out

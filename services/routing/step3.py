@@ -22,7 +22,7 @@ from services.matching.assignment import lexicographic_assignment
 from services.model import Taxi
 from services.network import search
 from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
-from services.routing.algorithm1 import Drive, Plans, Route, plan_routes, route_pair
+from services.routing.algorithm1 import Drive, Plans, Route, plan_routes, problem, route_pair
 from services.sensing.gains import Counted, Gains, gain_table
 
 __all__ = ["PHI_BITS", "Step3", "step3_monitoring_routes", "step3_reach", "step3_reach_us"]
@@ -67,18 +67,8 @@ def _plans(
     reach_us = step3_reach_us(ep.city, ep.graph)
     while True:
         gn = gain_table(ep.city, ep.counts.counts, ep.k0, n_slots, ep.now)
-        plans = plan_routes(
-            ep.graph,
-            gn,
-            counted,
-            sources,
-            targets,
-            ep.now,
-            ep.city.params.kappas,
-            ep.workers,
-            ep.pads,
-            reach_us=reach_us,
-        )
+        pb = problem(gn, counted, sources, targets, ep.city.params.kappas, ep.now, reach_us)
+        plans = plan_routes(ep.graph, pb, ep.workers, ep.pads)
         if plans.max_slot < n_slots:
             return plans, gn, n_slots
         n_slots = plans.max_slot + 1

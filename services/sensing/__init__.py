@@ -10,6 +10,7 @@ counts Λ, the weights Θ and the marginal gain ϑ of a path.
 from services.sensing.gains import (
     Counted,
     Gains,
+    TreeOut,
     TreeScratch,
     counted_csr,
     counted_rows,
@@ -67,6 +68,7 @@ __all__ = [
     "eval_path",
     "eval_tree",
     "TreeScratch",
+    "TreeOut",
     "tree_scratch",
     "eval_pairs",
     "pair_gains_q",

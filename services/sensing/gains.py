@@ -40,6 +40,7 @@ __all__ = [
     "eval_path",
     "eval_tree",
     "TreeScratch",
+    "TreeOut",
     "tree_scratch",
     "eval_pairs",
     "pair_gains_q",
@@ -239,6 +240,14 @@ def tree_scratch(n_nodes: int, shape: tuple[int, int]) -> TreeScratch:
     )
 
 
+class TreeOut(NamedTuple):
+    """Per target of ``eval_tree``: the gain, the travel time and the length of its tree path."""
+
+    gain: NDArray[np.float64]
+    time_s: NDArray[np.float64]
+    length_m: NDArray[np.float64]
+
+
 @compiled
 def eval_tree(
     ed: Edges,
@@ -249,12 +258,10 @@ def eval_tree(
     targets: NDArray[np.int64],
     depart_s: float,
     ts: TreeScratch,
-    out_g: NDArray[np.float64],
-    out_t: NDArray[np.float64],
-    out_l: NDArray[np.float64],
+    out: TreeOut,
 ) -> int:
     """``eval_path`` for the forward-tree path to every target at once: gain, time and length per target
-    into ``out_*``; returns the largest slot reached (``pred`` holds the tree's edges on those paths, as
+    into ``out``; returns the largest slot reached (``pred`` holds the tree's edges on those paths, as
     ``search.unfold`` writes them).
 
     The paths share their prefixes; a depth-first walk over the union of the paths carries each path's
@@ -265,24 +272,11 @@ def eval_tree(
     """
     k = targets.shape[0]
     n_slots = gn.term.shape[0]
+    out_g, out_t, out_l = out.gain, out.time_s, out.length_m
     first_kid = ts.first_kid
     next_sib = ts.next_sib
     first_of = ts.first_of
-    in_union = ts.in_union
-    members = ts.members
-    n_mem = 0
-    for i in range(k):
-        v = targets[i]
-        if first_of[v] < 0:
-            first_of[v] = i
-        while v != source and not in_union[v]:
-            in_union[v] = True
-            members[n_mem] = v
-            n_mem += 1
-            p = ed.tail[pred[v]]
-            next_sib[v] = first_kid[p]
-            first_kid[p] = v
-            v = p
+    n_mem = _tree_union(ed, pred, source, targets, ts)
     out_ms = np.zeros(k, dtype=np.int64)
     seen = ts.seen
     log_s = ts.log_s
@@ -352,24 +346,69 @@ def eval_tree(
                 seen[log_s[q], log_c[q]] = False
             n_log = st_log[depth]
             depth -= 1
+    max_slot = _repeated(first_of, targets, out, out_ms)
+    _tree_restore(ed, pred, targets, ts, n_mem)
+    return max_slot
+
+
+@compiled_inline
+def _tree_union(
+    ed: Edges, pred: NDArray[np.int64], source: int, targets: NDArray[np.int64], ts: TreeScratch
+) -> int:
+    """Link the union of the tree paths to ``targets`` as child lists in ``ts`` (``first_of``: a target
+    node's first index); returns how many nodes it holds (listed in ``ts.members``)."""
+    first_kid, next_sib, first_of, in_union, members = (
+        ts.first_kid,
+        ts.next_sib,
+        ts.first_of,
+        ts.in_union,
+        ts.members,
+    )
+    n_mem = 0
+    for i in range(targets.shape[0]):
+        v = targets[i]
+        if first_of[v] < 0:
+            first_of[v] = i
+        while v != source and not in_union[v]:
+            in_union[v] = True
+            members[n_mem] = v
+            n_mem += 1
+            p = ed.tail[pred[v]]
+            next_sib[v] = first_kid[p]
+            first_kid[p] = v
+            v = p
+    return n_mem
+
+
+@compiled_inline
+def _repeated(
+    first_of: NDArray[np.int64], targets: NDArray[np.int64], out: TreeOut, out_ms: NDArray[np.int64]
+) -> int:
+    """A repeated target gets the results of its first occurrence; returns the largest slot reached."""
     max_slot = 0
-    for i in range(k):
+    for i in range(targets.shape[0]):
         f = first_of[targets[i]]
         if f != i:  # a repeated target: the result of its first occurrence
-            out_g[i] = out_g[f]
-            out_t[i] = out_t[f]
-            out_l[i] = out_l[f]
+            out.gain[i] = out.gain[f]
+            out.time_s[i] = out.time_s[f]
+            out.length_m[i] = out.length_m[f]
             out_ms[i] = out_ms[f]
         if out_ms[i] > max_slot:
             max_slot = out_ms[i]
-    # leave the scratch as it was
-    for q in range(n_mem):
-        v = members[q]
-        in_union[v] = False
-        first_kid[ed.tail[pred[v]]] = -1
-    for i in range(k):
-        first_of[targets[i]] = -1
     return max_slot
+
+
+@compiled_inline
+def _tree_restore(
+    ed: Edges, pred: NDArray[np.int64], targets: NDArray[np.int64], ts: TreeScratch, n_mem: int
+) -> None:
+    """Leave the scratch as ``_tree_union`` found it."""
+    for q in range(n_mem):
+        v = ts.members[q]
+        ts.in_union[v] = False
+        ts.first_kid[ed.tail[pred[v]]] = -1
+    for i in range(targets.shape[0]):
+        ts.first_of[targets[i]] = -1
 
 
 @compiled_inline

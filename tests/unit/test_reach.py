@@ -28,7 +28,7 @@ from services.model import CountsView, IntervalKey, Snapshot, Task
 from services.network import search
 from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
 from services.network.pads import Pads
-from services.routing.algorithm1 import Plans, plan_routes
+from services.routing.algorithm1 import Plans, plan_routes, problem
 from services.routing.step3 import PHI_BITS, step3_reach_us
 from services.sensing.gains import Counted, Gains, counted_csr, gain_table
 from tests import reference as ref
@@ -123,10 +123,8 @@ def _plans(city: City, reach_us: int, from_targets: bool | None, workers: int = 
     counted = counted_csr(view.visited, [t.id for t in free], k0)
     sources = np.array([t.node for t in free], dtype=np.int64)
     targets = _targets(snap, tasks)
-    plans = plan_routes(
-        graph, gn, counted, sources, targets, snap.time_s, KAPPAS, workers, Pads(graph),
-        reach_us=reach_us, fastest_from_targets=from_targets,
-    )  # fmt: skip
+    pb = problem(gn, counted, sources, targets, KAPPAS, snap.time_s, reach_us)
+    plans = plan_routes(graph, pb, workers, Pads(graph), fastest_from_targets=from_targets)
     return plans, Ctx(graph, gn, counted, sources, targets, snap.time_s)
 
 

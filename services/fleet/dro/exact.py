@@ -46,6 +46,36 @@ def check_problem(values: ArrayLike, q: ArrayLike) -> tuple[FloatArray, FloatArr
     return v, qv / total
 
 
+def _merged(v_full: FloatArray, q_full: FloatArray) -> tuple[FloatArray, NDArray[np.intp], FloatArray]:
+    """The distinct values of the data cells (ascending), each cell's index among them and their merged
+    probabilities."""
+    if np.all(v_full[1:] > v_full[:-1]):  # distinct and ascending, as bins are: nothing to merge
+        return v_full, np.arange(v_full.size), q_full
+    uniq, inverse = np.unique(v_full, return_inverse=True)
+    return uniq, inverse, np.bincount(inverse, weights=q_full).astype(np.float64)
+
+
+def _popped(v: FloatArray, full: NDArray[np.bool_], uniq: FloatArray, div: Divergence) -> int | None:
+    """The empty cell a popping divergence may put mass on: the highest, when it is above every data value."""
+    if div.popping and not np.all(full):
+        empty = np.flatnonzero(~full)
+        k = int(empty[np.argmax(v[empty])])
+        if v[k] > uniq[-1]:
+            return k
+    return None
+
+
+def _all_on_top(v: FloatArray, qv: FloatArray, top: float, pop: int | None) -> FloatArray:
+    """All mass on the top: on the popped cell, else on the top value's data cells as ``q`` weighs them."""
+    p_top = np.zeros_like(qv)
+    if pop is not None:
+        p_top[pop] = 1.0
+    else:
+        at_top = (qv > 0) & (v == top)
+        p_top[at_top] = qv[at_top] / float(qv[at_top].sum())
+    return p_top
+
+
 def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | Divergence) -> WorstCase:
     """``sup { Σ p_j f_j : p in the simplex, I_φ(p, q) <= ρ }`` exactly (Eq. (18), ball of Eq. (21)).
 
@@ -80,18 +110,8 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
     v, qv = check_problem(values, q)
     r = check_rho(rho)
     full = qv > 0
-    v_full = v[full]
-    if np.all(v_full[1:] > v_full[:-1]):  # distinct and ascending, as bins are: nothing to merge
-        uniq, inverse, group_q = v_full, np.arange(v_full.size), qv[full]
-    else:
-        uniq, inverse = np.unique(v_full, return_inverse=True)
-        group_q = np.bincount(inverse, weights=qv[full]).astype(np.float64)
-    pop: int | None = None
-    if div.popping and not np.all(full):
-        empty = np.flatnonzero(~full)
-        k = int(empty[np.argmax(v[empty])])
-        if v[k] > uniq[-1]:
-            pop = k
+    uniq, inverse, group_q = _merged(v[full], qv[full])
+    pop = _popped(v, full, uniq, div)
     top = float(v[pop]) if pop is not None else float(uniq[-1])
     scale = top - float(uniq[0])
     mean = float(uniq[0]) if scale == 0.0 else float(np.dot(qv, v))
@@ -103,13 +123,7 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
         )
 
     def all_on_top() -> FloatArray:
-        p_top = np.zeros_like(qv)
-        if pop is not None:
-            p_top[pop] = 1.0
-        else:
-            at_top = full & (v == top)
-            p_top[at_top] = qv[at_top] / float(qv[at_top].sum())
-        return p_top
+        return _all_on_top(v, qv, top, pop)
 
     if scale == 0.0:
         return done(
