@@ -77,6 +77,132 @@ def _up(
     pos[j] = i
 
 
+@compiled_inline
+def _down(
+    ka: NDArray[np.int64],
+    kb: NDArray[np.int64],
+    kf: NDArray[np.int64],
+    node: NDArray[np.int64],
+    pos: NDArray[np.int64],
+    size: int,
+) -> None:
+    """Sift the heap's entry at ``size`` (its last, once the root has been taken) down from the root."""
+    la = ka[size]
+    lb = kb[size]
+    lf = kf[size]
+    ln = node[size]
+    h = 0
+    while True:
+        c = 2 * h + 1
+        if c >= size:
+            break
+        if c + 1 < size and _before(ka[c + 1], kb[c + 1], kf[c + 1], ka[c], kb[c], kf[c]):
+            c += 1
+        if not _before(ka[c], kb[c], kf[c], la, lb, lf):
+            break
+        ka[h] = ka[c]
+        kb[h] = kb[c]
+        kf[h] = kf[c]
+        node[h] = node[c]
+        pos[node[h]] = h
+        h = c
+    ka[h] = la
+    kb[h] = lb
+    kf[h] = lf
+    node[h] = ln
+    pos[ln] = h
+
+
+@compiled_inline
+def _row_duals(
+    u_a: NDArray[np.int64],
+    u_b: NDArray[np.int64],
+    sp_a: NDArray[np.int64],
+    sp_b: NDArray[np.int64],
+    col4row: NDArray[np.int64],
+    sr_list: NDArray[np.int64],
+    n_sr: int,
+    cur: int,
+    min_a: int,
+    min_b: int,
+) -> None:
+    """The row duals after the search from row ``cur`` (the rows it scanned, in ``sr_list``)."""
+    u_a[cur] += min_a
+    u_b[cur] += min_b
+    for t in range(n_sr):
+        r = sr_list[t]
+        if r != cur:
+            jc = col4row[r]
+            u_a[r] += min_a - sp_a[jc]
+            u_b[r] += min_b - sp_b[jc]
+
+
+@compiled_inline
+def _col_duals(
+    v_a: NDArray[np.int64],
+    v_b: NDArray[np.int64],
+    sp_a: NDArray[np.int64],
+    sp_b: NDArray[np.int64],
+    settled: NDArray[np.bool_],
+    touched: NDArray[np.int64],
+    n_touched: int,
+    min_a: int,
+    min_b: int,
+) -> None:
+    """The column duals of the columns the search settled."""
+    for t in range(n_touched):
+        jt = touched[t]
+        if settled[jt]:
+            v_a[jt] -= min_a - sp_a[jt]
+            v_b[jt] -= min_b - sp_b[jt]
+
+
+@compiled_inline
+def _augment(
+    path: NDArray[np.int64],
+    path_pair: NDArray[np.int64],
+    row4col: NDArray[np.int64],
+    col4row: NDArray[np.int64],
+    pair4row: NDArray[np.int64],
+    sink: int,
+    cur: int,
+) -> None:
+    """Augment along the shortest path from row ``cur`` to the free column ``sink``."""
+    j = sink
+    while True:
+        r = path[j]
+        row4col[j] = r
+        prev = col4row[r]
+        col4row[r] = j
+        pair4row[r] = path_pair[j]
+        j = prev
+        if r == cur:
+            break
+
+
+@compiled_inline
+def _reset(
+    sp_a: NDArray[np.int64],
+    sp_b: NDArray[np.int64],
+    settled: NDArray[np.bool_],
+    pos: NDArray[np.int64],
+    touched: NDArray[np.int64],
+    n_touched: int,
+    in_sr: NDArray[np.bool_],
+    sr_list: NDArray[np.int64],
+    n_sr: int,
+) -> None:
+    """Leave the search's labels as the next row's search expects them."""
+    for t in range(n_touched):
+        jt = touched[t]
+        sp_a[jt] = _BIG
+        sp_b[jt] = 0
+        settled[jt] = False
+        pos[jt] = -1
+    for t in range(n_sr):
+        in_sr[sr_list[t]] = False
+
+
 @compiled
 def _solve(
     n_rows: int,
@@ -151,75 +277,20 @@ def _solve(
                     else:
                         _up(ka, kb, kf, node, pos, pos[j], r_a, r_b, f, j)
             # the lowest label
-            j = node[0]
-            min_a = ka[0]
-            min_b = kb[0]
+            j, min_a, min_b = node[0], ka[0], kb[0]
             pos[j] = -1
             size -= 1
             if size > 0:
-                la = ka[size]
-                lb = kb[size]
-                lf = kf[size]
-                ln = node[size]
-                h = 0
-                while True:
-                    c = 2 * h + 1
-                    if c >= size:
-                        break
-                    if c + 1 < size and _before(ka[c + 1], kb[c + 1], kf[c + 1], ka[c], kb[c], kf[c]):
-                        c += 1
-                    if not _before(ka[c], kb[c], kf[c], la, lb, lf):
-                        break
-                    ka[h] = ka[c]
-                    kb[h] = kb[c]
-                    kf[h] = kf[c]
-                    node[h] = node[c]
-                    pos[node[h]] = h
-                    h = c
-                ka[h] = la
-                kb[h] = lb
-                kf[h] = lf
-                node[h] = ln
-                pos[ln] = h
+                _down(ka, kb, kf, node, pos, size)
             settled[j] = True
             if row4col[j] < 0:
                 sink = j
             else:
                 i = row4col[j]
-        # duals
-        u_a[cur] += min_a
-        u_b[cur] += min_b
-        for t in range(n_sr):
-            r = sr_list[t]
-            if r != cur:
-                jc = col4row[r]
-                u_a[r] += min_a - sp_a[jc]
-                u_b[r] += min_b - sp_b[jc]
-        for t in range(n_touched):
-            jt = touched[t]
-            if settled[jt]:
-                v_a[jt] -= min_a - sp_a[jt]
-                v_b[jt] -= min_b - sp_b[jt]
-        # augment
-        j = sink
-        while True:
-            r = path[j]
-            row4col[j] = r
-            prev = col4row[r]
-            col4row[r] = j
-            pair4row[r] = path_pair[j]
-            j = prev
-            if r == cur:
-                break
-        # reset
-        for t in range(n_touched):
-            jt = touched[t]
-            sp_a[jt] = _BIG
-            sp_b[jt] = 0
-            settled[jt] = False
-            pos[jt] = -1
-        for t in range(n_sr):
-            in_sr[sr_list[t]] = False
+        _row_duals(u_a, u_b, sp_a, sp_b, col4row, sr_list, n_sr, cur, min_a, min_b)
+        _col_duals(v_a, v_b, sp_a, sp_b, settled, touched, n_touched, min_a, min_b)
+        _augment(path, path_pair, row4col, col4row, pair4row, sink, cur)
+        _reset(sp_a, sp_b, settled, pos, touched, n_touched, in_sr, sr_list, n_sr)
     return pair4row
 
 

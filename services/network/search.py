@@ -366,6 +366,63 @@ def run(
     grow(g, ed, costs, source, limit, targets, ws, no_lazy())
 
 
+@compiled_inline
+def _grow_seed(
+    g: SearchGraph, ed: Edges, costs: Costs, ws: Workspace, source: int, limit: int, n_touched: int
+) -> tuple[int, int]:
+    """Queue the first labels of a search from ``source`` within ``limit`` (in the ring, or the heap when
+    the metric is too spread for it); returns the queue's size and the touched nodes' count."""
+    cost, tie1, tie2, state = ws.cost, ws.tie1, ws.tie2, ws.state
+    ring, bits, nxt, prv = ws.ring, ws.bits, ws.nxt, ws.prv
+    width, span = costs.width, costs.span
+    use_ring = span <= ring.shape[0]
+    sk = g.kept_of[source]
+    size = 0
+    for j in range(1 if sk >= 0 else 2):
+        h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
+        if h < 0 or c > limit:
+            continue
+        if not _less(c, a, b, cost[h], tie1[h], tie2[h]):
+            continue
+        if cost[h] == INF and not ws.need[h]:
+            ws.touched[n_touched] = h
+            n_touched += 1
+        old = cost[h]
+        cost[h] = c
+        tie1[h] = a
+        tie2[h] = b
+        ws.pse[h] = s
+        ws.pstart[h] = os
+        if use_ring:
+            if state[h] >= 0:
+                _unlink(ring, bits, nxt, prv, (old // width) % span, h)
+                size -= 1
+            _link(ring, bits, nxt, prv, (c // width) % span, h)
+            state[h] = 0
+            size += 1
+        elif state[h] >= 0:
+            _sift_up(nxt, prv, state, state[h], c, h)
+        else:
+            _sift_up(nxt, prv, state, size, c, h)
+            size += 1
+    return size, n_touched
+
+
+@compiled_inline
+def _grow_leave(ws: Workspace, costs: Costs, n_touched: int) -> None:
+    """Leave the workspace as the next search expects it: a node reached from one that stopped the search
+    is not known to be final; the ring is left empty."""
+    use_ring = costs.span <= ws.ring.shape[0]
+    for i in range(n_touched):
+        k = ws.touched[i]
+        if ws.state[k] == -3:  # reached from a node that stopped the search: not known to be final
+            ws.state[k] = -1
+        elif ws.state[k] >= 0 and use_ring:  # still queued: leave the ring empty for the next search
+            b = (ws.cost[k] // costs.width) % costs.span
+            ws.ring[b] = -1
+            ws.bits[b >> 6] = 0
+
+
 @compiled
 def grow(
     g: SearchGraph,
@@ -420,9 +477,7 @@ def grow(
     span = costs.span
     use_ring = span <= ring.shape[0]
     se_cost = costs.se
-    edge_cost = costs.edge
     ws.info[0] = source
-    sk = g.kept_of[source]
     n_touched, remaining = _need_targets(g, source, targets, ws)
     early = targets.shape[0] > 0
     size = 0  # queued nodes
@@ -430,34 +485,7 @@ def grow(
     if lazy.on:
         _lazy_ends(g, ed, costs, lazy, source, targets)
     if not (early and remaining == 0):
-        n_seeds = 1 if sk >= 0 else 2
-        for j in range(n_seeds):
-            h, c, a, b, s, os = _seed(g, ed, edge_cost, source, sk, j)
-            if h < 0 or c > limit:
-                continue
-            if not _less(c, a, b, cost[h], tie1[h], tie2[h]):
-                continue
-            if cost[h] == INF and not need[h]:
-                touched[n_touched] = h
-                n_touched += 1
-            old = cost[h]
-            cost[h] = c
-            tie1[h] = a
-            tie2[h] = b
-            pse[h] = s
-            pstart[h] = os
-            if use_ring:
-                if state[h] >= 0:
-                    _unlink(ring, bits, nxt, prv, (old // width) % span, h)
-                    size -= 1
-                _link(ring, bits, nxt, prv, (c // width) % span, h)
-                state[h] = 0
-                size += 1
-            elif state[h] >= 0:
-                _sift_up(nxt, prv, state, state[h], c, h)
-            else:
-                _sift_up(nxt, prv, state, size, c, h)
-                size += 1
+        size, n_touched = _grow_seed(g, ed, costs, ws, source, limit, n_touched)
         if use_ring and size > 0:
             pos = _next_bucket(bits, span, 0)
     complete = 1
@@ -546,14 +574,7 @@ def grow(
         if stop:
             complete = 0
             break
-    for i in range(n_touched):
-        k = touched[i]
-        if state[k] == -3:  # reached from a node that stopped the search: not known to be final
-            state[k] = -1
-        elif state[k] >= 0 and use_ring:  # still queued: leave the ring empty for the next search
-            b = (cost[k] // width) % span
-            ring[b] = -1
-            bits[b >> 6] = 0
+    _grow_leave(ws, costs, n_touched)
     ws.info[1] = complete
     ws.info[2] = n_touched
 
@@ -710,6 +731,45 @@ def run_guided(
     guided(g, ed, costs, source, target, ws, Guide(pot, lm, none, none, none, none, 0), no_lazy())
 
 
+@compiled_inline
+def _guided_seed(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    ws: Workspace,
+    gd: Guide,
+    tl: NDArray[np.int64],
+    source: int,
+    n_touched: int,
+) -> tuple[int, int]:
+    """Queue the first labels of a guided search from ``source`` (keyed by label + potential); returns the
+    queue's size and the touched nodes' count."""
+    cost, tie1, tie2, state = ws.cost, ws.tie1, ws.tie2, ws.state
+    sk = g.kept_of[source]
+    size = 0
+    for j in range(1 if sk >= 0 else 2):
+        h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
+        if h < 0:
+            continue
+        p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
+        if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
+            continue
+        if cost[h] == INF and not ws.need[h]:
+            ws.touched[n_touched] = h
+            n_touched += 1
+        cost[h] = c
+        tie1[h] = a
+        tie2[h] = b
+        ws.pse[h] = s
+        ws.pstart[h] = os
+        at = state[h]
+        if at < 0:
+            at = size
+            size += 1
+        _guided_up(ws.nxt, ws.hkey, state, at, h, c + p0, a + p1, b + p2)
+    return size, n_touched
+
+
 @compiled
 def guided(
     g: SearchGraph,
@@ -755,35 +815,14 @@ def guided(
     ec_cell = ed.ec_cell
     time_s = ed.time_s
     ws.info[0] = source
-    sk = g.kept_of[source]
-    tgt = np.empty(1, dtype=np.int64)
-    tgt[0] = target
+    tgt = np.full(1, target, dtype=np.int64)
     n_touched, remaining = _need_targets(g, source, tgt, ws)
     tl = gd.lm[target] if gd.lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
     if lazy.on:
         _lazy_ends(g, ed, costs, lazy, source, tgt)
     size = 0
     if remaining > 0:
-        for j in range(1 if sk >= 0 else 2):
-            h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
-            if h < 0:
-                continue
-            p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
-            if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
-                continue
-            if cost[h] == INF and not ws.need[h]:
-                ws.touched[n_touched] = h
-                n_touched += 1
-            cost[h] = c
-            tie1[h] = a
-            tie2[h] = b
-            ws.pse[h] = s
-            ws.pstart[h] = os
-            at = state[h]
-            if at < 0:
-                at = size
-                size += 1
-            _guided_up(heap, hkey, state, at, h, c + p0, a + p1, b + p2)
+        size, n_touched = _guided_seed(g, ed, costs, ws, gd, tl, source, n_touched)
     complete = 1
     while size > 0:
         k = heap[0]
