@@ -381,9 +381,19 @@ class FleetSizing:
         requests = tuple(r.n_requests for r in runs[cfg.sizes[0]])
         stats = SolveStats(len(batch.results), batch.cached, batch.wall_s, self.runner.workers)
         return Recommendation(
-            city, target, plan, cfg, window, requests, stats, trigger, request_id, observed, tasks,
+            city,
+            target,
+            plan,
+            cfg,
+            window,
+            requests,
+            stats,
+            trigger,
+            request_id,
+            observed,
+            tasks,
             sweep=sweep,
-        )  # fmt: skip
+        )
 
     def solve(
         self, city_name: str, target: IntervalKey, *, request: SolveRequest | None = None, force: bool = False

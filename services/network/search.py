@@ -987,9 +987,14 @@ def _unfold_from(
 
 @compiled
 def unfold_many(
-    g: SearchGraph, ed: Edges, costs: Costs, limit: int, nodes: NDArray[np.int64], ws: Workspace,
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    limit: int,
+    nodes: NDArray[np.int64],
+    ws: Workspace,
     reached: NDArray[np.bool_],
-) -> bool:  # fmt: skip
+) -> bool:
     """``unfold`` every one of ``nodes`` (``reached[i]``: node ``i`` was); True when all were.
 
     One call for many nodes: numba counts a reference for every array of every tuple passed to a compiled
@@ -1016,9 +1021,14 @@ def unfold_many(
 
 @compiled
 def labels(
-    g: SearchGraph, ed: Edges, costs: Costs, limit: int, nodes: NDArray[np.int64], ws: Workspace,
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    limit: int,
+    nodes: NDArray[np.int64],
+    ws: Workspace,
     out: NDArray[np.int64],
-) -> None:  # fmt: skip
+) -> None:
     """``resolve``'s label ``(cost, tie1, tie2)`` of every one of ``nodes`` into ``out[:, i]`` in one call
     (see ``unfold_many``)."""
     source = ws.info[0]

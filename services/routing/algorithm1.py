@@ -655,9 +655,16 @@ def kit(graph: RoadGraph, kappas: tuple[float, ...]) -> Kit:
             ed = graph.edges
             width, span = _floor(graph.forward, ed, graph.time_forward, np.asarray(kappas, dtype=np.float64))
             got = per[kappas] = Kit(
-                ed, graph.forward, graph.reverse, graph.time_forward, graph.time_reverse, graph.crossing,
-                fixed_super_edges(graph.forward, ed, graph.time_forward), width, span,
-            )  # fmt: skip
+                ed,
+                graph.forward,
+                graph.reverse,
+                graph.time_forward,
+                graph.time_reverse,
+                graph.crossing,
+                fixed_super_edges(graph.forward, ed, graph.time_forward),
+                width,
+                span,
+            )
         return got
 
 
