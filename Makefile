@@ -18,8 +18,9 @@ $(STAMP): pyproject.toml
 test:
 	bash scripts/test.sh $(ARGS)
 
-# The gate CI runs before the full suite: formatter check, lint, strict types, then the quick tests
-# (everything not marked slow or redis; the full suite, Redis included, is `make test`).
+# The gate CI runs before the full suite: formatter check, lint, strict types, the function-size and
+# import-circle checks, then the quick tests (everything not marked slow or redis; the full suite, Redis
+# included, is `make test`). .pre-commit-config.yaml runs the same as git hooks.
 check: lint
 	$(PY) -m pytest -q -m "not slow and not redis"
 
@@ -27,6 +28,8 @@ lint: $(STAMP)
 	$(PY) -m ruff format --check .
 	$(PY) -m ruff check .
 	$(PY) -m mypy services app research tests
+	$(PY) scripts/check_functions.py
+	$(PY) scripts/check_imports.py
 
 # Rewrite the code in the house format and apply ruff's safe fixes.
 format: $(STAMP)

@@ -3,30 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
 import sys
 import tempfile
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal, TextIO
 
 from app.errors import UnknownCityError
 from app.settings import Settings
 from services.city import City
-from services.citydata import (
-    CityDataError,
-    CityMeta,
-    ImportResult,
-    load_city,
-    read_csv_network,
-    read_osm,
-    save_bundle,
-    sha256_of,
-    validate_city_name,
-)
+from services.citydata import CityDataError, CityMeta, load_city, save_bundle, sha256_of, validate_city_name
+from services.importers import ImportResult, read_csv_network, read_osm
 
 __all__ = [
     "BUNDLED_DIR",
@@ -173,33 +165,14 @@ def _read(kind: str, inputs: Sequence[Path], default_speed_kmh: float) -> Import
 
 
 def _import(
-    kind: ImportKind,
-    inputs: Sequence[Path | str],
-    name: str,
-    out_root: Path | str,
-    *,
-    timezone: str,
-    start: str,
-    interval_s: int,
-    n_intervals: int,
-    epoch_s: int,
-    cell_m: float,
-    params: Mapping[str, Any] | None,
-    source: str,
-    overwrite: bool,
+    kind: ImportKind, inputs: Sequence[Path | str], meta: CityMeta, out_root: Path | str, *, overwrite: bool
 ) -> tuple[Path, ImportResult, City]:
-    validate_city_name(name)
+    validate_city_name(meta.name)
+    name = meta.name
     paths = [Path(p) for p in inputs]
-    meta = CityMeta(
-        name=name,
-        timezone=timezone,
-        start=start,
-        interval_s=interval_s,
-        n_intervals=n_intervals,
-        epoch_s=epoch_s,
-        params=dict(params or {}),
-        cell_m=cell_m,
-        source=source,
+    meta = dataclasses.replace(
+        meta,
+        params=dict(meta.params),
         built_with={
             "script": f"app.cities.import_city(kind={kind!r})",
             "input": paths[0].name if len(paths) == 1 else [p.name for p in paths],
@@ -233,23 +206,16 @@ def _import(
 def import_city(
     kind: ImportKind,
     inputs: Sequence[Path | str],
-    name: str,
+    meta: CityMeta,
     out_root: Path | str,
-    timezone: str = "UTC",
-    start: str = "08:00",
     *,
-    interval_s: int = 3600,
-    n_intervals: int = 4,
-    epoch_s: int = 200,
-    cell_m: float = 1000.0,
-    params: Mapping[str, Any] | None = None,
-    source: str = "",
     overwrite: bool = False,
 ) -> Path:
     """Build a city bundle from OSM XML (``inputs=[file.osm]``) or CSV (``inputs=[nodes.csv, edges.csv]``).
 
-    The bundle is written to ``out_root/<name>/``; a :class:`CityRegistry` whose ``user_dir`` is
-    ``out_root`` serves it by name.
+    ``meta`` names the city and holds its horizon, cell size, dispatch parameters and source (its
+    ``built_with`` is filled in here). The bundle is written to ``out_root/<meta.name>/``; a
+    :class:`CityRegistry` whose ``user_dir`` is ``out_root`` serves it by name.
 
     Raises
     ------
@@ -260,21 +226,7 @@ def import_city(
     FileExistsError
         If the city exists and ``overwrite`` is false.
     """
-    target, _, _ = _import(
-        kind,
-        inputs,
-        name,
-        out_root,
-        timezone=timezone,
-        start=start,
-        interval_s=interval_s,
-        n_intervals=n_intervals,
-        epoch_s=epoch_s,
-        cell_m=cell_m,
-        params=params,
-        source=source,
-        overwrite=overwrite,
-    )
+    target, _, _ = _import(kind, inputs, meta, out_root, overwrite=overwrite)
     return target
 
 
@@ -341,21 +293,18 @@ def import_city_cli(
             print(f"import-city: --param {item!r}: {exc}", file=err)
             return 2
     try:
-        target, result, city = _import(
-            kind,
-            inputs,
-            args.name,
-            args.out,
+        meta = CityMeta(
+            name=args.name,
             timezone=args.timezone,
             start=args.start,
             interval_s=args.interval_s,
             n_intervals=args.intervals,
             epoch_s=200,
-            cell_m=args.cell_m,
             params=params,
+            cell_m=args.cell_m,
             source=args.source,
-            overwrite=args.overwrite,
         )
+        target, result, city = _import(kind, inputs, meta, args.out, overwrite=args.overwrite)
     except CityDataError as exc:
         print(f"import-city: {exc}", file=err)
         return 1

@@ -28,7 +28,7 @@ from app.metrics import Metrics
 from app.ports import Store
 from app.schemas.dispatch import read_epoch, render_epoch
 from app.settings import Settings
-from app.usecases import CityCatalog, DecideFn, DispatchService
+from app.usecases import CityCatalog, DecideFn, DispatchService, EpochLimits
 
 __all__ = ["create_app", "make_store", "API_VERSION"]
 
@@ -68,6 +68,32 @@ def _default_decide(workers: int) -> DecideFn:
     return functools.partial(decide, workers=workers)
 
 
+def _service(
+    settings: Settings,
+    registry: CityCatalog,
+    store: Store,
+    decide: DecideFn | None,
+    clock: Callable[[], float] | None,
+) -> DispatchService:
+    """The use cases over ``store``, with the settings' limits."""
+    limits = EpochLimits(
+        retention_s=settings.retention_s,
+        commit_attempts=settings.commit_attempts,
+        max_solves=settings.max_solves,
+        solve_queue_s=settings.solve_queue_s,
+        max_ahead_s=settings.epoch_max_ahead_s,
+    )
+    return DispatchService(
+        registry,
+        store,
+        decide or _default_decide(settings.dispatch_workers),
+        render_epoch=render_epoch,
+        read_epoch=read_epoch,
+        limits=limits,
+        **({} if clock is None else {"clock": clock}),
+    )
+
+
 def create_app(
     settings: Settings | None = None,
     registry: CityCatalog | None = None,
@@ -90,19 +116,7 @@ def create_app(
     the_store = BoundedStore(raw_store, settings.store_concurrency, settings.store_queue_s)
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
-    service = DispatchService(
-        the_registry,
-        the_store,
-        decide or _default_decide(settings.dispatch_workers),
-        render_epoch=render_epoch,
-        read_epoch=read_epoch,
-        retention_s=settings.retention_s,
-        commit_attempts=settings.commit_attempts,
-        max_solves=settings.max_solves,
-        solve_queue_s=settings.solve_queue_s,
-        max_ahead_s=settings.epoch_max_ahead_s,
-        **({} if clock is None else {"clock": clock}),
-    )
+    service = _service(settings, the_registry, the_store, decide, clock)
 
     fleet_desk = FleetDesk(
         the_registry,

@@ -77,8 +77,18 @@ def replay_main(argv: Sequence[str]) -> int:
         ap.error("--no-active needs --inprocess (a service decides with its own city's parameters)")
     if args.url and not args.token:
         ap.error("--token is required with --url")
-    spec = RunSpec(args.city, args.scenario, args.n1, args.n0, args.seed, args.day, not args.no_active,
-                   False, args.tasks, args.rate)  # fmt: skip
+    spec = RunSpec(
+        args.city,
+        args.scenario,
+        args.n1,
+        args.n0,
+        args.seed,
+        args.day,
+        not args.no_active,
+        False,
+        args.tasks,
+        args.rate,
+    )
     bundle = open_bundle(CityRegistry.from_settings(Settings()).bundle_dir(spec.city))
     city = bundle.city
     if args.demand is not None:
@@ -94,8 +104,9 @@ def replay_main(argv: Sequence[str]) -> int:
             ap.error(f"--date {args.date!r} is not YYYY-MM-DD")
         demand = demand_on_date(demand, city.horizon, args.date)
     prefix = "" if args.inprocess else f"rp{spec.seed}x{spec.n1}o{spec.n0}s{spec.scenario}d{spec.day}-"
-    config = SimConfig(n_instrumented=spec.n1, n_ordinary=spec.n0, n_tasks=spec.n_tasks, seed=spec.seed,
-                       id_prefix=prefix)  # fmt: skip
+    config = SimConfig(
+        n_instrumented=spec.n1, n_ordinary=spec.n0, n_tasks=spec.n_tasks, seed=spec.seed, id_prefix=prefix
+    )
     tasks = tasks_for(spec, bundle, demand.date, prefix)
     print(
         f"{city.name}: {len(demand.requests)} requests ({demand.generator} v{demand.version}, "

@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from services.parallel import default_workers
+from services.kernel.parallel import default_workers
 
 __all__ = [
     "Scope",

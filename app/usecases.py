@@ -50,7 +50,7 @@ from services.model import (
     TaxiId,
 )
 from services.rfc3339 import format_time
-from services.sensing import coverage_rate, gamma
+from services.sensing.sensing import coverage_rate, gamma
 
 __all__ = [
     "CityCatalog",
@@ -65,6 +65,7 @@ __all__ = [
     "EpochRoutes",
     "Coverage",
     "DispatchService",
+    "EpochLimits",
     "StreamChange",
     "LOOKAHEAD_INTERVALS",
 ]
@@ -209,6 +210,19 @@ def _gamma_before_after(
     return gamma(city, counts.counts, day), gamma(city, after, day)
 
 
+@dataclass(frozen=True, slots=True)
+class EpochLimits:
+    """How long a city's records live (``retention_s``), how often a commit that lost a race is retried,
+    how many epochs are solved at once and how long one waits for a slot, and how far ahead of the clock an
+    epoch may be dated."""
+
+    retention_s: int = 8 * 86400
+    commit_attempts: int = 8
+    max_solves: int = 2
+    solve_queue_s: float = 30.0
+    max_ahead_s: float = 86400.0
+
+
 class DispatchService:
     """The use cases of the API: cities, tasks, epochs and coverage over one store.
 
@@ -225,11 +239,7 @@ class DispatchService:
         *,
         render_epoch: EpochRenderer,
         read_epoch: EpochReader,
-        retention_s: int = 8 * 86400,
-        commit_attempts: int = 8,
-        max_solves: int = 2,
-        solve_queue_s: float = 30.0,
-        max_ahead_s: float = 86400.0,
+        limits: EpochLimits = EpochLimits(),
         clock: Callable[[], float] = time.time,
     ) -> None:
         self.cities = cities
@@ -237,11 +247,11 @@ class DispatchService:
         self.decide = decide
         self.render_epoch = render_epoch
         self.read_epoch = read_epoch
-        self.retention_s = retention_s
-        self.commit_attempts = commit_attempts
-        self.solve_queue_s = solve_queue_s
-        self._solve_slots = threading.BoundedSemaphore(max_solves)
-        self.max_ahead_s = max_ahead_s
+        self.retention_s = limits.retention_s
+        self.commit_attempts = limits.commit_attempts
+        self.solve_queue_s = limits.solve_queue_s
+        self._solve_slots = threading.BoundedSemaphore(limits.max_solves)
+        self.max_ahead_s = limits.max_ahead_s
         self.clock = clock
         self.warming: threading.Event | None = None
         """Set by the app's start-up: unset while the cities are being warmed up (``ready`` is 503)."""

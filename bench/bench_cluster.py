@@ -40,7 +40,7 @@ SMALL = SizingConfig(sizes=(10, 30, 60), days=4)
 FULL = SizingConfig()  # the worker's defaults: sizes 10..60, M = 10 days
 WARM = SizingConfig(sizes=(2, 4), days=2, n0=4, n_tasks=3, rate_per_hour=10.0, seed=99)
 NOOP_RUNS = 200
-METRO_EPOCH_S = 18.0  # issue 13: a metropolitan epoch today (a day = 72 epochs)
+METRO_EPOCH_S = 18.0  # the time of an epoch on a metropolitan network (a day = 72 epochs)
 
 
 def noop(x: int) -> int:
@@ -183,7 +183,7 @@ def write(results: dict[str, Any]) -> None:
         f"{o['dask2']['median'] - o['local']['median']:.1f} ms to a run that takes seconds.",
         "",
         f"**Metropolitan scale, on paper.** A re-solve is 60 runs (6 sizes x M = 10 days) of 72 epochs; at "
-        f"{m['epoch_s']:g} s an epoch (issue 13's metropolitan figure) a run takes {m['run_s'] / 60:.0f} min "
+        f"{m['epoch_s']:g} s an epoch (the metropolitan epoch) a run takes {m['run_s'] / 60:.0f} min "
         f"and a re-solve {m['cpu_h']:.1f} CPU-hours. To finish within the hour it needs at least "
         f"**{math.ceil(m['cpu_h'])} single-threaded engine workers per city** (one core each, perfect scaling; a run "
         f"is never split, and one run fits well within the hour), about {m['workers']} at the 2-worker efficiency "

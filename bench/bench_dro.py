@@ -1,4 +1,4 @@
-"""DRO worst case: the exact solver (``services.dro``) against the cvxpy primal, in the same run.
+"""DRO worst case: the exact solver (``services.fleet.dro``) against the cvxpy primal, in the same run.
 
 The inputs are data (``CONFIG``) and seeded: for each candidate fleet size x, M synthetic KPI samples (cost
 per instrumented vehicle-hour, gamma-distributed, mean falling with x). Timed:
@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from bench.report import stamp, write_section
-from services.dro import DIVERGENCE_NAMES, binned_support, rho_from_alpha, worst_case
+from services.fleet.dro import DIVERGENCE_NAMES, binned_support, rho_from_alpha, worst_case
 from tests.unit.dro.oracle import primal_worst_case
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -182,7 +182,7 @@ def write_report(results: dict[str, Any]) -> None:
         f"M = {cfg['n_samples']} synthetic KPI samples",
         "(gamma, shape 20, mean 18 (30/x)^0.35 CNY per instrumented vehicle-hour); binned support with "
         f"w = {cfg['bins']} bins, alpha = {cfg['alpha']}.",
-        "Exact = `services.dro.worst_case` (support, radius and solve). cvxpy = the primal convex program of the",
+        "Exact = `services.fleet.dro.worst_case` (support, radius and solve). cvxpy = the primal convex program of the",
         "tests (`tests/unit/dro/oracle.py`, CLARABEL at its default tolerances) on the same support and radius,",
         "built and solved per call. Both run in the same process, one after the other; the machine's 1-minute",
         f"load average was {results['load_average_1min']['before']:.1f} before and "

@@ -55,10 +55,10 @@ from bench.report import ROOT, stamp, write_section
 from services.city import City
 from services.citydata import CityMeta, city_from_network, haversine_m, save_bundle
 from services.dispatch import decide, warm_up
+from services.kernel.parallel import default_workers
 from services.ledger import Ledger, apply_decision, ledger_view
 from services.model import Decision, Rider, RiderId, Snapshot, Task, Taxi, TaxiId
-from services.network import build_network
-from services.parallel import default_workers
+from services.network.network import build_network
 
 PHASES = ("pickups", "trips", "step1", "step2", "step3", "algorithm2", "tasks")
 

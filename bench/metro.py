@@ -56,7 +56,7 @@ from scipy.spatial import cKDTree
 
 from services.city import City
 from services.citydata import EARTH_RADIUS_M, CityMeta, city_from_network, haversine_m
-from services.network import build_network, largest_strongly_connected
+from services.network.network import build_network, largest_strongly_connected
 
 __all__ = [
     "SEED",

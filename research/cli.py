@@ -103,7 +103,7 @@ def experiment_main(argv: Sequence[str]) -> int:
 def fleet_experiment_main(argv: Sequence[str]) -> int:
     """Train on some demand days, choose N1 by Deterministic / DRO / DRO_RH, test on held-out days."""
     from research.fleet import DEFAULT_ZETAS, FleetExperimentConfig, run_fleet_experiment
-    from services.fleet import FleetInputError
+    from services.fleet.sizing import FleetInputError
 
     ap = argparse.ArgumentParser(
         prog="python -m research fleet-experiment",

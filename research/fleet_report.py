@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import matplotlib
 
@@ -13,9 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from research.figures import save_figure  # noqa: E402
-
-if TYPE_CHECKING:
-    from research.fleet import FleetExperimentConfig
+from research.fleet_config import FleetExperimentConfig  # noqa: E402
 
 __all__ = ["write_fleet_report"]
 

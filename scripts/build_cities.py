@@ -19,15 +19,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from services.citydata import (  # noqa: E402
-    CityMeta,
-    ImportResult,
-    load_city,
-    read_node_link,
-    read_osm,
-    save_bundle,
-    sha256_of,
-)
+from services.citydata import CityMeta, load_city, save_bundle, sha256_of  # noqa: E402
+from services.importers import ImportResult, read_node_link, read_osm  # noqa: E402
 
 OUT = REPO / "app" / "data" / "cities"
 OSM_ODBL = "© OpenStreetMap contributors, ODbL 1.0"

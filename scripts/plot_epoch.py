@@ -23,7 +23,6 @@ from matplotlib.collections import LineCollection  # noqa: E402
 
 from services.citydata import load_city  # noqa: E402
 from services.dispatch import decide  # noqa: E402
-from services.graph import road_graph  # noqa: E402
 from services.model import (  # noqa: E402
     CountsView,
     IntervalKey,
@@ -35,7 +34,8 @@ from services.model import (  # noqa: E402
     Taxi,
     TaxiId,
 )
-from services.search import fastest_path, workspace  # noqa: E402
+from services.network.graph import road_graph  # noqa: E402
+from services.network.search import fastest_path, workspace  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

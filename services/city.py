@@ -11,10 +11,10 @@ from zoneinfo import ZoneInfo
 import numpy as np
 from numpy.typing import NDArray
 
-from services.grid import EdgeCells, Grid
 from services.model import IntervalKey
-from services.network import Network
+from services.network.network import Network
 from services.rfc3339 import parse_rfc3339
+from services.sensing.grid import EdgeCells, Grid
 
 __all__ = ["Horizon", "DispatchParams", "City"]
 

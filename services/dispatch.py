@@ -1,46 +1,34 @@
-"""One decision epoch: the three-step priority matching and Algorithm 2 (docs/METHOD.md sections 4-6).
+"""One decision epoch: the three-step priority matching and Algorithm 2 (paper Section 4, docs/METHOD.md
+sections 4-6).
 
-``decide`` is the single pure entry point: (city, counts, snapshot, tasks) -> Decision.
+``decide`` is the single pure entry point: (city, counts, snapshot, tasks) -> Decision. It reads as the
+method does, one call per step:
 
-1. Step 1 (Eq. 4-7): vacant instrumented taxis x waiting riders within the pickup radius; a pair's weight is
-   the marginal sensing gain of the service leg (pickup -> dropoff) for that taxi, leaving when it reaches
-   the rider; pairs with a positive gain only; maximize the total gain, then minimize the total wait.
-2. Step 2 (Eq. 8-11): vacant ordinary taxis x the remaining riders; maximize matches, then minimize wait.
-3. Step 3 (Eq. 13-16): vacant instrumented taxis still free x open POIs (grouped by node); maximize
-   matches, then the total phi of the enhanced A* routes (Algorithm 1); then Algorithm 2.
+1. the pickups (taxi-rider pairs within the radius) and the riders' trips (``services.matching.legs``);
+2. Step 1, instrumented taxis x riders for sensing gain (``services.matching.steps.step1_sensing_matches``);
+3. Step 2, ordinary taxis x the riders left (``services.matching.steps.step2_regular_matches``);
+4. Step 3, free instrumented taxis x open POIs (``services.routing.step3.step3_monitoring_routes``);
+5. Algorithm 2, the Step 3 routes improved together (``services.routing.algorithm2.improve_routes``);
+6. the tasks the planned paths reach, and the decision's assembly.
 
-Every assignment is exact (``services.assignment``): gains in fixed point whose sums are exact, waits in
-whole microseconds (the searches' own cost), phi to 2**-40 of the largest. Every path is the canonical
-shortest path of its cost (``services.graph``).
+Every assignment is exact (``services.matching.assignment``): gains in fixed point whose sums are exact,
+waits in whole microseconds (the searches' own cost), phi to 2**-40 of the largest. Every path is the
+canonical shortest path of its cost (``services.network.graph``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services import search
-from services.algorithm1 import Drive, Route, plan_routes, route_pair
-from services.algorithm2 import improve_routes
-from services.assignment import lexicographic_assignment
 from services.city import City
-from services.gains import (
-    Counted,
-    Gains,
-    counted_csr,
-    counted_rows,
-    eval_pairs,
-    fixed_point_unit,
-    gain_table,
-    pair_gains_q,
-    path_facts,
-)
-from services.graph import INF, US_PER_S, RoadGraph, road_graph
+from services.epoch import Epoch
 from services.ledger import Ledger, apply_decision, ledger_view
-from services.legs import Leg, pickups, trips
+from services.matching.legs import Leg, Pickups, pickups, trips
+from services.matching.steps import Match, Step1, select, step1_sensing_matches, step2_regular_matches
 from services.model import (
     CountsView,
     Decision,
@@ -56,28 +44,86 @@ from services.model import (
     TaxiId,
     Visit,
 )
-from services.pads import Pads, pads_for
-from services.parallel import parallel_map
-from services.tasks import PlannedPath, apply_reaches, due_completions, reaches
+from services.network import search
+from services.network.graph import RoadGraph, road_graph
+from services.network.pads import pads_for
+from services.routing.algorithm1 import Route
+from services.routing.algorithm2 import improve_routes
+from services.routing.step3 import Step3, step3_monitoring_routes
+from services.sensing.gains import Counted, counted_csr, counted_rows, path_facts
+from services.tasks import PlannedPath, Reach, apply_reaches, due_completions, reaches
 
-__all__ = ["decide", "warm_up", "step3_reach", "step3_reach_us", "path_nodes", "INITIAL_SLOTS", "PHI_BITS"]
+__all__ = ["decide", "warm_up", "path_nodes", "INITIAL_SLOTS"]
 
 INITIAL_SLOTS = 3
 """Intervals (from the epoch's own) whose gains are tabulated first; more are added if a path needs them."""
 
-PHI_BITS = 40
-"""Step 3 compares phi in units of 2**-40 of the largest."""
+
+@dataclass(frozen=True, slots=True)
+class _Present:
+    """Who the epoch serves: the riders still waiting (those past their patience expire), the vacant taxis
+    (instrumented first: taxi indices below ``len(instrumented)`` are instrumented)."""
+
+    riders: list[Rider]
+    expired: tuple[RiderId, ...]
+    instrumented: list[Taxi]
+    ordinary: list[Taxi]
+
+    @property
+    def taxis(self) -> list[Taxi]:
+        return self.instrumented + self.ordinary
 
 
-class _Epoch(NamedTuple):
-    """What every step of one epoch shares: its time, its interval, the slots tabulated so far, the threads
-    and Step 3's reach (whole microseconds)."""
+@dataclass(frozen=True, slots=True)
+class _Riders:
+    """Steps 1-2 put together: the matched pairs (Step 1's first), each pair's index among the pickups, its
+    path (pickup leg then trip) and Step 1's paths as planned paths (the sensing taxis' commitments)."""
 
-    now: float
-    k0: int
+    step1: Step1
+    step2: list[Match]
+    at: NDArray[np.int64]
+    paths: list[NDArray[np.int64]]
+    planned: list[PlannedPath]
+
+    @property
+    def both(self) -> list[Match]:
+        return self.step1.pairs + self.step2
+
+
+@dataclass(frozen=True, slots=True)
+class _Targets:
+    """Step 3's POIs: the open tasks no Step 1 path reaches, by node (the first task at a node, in schedule
+    order, stands for the node), and the nodes of the pending tasks (the ones a path can reach)."""
+
+    open_tasks: list[Task]
+    by_node: dict[int, TaskId]
+    pending_nodes: NDArray[np.bool_]
+
+    @property
+    def nodes(self) -> NDArray[np.int64]:
+        return np.fromiter(self.by_node, dtype=np.int64, count=len(self.by_node))
+
+
+@dataclass(frozen=True, slots=True)
+class _Monitoring:
+    """Step 3 after Algorithm 2: the matched taxis and their routes, the joint utility after the initial
+    matching and each accepted re-plan, Algorithm 2's passes and the interval slots tabulated."""
+
+    taxis: list[Taxi]
+    routes: list[Route]
+    history: list[float]
+    passes: int
     n_slots: int
-    workers: int
-    reach_us: int
+
+
+@dataclass(frozen=True, slots=True)
+class _Assembled:
+    """The decision's matches, assignments and visits, and every planned path (for the tasks they reach)."""
+
+    matches: list[RiderMatch]
+    assignments: list[TaskAssignment]
+    visits: list[Visit]
+    planned: list[PlannedPath]
 
 
 def path_nodes(graph: RoadGraph, start: int, edges: NDArray[np.int64]) -> tuple[int, ...]:
@@ -87,134 +133,63 @@ def path_nodes(graph: RoadGraph, start: int, edges: NDArray[np.int64]) -> tuple[
     return (int(graph.edges.tail[edges[0]]), *graph.edges.head[edges].tolist())
 
 
-def _step1(
-    city: City,
-    graph: RoadGraph,
-    counts: CountsView,
-    now: float,
-    k0: int,
-    counted: Counted,
-    pick_taxi: NDArray[np.int64],
-    pick_rider: NDArray[np.int64],
-    pick_wait_s: NDArray[np.float64],
-    pick_wait_us: NDArray[np.int64],
-    service: Sequence[Leg],
-    n_slots: int,
-) -> tuple[list[tuple[int, int, float]], int, dict[str, float | int]]:
-    """Step 1: (taxi index, rider index, gain) of the matched pairs, the slots needed, diagnostics."""
-    stats: dict[str, float | int] = {"step1_candidates": len(pick_taxi)}
-    if len(pick_taxi) == 0:
-        return [], n_slots, stats
-    ed = graph.edges
-    leg_ptr = np.zeros(len(service) + 1, dtype=np.int64)
-    leg_ptr[1:] = np.cumsum([len(leg.edges) for leg in service])
-    leg_edges = np.concatenate([leg.edges for leg in service]).astype(np.int64) if service else leg_ptr[:0]
-    crossings = max(int((ed.ec_ptr[leg.edges + 1] - ed.ec_ptr[leg.edges]).sum()) for leg in service)
-    depart = now + pick_wait_s
-    while True:
-        top = gain_table(city, counts.counts, k0, n_slots, now)
-        unit = fixed_point_unit(float(top.term.max(initial=0.0)), crossings)
-        gn = gain_table(city, counts.counts, k0, n_slots, now, unit=unit)
-        gq, max_slot = pair_gains_q(ed, gn, counted, pick_taxi, pick_rider, depart, leg_ptr, leg_edges)
-        if max_slot < n_slots:
-            break
-        n_slots = int(max_slot) + 1
-    ok = np.flatnonzero(gq > 0)  # a pair is a candidate for gain when its exact gain is positive
-    sol = lexicographic_assignment(
-        pick_taxi[ok], pick_rider[ok], gq[ok], pick_wait_us[ok], secondary_sense="min"
-    )
-    stats.update({"step1_positive_pairs": len(ok), "step1_gain_unit": gn.unit})
-    chosen = ok[sol.pair]
-    # the reported gain: the floating-point sum along the path, for the matched pairs only
-    g, _gq, _ms = eval_pairs(
-        ed, gn, counted, pick_taxi[chosen], pick_rider[chosen], depart[chosen], leg_ptr, leg_edges
-    )
-    out = [(int(pick_taxi[k]), int(pick_rider[k]), float(x)) for k, x in zip(chosen, g, strict=True)]
-    return out, n_slots, stats
+def _present(snapshot: Snapshot, patience_s: float) -> _Present:
+    """The riders within their patience and the vacant taxis of ``snapshot``."""
+    now = snapshot.time_s
+    expired = tuple(r.id for r in snapshot.riders if now - r.requested_at_s > patience_s)
+    expired_set = set(expired)
+    riders = [r for r in snapshot.riders if r.id not in expired_set]
+    vacant = [t for t in snapshot.taxis if t.vacant]
+    instr = [t for t in vacant if t.instrumented]
+    ordinary = [t for t in vacant if not t.instrumented]
+    return _Present(riders, tuple(RiderId(r) for r in expired), instr, ordinary)
 
 
-def step3_reach_us(city: City, graph: RoadGraph) -> int:
-    """Step 3's reach in whole microseconds (``INF``: every taxi is a candidate for every POI): the city's
-    ``step3_reach_s`` on a network that takes longer than ``step3_reach_above_s`` to cross
-    (``search.crossing_us``), none on a smaller one (docs/METHOD.md section 4, "Step 3 at scale")."""
-    p = city.params
-    if p.step3_reach_s is None or search.crossing_us(graph) <= p.step3_reach_above_s * US_PER_S:
-        return INF
-    return int(round(p.step3_reach_s * US_PER_S))
+def _pickups(ep: Epoch, who: _Present) -> Pickups:
+    """Every (taxi, rider) pair whose fastest pickup path is within the radius."""
+    net = ep.city.network
+    xy = np.column_stack((net.x_m, net.y_m))
+    origins = np.array([r.origin for r in who.riders], dtype=np.int64)
+    taxi_nodes = np.array([t.node for t in who.taxis], dtype=np.int64)
+    return pickups(ep.graph, xy, origins, taxi_nodes, ep.city.params.radius_m, ep.workers, ep.pads)
 
 
-def step3_reach(city: City) -> tuple[float | None, float]:
-    """Step 3's reach on ``city`` in seconds (None: every taxi is a candidate for every POI) and the time the
-    network takes to cross (``search.crossing_us``), which decides whether the reach applies."""
-    graph = road_graph(city)
-    reach = step3_reach_us(city, graph)
-    return (None if reach >= INF else reach / US_PER_S), search.crossing_us(graph) / US_PER_S
+def _trips(ep: Epoch, riders: list[Rider], pk: Pickups) -> list[Leg]:
+    """Each rider's service leg (pickup -> dropoff); an empty leg for a rider no taxi can pick up."""
+    has_pair = np.zeros(len(riders), dtype=bool)
+    has_pair[pk.rider] = True
+    rows = np.flatnonzero(has_pair)
+    legs = trips(ep.graph, [(riders[j].origin, riders[j].destination) for j in rows], ep.workers, ep.pads)
+    service: list[Leg] = [Leg(np.zeros(0, dtype=np.int64), 0.0, 0.0)] * len(riders)
+    for j, leg in zip(rows.tolist(), legs, strict=True):
+        service[j] = leg
+    return service
 
 
-def _step3(
-    city: City,
-    graph: RoadGraph,
-    counts: CountsView,
-    free: Sequence[Taxi],
-    counted: Counted,
-    targets: NDArray[np.int64],
-    epoch: _Epoch,
-    pads: Pads,
-) -> tuple[list[tuple[int, Route, NDArray[np.int64]]], Gains, int]:
-    """Step 3 before Algorithm 2: (free-taxi index, route, fastest path to the same POI) per matched pair
-    (``counted``: the free taxis' counted pairs, in their order). A pair is a candidate when the POI lies
-    within the taxi's reach; maximize the matches, then the total phi."""
-    sources = np.array([t.node for t in free], dtype=np.int64)
-    kappas = city.params.kappas
-    n_slots = epoch.n_slots
-    while True:
-        gn = gain_table(city, counts.counts, epoch.k0, n_slots, epoch.now)
-        plans = plan_routes(
-            graph,
-            gn,
-            counted,
-            sources,
-            targets,
-            epoch.now,
-            kappas,
-            epoch.workers,
-            pads,
-            reach_us=epoch.reach_us,
+def _rider_paths(
+    ep: Epoch, who: _Present, pk: Pickups, s1: Step1, s2: list[Match], service: Sequence[Leg]
+) -> _Riders:
+    """The matched riders' paths: the pickup leg (searched again for the matched pairs only) then the trip."""
+    taxis, riders = who.taxis, who.riders
+    both = s1.pairs + s2
+    pair_keys = pk.rider * len(taxis) + pk.taxi  # ascending: the pairs are ordered by rider, then taxi
+    at = np.searchsorted(pair_keys, np.array([j * len(taxis) + i for i, j, _ in both], dtype=np.int64))
+    with ep.pads.take() as pad:
+        legs_in = search.fastest_paths(
+            ep.graph,
+            pad.forward,
+            np.array([taxis[i].node for i, _, _ in both], dtype=np.int64),
+            np.array([riders[j].origin for _, j, _ in both], dtype=np.int64),
         )
-        if plans.max_slot < n_slots:
-            break
-        n_slots = plans.max_slot + 1
-    phi = plans.phi
-    top = float(phi.max(initial=0.0))
-    phi_q = (
-        np.rint(phi / (top / 2.0**PHI_BITS)).astype(np.int64) if top > 0 else np.zeros(phi.shape, np.int64)
-    )
-    rows, cols = np.nonzero(plans.candidate)
-    sol = lexicographic_assignment(
-        rows, cols, np.ones(len(rows), dtype=np.int64), phi_q[rows, cols], secondary_sense="max"
-    )
-    pairs = list(zip(sol.rows.tolist(), sol.cols.tolist(), strict=True))
-
-    def routes(chunk: Sequence[tuple[int, int]]) -> list[tuple[int, Route, NDArray[np.int64]]]:
-        out = []
-        with pads.take() as pad:
-            for i, j in chunk:
-                q = int(plans.kappa_index[i, j])
-                leg = Drive(i, int(sources[i]), int(targets[j]), int(plans.d0_us[i, j]))
-                fastest = route_pair(graph, gn, counted, leg, kappas, 0, pad)
-                edges = fastest if kappas[q] == 0.0 else route_pair(graph, gn, counted, leg, kappas, q, pad)
-                gain, time_s, length_m = (
-                    float(plans.gain[i, j]),
-                    float(plans.time_s[i, j]),
-                    float(plans.length_m[i, j]),
-                )
-                out.append(
-                    (i, Route(leg.source, leg.target, kappas[q], edges, gain, time_s, length_m, 0), fastest)
-                )
-        return out
-
-    out = parallel_map(routes, pairs, epoch.workers)
-    return out, gn, n_slots
+    paths = [
+        np.concatenate((leg, service[j].edges)).astype(np.int64)
+        for leg, (_, j, _) in zip(legs_in, both, strict=True)
+    ]
+    planned = [
+        PlannedPath(taxis[i].id, taxis[i].node, edges, ep.now)
+        for (i, _, _), edges in zip(s1.pairs, paths[: len(s1.pairs)], strict=True)
+    ]
+    return _Riders(s1, s2, at, paths, planned)
 
 
 def _touching(graph: RoadGraph, paths: Sequence[PlannedPath], nodes: NDArray[np.bool_]) -> list[PlannedPath]:
@@ -222,6 +197,208 @@ def _touching(graph: RoadGraph, paths: Sequence[PlannedPath], nodes: NDArray[np.
     find a pending task on, so it is given only these."""
     head = graph.edges.head
     return [p for p in paths if nodes[p.start] or bool(nodes[head[p.edges]].any())]
+
+
+def _targets(ep: Epoch, tasks: Sequence[Task], planned: Sequence[PlannedPath]) -> _Targets:
+    """Step 3's POIs: the open tasks not already reached by a Step 1 path, grouped by node."""
+    pending_nodes = np.zeros(ep.city.network.n_nodes, dtype=bool)
+    pending_nodes[[t.node for t in tasks if t.status == "pending"]] = True
+    passive1 = reaches(ep.city, _touching(ep.graph, planned, pending_nodes), tasks)
+    open_tasks = sorted(
+        (t for t in tasks if t.is_open(ep.now) and t.id not in passive1),
+        key=lambda t: (t.scheduled_at_s, t.id),
+    )
+    by_node: dict[int, TaskId] = {}
+    for t in open_tasks:
+        by_node.setdefault(t.node, t.id)
+    return _Targets(open_tasks, by_node, pending_nodes)
+
+
+def _algorithm2(ep: Epoch, free: Sequence[Taxi], counted_free: Counted, s3: Step3) -> _Monitoring:
+    """Algorithm 2 over Step 3's matched taxis (``counted_free``: the free taxis' counted pairs)."""
+    matched = [free[i] for i, _, _ in s3.pairs]
+    counted = counted_rows(counted_free, [i for i, _, _ in s3.pairs])
+    routes, history, passes = improve_routes(
+        ep,
+        [t.id for t in matched],
+        counted,
+        [r for _, r, _ in s3.pairs],
+        [f for _, _, f in s3.pairs],
+        s3.n_slots,
+    )
+    return _Monitoring(matched, routes, history, passes, s3.n_slots)
+
+
+class _Facts:
+    """The G-routes and timed G-routes of every planned path (riders' paths, then routes), in one compiled
+    call; ``cells(q)`` and ``visits(q, taxi)`` read path ``q``'s."""
+
+    def __init__(self, ep: Epoch, paths: Sequence[NDArray[np.int64]]) -> None:
+        city = ep.city
+        ptr = np.zeros(len(paths) + 1, dtype=np.int64)
+        ptr[1:] = np.cumsum([len(e) for e in paths])
+        flat = np.concatenate(paths).astype(np.int64) if paths else np.zeros(0, dtype=np.int64)
+        self.cell_ptr, self.cells, self.pair_ptr, self.pair_k, self.pair_c = path_facts(
+            ep.graph.edges,
+            ptr,
+            flat,
+            ep.now,
+            city.horizon.shift_s(ep.now),
+            float(city.horizon.interval_s),
+            city.grid.n_cells,
+        )
+        self.n_cols = city.grid.n_cols
+        self.visited = ep.counts.visited
+
+    def cells_of(self, q: int) -> tuple[tuple[int, int], ...]:
+        n_cols, cells = self.n_cols, self.cells
+        return tuple(
+            (c % n_cols, c // n_cols) for c in cells[self.cell_ptr[q] : self.cell_ptr[q + 1]].tolist()
+        )
+
+    def visits_of(self, q: int, taxi: Taxi) -> list[Visit]:
+        seen = self.visited.get(taxi.id, frozenset())
+        ks = self.pair_k[self.pair_ptr[q] : self.pair_ptr[q + 1]].tolist()
+        cs = self.pair_c[self.pair_ptr[q] : self.pair_ptr[q + 1]].tolist()
+        return [Visit(taxi.id, IntervalKey(k), c) for k, c in zip(ks, cs, strict=True) if (k, c) not in seen]
+
+
+def _rider_matches(
+    ep: Epoch, who: _Present, pk: Pickups, rides: _Riders, service: Sequence[Leg], facts: _Facts
+) -> tuple[list[RiderMatch], list[Visit]]:
+    """Steps 1-2's rider matches and the visits Step 1's sensing taxis make on their way."""
+    taxis, n1 = who.taxis, len(rides.step1.pairs)
+    matches: list[RiderMatch] = []
+    visits: list[Visit] = []
+    for q, (i, j, gain) in enumerate(rides.both):
+        k = int(rides.at[q])
+        taxi, svc = taxis[i], service[j]
+        matches.append(
+            RiderMatch(
+                1 if q < n1 else 2,
+                taxi.id,
+                who.riders[j].id,
+                float(pk.length_m[k]),
+                float(pk.wait_s[k]),
+                svc.length_m,
+                svc.time_s,
+                gain,
+                path_nodes(ep.graph, taxi.node, rides.paths[q]),
+                facts.cells_of(q),
+            )
+        )
+        if q < n1:
+            visits.extend(facts.visits_of(q, taxi))
+    return matches, visits
+
+
+def _assemble(
+    ep: Epoch,
+    who: _Present,
+    pk: Pickups,
+    rides: _Riders,
+    service: Sequence[Leg],
+    mon: _Monitoring,
+    by_node: dict[int, TaskId],
+) -> _Assembled:
+    """The rider matches, the task assignments, the visits to count and every planned path of the epoch."""
+    facts = _Facts(ep, [*rides.paths, *(r.edges for r in mon.routes)])
+    matches, visits = _rider_matches(ep, who, pk, rides, service, facts)
+    p = ep.city.params
+    planned = list(rides.planned)
+    assignments: list[TaskAssignment] = []
+    for q, (taxi, route) in enumerate(zip(mon.taxis, mon.routes, strict=True), start=len(rides.paths)):
+        task_id = by_node[route.target]
+        assignments.append(
+            TaskAssignment(
+                taxi.id,
+                task_id,
+                path_nodes(ep.graph, taxi.node, route.edges),
+                facts.cells_of(q),
+                route.length_m,
+                route.time_s,
+                route.gain,
+                route.efficiency,
+                p.unit_cost_cny_per_km * route.length_m / 1000.0,
+                route.kappa,
+            )
+        )
+        planned.append(PlannedPath(taxi.id, taxi.node, route.edges, ep.now, target_task=task_id))
+        visits.extend(facts.visits_of(q, taxi))
+    return _Assembled(matches, assignments, visits, planned)
+
+
+def _task_updates(
+    ep: Epoch, tasks: Sequence[Task], planned: Sequence[PlannedPath], pending_nodes: NDArray[np.bool_]
+) -> tuple[dict[TaskId, Reach], tuple[Task, ...]]:
+    """The tasks the planned paths reach and every task the epoch changes (due completions, then reaches)."""
+    found = reaches(ep.city, _touching(ep.graph, planned, pending_nodes), tasks)
+    updates = {t.id: t for t in due_completions(tasks, ep.now)}
+    updates.update({t.id: t for t in apply_reaches(tasks, found, ep.now)})
+    return found, tuple(updates.values())
+
+
+def _stats(
+    ep: Epoch,
+    snapshot: Snapshot,
+    who: _Present,
+    rides: _Riders,
+    out: _Assembled,
+    targets: _Targets,
+    found: dict[TaskId, Reach],
+    mon: _Monitoring,
+) -> dict[str, float | int]:
+    """The decision's per-step diagnostics."""
+    s1, history = rides.step1, mon.history
+    return {
+        "interval": ep.k0,
+        "riders": len(snapshot.riders),
+        "riders_expired": len(who.expired),
+        "vacant_instrumented": len(who.instrumented),
+        "vacant_ordinary": len(who.ordinary),
+        "step1_matches": len(s1.pairs),
+        "step2_matches": len(rides.step2),
+        "step3_assignments": len(out.assignments),
+        "step1_sensing_gain": float(sum(g for _, _, g in s1.pairs)),
+        "total_wait_s": float(sum(m.wait_s for m in out.matches)),
+        "open_tasks": len(targets.open_tasks),
+        "passive_reaches": sum(1 for r in found.values() if r.mode == "passive"),
+        "alg2_passes": mon.passes,
+        "alg2_utility_initial": history[0] if history else 0.0,
+        "alg2_utility_final": history[-1] if history else 0.0,
+        "monitoring_cost_cny": float(sum(a.cost_cny for a in out.assignments)),
+        **s1.stats,
+    }
+
+
+def _decision(
+    ep: Epoch,
+    snapshot: Snapshot,
+    who: _Present,
+    rides: _Riders,
+    out: _Assembled,
+    task_updates: tuple[Task, ...],
+    stats: dict[str, float | int],
+    n_slots: int,
+) -> Decision:
+    """The decision: the riders left unmatched, the completed tasks and the intervals touched (the tabulated
+    slots and every visit's) beside the matches, assignments and visits."""
+    taken = {j for _, j, _ in rides.both}
+    riders = who.riders
+    touched = sorted({IntervalKey(ep.k0 + s) for s in range(n_slots)} | {v.interval for v in out.visits})
+    return Decision(
+        epoch_id=snapshot.epoch_id,
+        time_s=ep.now,
+        rider_matches=tuple(out.matches),
+        task_assignments=tuple(out.assignments),
+        tasks_completed=tuple(t for t in task_updates if t.status == "completed"),
+        task_updates=task_updates,
+        unmatched_rider_ids=tuple(riders[j].id for j in range(len(riders)) if j not in taken),
+        expired_rider_ids=who.expired,
+        visits=tuple(dict.fromkeys(out.visits)),
+        intervals_touched=tuple(touched),
+        stats=stats,
+    )
 
 
 def decide(
@@ -251,241 +428,53 @@ def decide(
     Decision with the rider matches of Steps 1-2, the monitoring routes of Step 3 (after Algorithm 2), the
     task updates, the visits to count on commit, and per-step diagnostics in ``stats``.
     """
-    p = city.params
-    graph = road_graph(city)
     lap = phase or (lambda _name: None)
-    now = snapshot.time_s
-    k0 = int(city.horizon.interval_of(now))
-    expired = tuple(r.id for r in snapshot.riders if now - r.requested_at_s > p.patience_s)
-    expired_set = set(expired)
-    riders = [r for r in snapshot.riders if r.id not in expired_set]
-    vacant = [t for t in snapshot.taxis if t.vacant]
-    instr = [t for t in vacant if t.instrumented]
-    ordinary = [t for t in vacant if not t.instrumented]
-    taxis = instr + ordinary  # instrumented first: indices < len(instr) are instrumented
-    net = city.network
-    pads = pads_for(graph)
-    xy = np.column_stack((net.x_m, net.y_m))
-    pk = pickups(
-        graph,
-        xy,
-        np.array([r.origin for r in riders], dtype=np.int64),
-        np.array([t.node for t in taxis], dtype=np.int64),
-        p.radius_m,
-        workers,
-        pads,
-    )
-    lap("pickups")
-    has_pair = np.zeros(len(riders), dtype=bool)
-    has_pair[pk.rider] = True
-    legs = trips(
-        graph, [(riders[j].origin, riders[j].destination) for j in np.flatnonzero(has_pair)], workers, pads
-    )
-    service: list[Leg] = [Leg(np.zeros(0, dtype=np.int64), 0.0, 0.0)] * len(riders)
-    for j, leg in zip(np.flatnonzero(has_pair).tolist(), legs, strict=True):
-        service[j] = leg
-    lap("trips")
-    n_slots = INITIAL_SLOTS
-
-    # Step 1
-    is_instr = pk.taxi < len(instr)
-    counted_instr = counted_csr(counts.visited, [t.id for t in instr], k0)  # row i: instr[i]
-    s1, n_slots, s1_stats = _step1(
+    graph = road_graph(city)
+    ep = Epoch(
         city,
         graph,
         counts,
-        now,
-        k0,
-        counted_instr,
-        pk.taxi[is_instr],
-        pk.rider[is_instr],
-        pk.wait_s[is_instr],
-        pk.wait_us[is_instr],
-        service,
-        n_slots,
+        snapshot.time_s,
+        int(city.horizon.interval_of(snapshot.time_s)),
+        workers,
+        pads_for(graph),
     )
-    taken = {j for _, j, _ in s1}
+    who = _present(snapshot, city.params.patience_s)
+    pk = _pickups(ep, who)
+    lap("pickups")
+    service = _trips(ep, who.riders, pk)
+    lap("trips")
+    counted_instr = counted_csr(counts.visited, [t.id for t in who.instrumented], ep.k0)  # row i: taxi i
+    s1 = step1_sensing_matches(
+        ep, counted_instr, select(pk, pk.taxi < len(who.instrumented)), service, INITIAL_SLOTS
+    )
     lap("step1")
-
-    # Step 2: ordinary taxis x the riders left; maximize matches, then minimize wait
-    left = np.array([j not in taken for j in range(len(riders))], dtype=bool)
-    ok = (pk.taxi >= len(instr)) & left[pk.rider] if len(pk.rider) else np.zeros(0, dtype=bool)
-    sol2 = lexicographic_assignment(
-        pk.taxi[ok],
-        pk.rider[ok],
-        np.ones(int(ok.sum()), dtype=np.int64),
-        pk.wait_us[ok],
-        secondary_sense="min",
-    )
-    s2 = [(int(i), int(j), 0.0) for i, j in zip(sol2.rows.tolist(), sol2.cols.tolist(), strict=True)]
-    taken.update(j for _, j, _ in s2)
-    unmatched = tuple(riders[j].id for j in range(len(riders)) if j not in taken)
-    # the matched riders' paths: pickup leg (searched again for the matched pairs only) + trip
-    both = s1 + s2
-    pair_keys = pk.rider * len(taxis) + pk.taxi  # ascending: the pairs are ordered by rider, then taxi
-    at = np.searchsorted(pair_keys, np.array([j * len(taxis) + i for i, j, _ in both], dtype=np.int64))
-    with pads.take() as pad:
-        legs_in = search.fastest_paths(
-            graph,
-            pad.forward,
-            np.array([taxis[i].node for i, _, _ in both], dtype=np.int64),
-            np.array([riders[j].origin for _, j, _ in both], dtype=np.int64),
-        )
-    rider_paths = [
-        np.concatenate((leg, service[j].edges)).astype(np.int64)
-        for leg, (_, j, _) in zip(legs_in, both, strict=True)
-    ]
-    planned = [
-        PlannedPath(taxis[i].id, taxis[i].node, edges, now)
-        for (i, _, _), edges in zip(s1, rider_paths[: len(s1)], strict=True)
-    ]
-    busy_taxis = {i for i, _, _ in s1}
+    s2 = step2_regular_matches(pk, len(who.instrumented), {j for _, j, _ in s1.pairs}, len(who.riders))
+    rides = _rider_paths(ep, who, pk, s1, s2, service)
     lap("step2")
-
-    # Step 3: open tasks not already reached by a Step 1 path, grouped by POI node
-    task_nodes = np.zeros(net.n_nodes, dtype=bool)
-    task_nodes[[t.node for t in tasks if t.status == "pending"]] = True
-    passive1 = reaches(city, _touching(graph, planned, task_nodes), tasks)
-    open_tasks = sorted(
-        (t for t in tasks if t.is_open(now) and t.id not in passive1), key=lambda t: (t.scheduled_at_s, t.id)
-    )
-    by_node: dict[int, TaskId] = {}
-    for t in open_tasks:
-        by_node.setdefault(t.node, t.id)
-    targets = np.fromiter(by_node, dtype=np.int64, count=len(by_node))
-    free_rows = [i for i in range(len(instr)) if i not in busy_taxis]
-    free = [instr[i] for i in free_rows]
-    matched: list[Taxi] = []
-    routes: list[Route] = []
-    history: list[float] = []
-    passes = 0
-    if p.active_sensing and free and len(targets):
+    targets = _targets(ep, tasks, rides.planned)
+    busy = {i for i, _, _ in s1.pairs}
+    free_rows = [i for i in range(len(who.instrumented)) if i not in busy]
+    free = [who.instrumented[i] for i in free_rows]
+    mon = _Monitoring([], [], [], 0, s1.n_slots)
+    if city.params.active_sensing and free and len(targets.by_node):
         counted_free = counted_rows(counted_instr, free_rows)
-        epoch = _Epoch(now, k0, n_slots, workers, step3_reach_us(city, graph))
-        s3, gn, n_slots = _step3(city, graph, counts, free, counted_free, targets, epoch, pads)
+        s3 = step3_monitoring_routes(ep, free, counted_free, targets.nodes, s1.n_slots)
         lap("step3")
-        matched = [free[i] for i, _, _ in s3]
-        counted = counted_rows(counted_free, [i for i, _, _ in s3])
-        routes, history, passes = improve_routes(
-            city,
-            graph,
-            counts,
-            [t.id for t in matched],
-            counted,
-            [r for _, r, _ in s3],
-            [f for _, _, f in s3],
-            now,
-            k0,
-            n_slots,
-            workers,
-            pads,
-        )
+        mon = _algorithm2(ep, free, counted_free, s3)
         lap("algorithm2")
-
-    # every planned path's G-route and timed G-route, in one compiled call
-    all_paths = [*rider_paths, *(r.edges for r in routes)]
-    ptr = np.zeros(len(all_paths) + 1, dtype=np.int64)
-    ptr[1:] = np.cumsum([len(e) for e in all_paths])
-    flat = np.concatenate(all_paths).astype(np.int64) if all_paths else np.zeros(0, dtype=np.int64)
-    cell_ptr, cells, pair_ptr, pair_k, pair_c = path_facts(
-        graph.edges,
-        ptr,
-        flat,
-        now,
-        city.horizon.shift_s(now),
-        float(city.horizon.interval_s),
-        city.grid.n_cells,
-    )
-    n_cols = city.grid.n_cols
-
-    def cells_of(q: int) -> tuple[tuple[int, int], ...]:
-        return tuple((c % n_cols, c // n_cols) for c in cells[cell_ptr[q] : cell_ptr[q + 1]].tolist())
-
-    def visits_of(q: int, taxi: Taxi) -> list[Visit]:
-        seen = counts.visited.get(taxi.id, frozenset())
-        ks = pair_k[pair_ptr[q] : pair_ptr[q + 1]].tolist()
-        cs = pair_c[pair_ptr[q] : pair_ptr[q + 1]].tolist()
-        return [Visit(taxi.id, IntervalKey(k), c) for k, c in zip(ks, cs, strict=True) if (k, c) not in seen]
-
-    matches: list[RiderMatch] = []
-    visits: list[Visit] = []
-    for q, (i, j, gain) in enumerate(both):
-        k = int(at[q])
-        taxi, svc = taxis[i], service[j]
-        matches.append(
-            RiderMatch(
-                1 if q < len(s1) else 2,
-                taxi.id,
-                riders[j].id,
-                float(pk.length_m[k]),
-                float(pk.wait_s[k]),
-                svc.length_m,
-                svc.time_s,
-                gain,
-                path_nodes(graph, taxi.node, rider_paths[q]),
-                cells_of(q),
-            )
-        )
-        if q < len(s1):
-            visits.extend(visits_of(q, taxi))
-    assignments: list[TaskAssignment] = []
-    for q, (taxi, route) in enumerate(zip(matched, routes, strict=True), start=len(rider_paths)):
-        task_id = by_node[route.target]
-        assignments.append(
-            TaskAssignment(
-                taxi.id,
-                task_id,
-                path_nodes(graph, taxi.node, route.edges),
-                cells_of(q),
-                route.length_m,
-                route.time_s,
-                route.gain,
-                route.efficiency,
-                p.unit_cost_cny_per_km * route.length_m / 1000.0,
-                route.kappa,
-            )
-        )
-        planned.append(PlannedPath(taxi.id, taxi.node, route.edges, now, target_task=task_id))
-        visits.extend(visits_of(q, taxi))
-
-    found = reaches(city, _touching(graph, planned, task_nodes), tasks)
-    updates = {t.id: t for t in due_completions(tasks, now)}
-    updates.update({t.id: t for t in apply_reaches(tasks, found, now)})
-    task_updates = tuple(updates.values())
-    completed = tuple(t for t in task_updates if t.status == "completed")
-    touched = sorted({IntervalKey(k0 + s) for s in range(n_slots)} | {v.interval for v in visits})
-    stats: dict[str, float | int] = {
-        "interval": k0,
-        "riders": len(snapshot.riders),
-        "riders_expired": len(expired),
-        "vacant_instrumented": len(instr),
-        "vacant_ordinary": len(ordinary),
-        "step1_matches": len(s1),
-        "step2_matches": len(s2),
-        "step3_assignments": len(assignments),
-        "step1_sensing_gain": float(sum(g for _, _, g in s1)),
-        "total_wait_s": float(sum(m.wait_s for m in matches)),
-        "open_tasks": len(open_tasks),
-        "passive_reaches": sum(1 for r in found.values() if r.mode == "passive"),
-        "alg2_passes": passes,
-        "alg2_utility_initial": history[0] if history else 0.0,
-        "alg2_utility_final": history[-1] if history else 0.0,
-        "monitoring_cost_cny": float(sum(a.cost_cny for a in assignments)),
-        **s1_stats,
-    }
+    out = _assemble(ep, who, pk, rides, service, mon, targets.by_node)
+    found, task_updates = _task_updates(ep, tasks, out.planned, targets.pending_nodes)
     lap("tasks")
-    return Decision(
-        epoch_id=snapshot.epoch_id,
-        time_s=now,
-        rider_matches=tuple(matches),
-        task_assignments=tuple(assignments),
-        tasks_completed=completed,
-        task_updates=task_updates,
-        unmatched_rider_ids=unmatched,
-        expired_rider_ids=tuple(RiderId(r) for r in expired),
-        visits=tuple(dict.fromkeys(visits)),
-        intervals_touched=tuple(touched),
-        stats=stats,
+    return _decision(
+        ep,
+        snapshot,
+        who,
+        rides,
+        out,
+        task_updates,
+        _stats(ep, snapshot, who, rides, out, targets, found, mon),
+        mon.n_slots,
     )
 
 

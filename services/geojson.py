@@ -3,8 +3,8 @@ its counts, and the routes and tasks of one decision epoch.
 
 Every function returns a JSON-ready ``FeatureCollection`` dict. Positions are WGS84 ``[lon, lat]`` rounded to
 ``DECIMALS`` places (about 0.1 m); polygon rings are closed and counterclockwise (RFC 7946 section 3.1.6).
-Grid cells are squares in the city's projected plane (``services.grid``); their corners are projected back
-to WGS84 once per grid line crossing, so neighbouring cells share their corner positions exactly.
+Grid cells are squares in the city's projected plane (``services.sensing.grid``); their corners are projected
+back to WGS84 once per grid line crossing, so neighbouring cells share their corner positions exactly.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from services.grid import Grid
 from services.model import RiderMatch, Task, TaskAssignment
-from services.network import Network, lonlat_of
+from services.network.network import Network, lonlat_of
 from services.rfc3339 import format_time
+from services.sensing.grid import Grid
 
 __all__ = [
     "DECIMALS",

@@ -8,8 +8,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from services.city import City, DispatchParams, Horizon
-from services.grid import build_edge_cells, build_grid, touched_cells
-from services.network import Network
+from services.network.network import Network
+from services.sensing.grid import build_edge_cells, build_grid, touched_cells
 
 T0 = dt.datetime(2026, 11, 23, 8, 0, tzinfo=dt.UTC).timestamp()
 """08:00 UTC: the start of the first horizon interval for cities made here (timezone UTC)."""

@@ -13,8 +13,8 @@ import networkx as nx
 import numpy as np
 
 from services.city import City
-from services.grid import segment_cells
 from services.model import CountsView, IntervalKey, TaxiId
+from services.sensing.grid import segment_cells
 
 
 def nx_graph(city: City, weight: np.ndarray | None = None) -> nx.DiGraph:
@@ -116,7 +116,8 @@ def lexi_best(pairs, primary, secondary, *, sense: str, tol: float = 1e-12):
 
 def canonical_tree(graph, cost, source: int, reverse: bool = False):
     """(label per node, pred edge per node) of a plain lexicographic Dijkstra on the original edges:
-    labels (cost, tie1, tie2) compared in order, so its tree is *the* canonical one of ``services.graph``."""
+    labels (cost, tie1, tie2) compared in order, so its tree is *the* canonical one of
+    ``services.network.graph``."""
     ed = graph.edges
     n = graph.n_nodes
     adj: list[list[int]] = [[] for _ in range(n)]

@@ -206,9 +206,16 @@ def worker_beat_from_json(text: str) -> WorkerBeat:
     if s is not None:
         total, done, cached, running, failed = (int(v) for v in s["runs"])
         solving = SolveProgress(
-            int(s["interval"]), s["trigger"], s.get("request_id"), float(s["started_at_s"]),
-            total, done, cached, running, failed,
-        )  # fmt: skip
+            int(s["interval"]),
+            s["trigger"],
+            s.get("request_id"),
+            float(s["started_at_s"]),
+            total,
+            done,
+            cached,
+            running,
+            failed,
+        )
     nxt, due = doc.get("next_interval"), doc.get("next_due_at_s")
     return WorkerBeat(
         worker_id=str(doc["id"]),

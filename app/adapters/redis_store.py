@@ -1,5 +1,5 @@
-"""Redis ``Store``: one Lua script commits an epoch, another reads its state; other reads are MULTI/EXEC
-snapshots (keys: docs/DESIGN.md).
+"""Redis ``Store``: one Lua script commits an epoch, another reads its state (the scripts are the files of
+``app/adapters/lua/``, read at import); other reads are MULTI/EXEC snapshots (keys: docs/DESIGN.md).
 
 Every key of a city carries the hash tag ``{city}``, so on a Redis Cluster (``mode="cluster"``, redis-py's
 cluster client) all of a city's keys share one slot: each script and transaction runs on one node."""
@@ -10,6 +10,7 @@ import json
 import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from importlib import resources
 from itertools import repeat
 from typing import Any, Literal, cast
 from urllib.parse import urlsplit
@@ -66,169 +67,26 @@ __all__ = [
     "WORKER_BEAT_LUA",
 ]
 
-COMMIT_EPOCH_LUA = """
--- Commit one dispatch epoch atomically (docs/DESIGN.md, "Exactly-once epochs").
--- KEYS[1] meta hash, KEYS[2] epoch record hash, KEYS[3] intervals zset, KEYS[4] open tasks hash,
--- KEYS[5] demand list of the epoch's UTC day, KEYS[6] finished tasks hash, KEYS[7] finished tasks by
--- epoch time (zset), KEYS[8..] count and visit keys named by index in visits.
--- ARGV[1] JSON {epoch_id, hash, time, expected_version, ttl, done_before,
---               visits: [[count_key_index, visit_key_index, cell, interval], ...],
---               tasks: [[task_id, task_json, '1' if it finishes the task else '0'], ...]};
--- ARGV[2] the response document, ARGV[3] the demand record ('' when nothing is recorded): as they are,
--- not inside ARGV[1] (no 0.5 MB string escaped into JSON and decoded again).
--- A finished task moves from the open hash to the finished ones; finished tasks that finished before
--- done_before (epoch time) are dropped.
--- Cells, intervals, times and the TTL arrive as strings: no number round-trips through a Lua double.
--- c.nonce is unique per commit attempt: finding it on the stored record means this very commit was
--- applied already and its reply lost (the client library sent it again): answer 'committed' again.
--- Returns {'duplicate', hash, time, response} | {'version_mismatch'} | {'stale'} | {'committed', version}.
-local meta, epoch, intervals, tasks, demand = KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5]
-local done, done_at = KEYS[6], KEYS[7]
-local c = cjson.decode(ARGV[1])
 
-local stored = redis.call('HMGET', epoch, 'hash', 'time', 'response', 'nonce')
-if stored[1] then
-  if c.nonce ~= '' and stored[4] == c.nonce then
-    return {'committed', redis.call('HGET', meta, 'version')}
-  end
-  return {'duplicate', stored[1], stored[2], stored[3]}
-end
-local m = redis.call('HMGET', meta, 'version', 'last_time')
-if tonumber(m[1] or '0') ~= tonumber(c.expected_version) then
-  return {'version_mismatch'}
-end
-if m[2] and tonumber(c.time) < tonumber(m[2]) then
-  return {'stale'}
-end
-
-local touched = {}
-local seen_intervals = {}
-for _, v in ipairs(c.visits) do
-  local count_key, visit_key, cell = KEYS[v[1]], KEYS[v[2]], v[3]
-  -- a (taxi, interval, cell) is counted at most once ever: Lambda grows only for a new set member
-  if redis.call('SADD', visit_key, cell) == 1 then
-    redis.call('HINCRBY', count_key, cell, 1)
-  end
-  seen_intervals[v[4]] = true
-  touched[count_key] = true
-  touched[visit_key] = true
-end
-for k, _ in pairs(seen_intervals) do
-  redis.call('ZADD', intervals, k, k)
-end
-for key, _ in pairs(touched) do
-  redis.call('EXPIRE', key, c.ttl)
-end
-for _, t in ipairs(c.tasks) do
-  if t[3] == '1' then
-    redis.call('HDEL', tasks, t[1])
-    redis.call('HSET', done, t[1], t[2])
-    redis.call('ZADD', done_at, c.time, t[1])
-  else
-    redis.call('HSET', tasks, t[1], t[2])
-  end
-end
-local old = redis.call('ZRANGEBYSCORE', done_at, '-inf', '(' .. c.done_before)
-for i = 1, #old, 1000 do
-  redis.call('HDEL', done, unpack(old, i, math.min(i + 999, #old)))
-end
-if #old > 0 then
-  redis.call('ZREMRANGEBYSCORE', done_at, '-inf', '(' .. c.done_before)
-end
-redis.call('HSET', epoch, 'hash', c.hash, 'time', c.time, 'response', ARGV[2], 'nonce', c.nonce)
-redis.call('EXPIRE', epoch, c.ttl)
-if ARGV[3] ~= '' then
-  redis.call('RPUSH', demand, ARGV[3])
-  redis.call('EXPIRE', demand, c.ttl)
-end
-local version = redis.call('HINCRBY', meta, 'version', 1)
-redis.call('HSET', meta, 'last_time', c.time, 'last_epoch', c.epoch_id)
-redis.call('EXPIRE', meta, c.ttl)
-return {'committed', version}
-"""
-
-REWIND_LUA = """
--- Set the last epoch time of the meta hash KEYS[1] back to ARGV[1] (docs/DESIGN.md, "Rewind and reset").
--- Returns {'empty', version} | {'ahead', version, last} | {'rewound', version, last}.
-local m = redis.call('HMGET', KEYS[1], 'version', 'last_time')
-local version = m[1] or '0'
-if not m[2] then
-  return {'empty', version}
-end
-if tonumber(ARGV[1]) > tonumber(m[2]) then
-  return {'ahead', version, m[2]}
-end
-redis.call('HSET', KEYS[1], 'last_time', ARGV[1])
-return {'rewound', version, m[2]}
-"""
-
-PUBLISH_RECOMMENDATION_LUA = """
--- Publish a fleet-sizing recommendation if its version is the current one plus one (docs/FLEET.md).
--- KEYS[1] current hash {version, record}, KEYS[2] history list (newest first).
--- ARGV[1] the record's version, ARGV[2] the record's JSON, ARGV[3] how many history entries to keep.
--- Returns {'published', version} | {'version_mismatch', current version}.
-local current = tonumber(redis.call('HGET', KEYS[1], 'version') or '0')
-if tonumber(ARGV[1]) ~= current + 1 then
-  return {'version_mismatch', tostring(current)}
-end
-redis.call('HSET', KEYS[1], 'version', ARGV[1], 'record', ARGV[2])
-redis.call('LPUSH', KEYS[2], ARGV[2])
-redis.call('LTRIM', KEYS[2], 0, tonumber(ARGV[3]) - 1)
-return {'published', ARGV[1]}
-"""
-
-RELEASE_LOCK_LUA = """
--- Delete the lock KEYS[1] only if it still holds the caller's token ARGV[1] (never another holder's).
-if redis.call('GET', KEYS[1]) == ARGV[1] then
-  return redis.call('DEL', KEYS[1])
-end
-return 0
-"""
-
-ENQUEUE_SOLVE_LUA = """
--- Queue a solve request (ARGV[1], JSON) on KEYS[1] unless one is pending; reply {created, pending request}.
-local head = redis.call('LINDEX', KEYS[1], 0)
-if head then
-  return {0, head}
-end
-redis.call('RPUSH', KEYS[1], ARGV[1])
-return {1, ARGV[1]}
-"""
-
-WORKER_BEAT_LUA = """
--- Record a fleet worker's heartbeat for one city (docs/FLEET.md, "Heartbeat and status").
--- KEYS[1] hash worker id -> beat JSON, KEYS[2] zset worker id by the time it was seen.
--- ARGV[1] worker id, ARGV[2] beat JSON, ARGV[3] its seen time, ARGV[4] the cutoff (beats seen before it
--- are dropped), ARGV[5] how long the city's beats are kept after this one, in ms.
-redis.call('HSET', KEYS[1], ARGV[1], ARGV[2])
-redis.call('ZADD', KEYS[2], ARGV[3], ARGV[1])
-local old = redis.call('ZRANGEBYSCORE', KEYS[2], '-inf', '(' .. ARGV[4])
-if #old > 0 then
-  redis.call('HDEL', KEYS[1], unpack(old))
-  redis.call('ZREM', KEYS[2], unpack(old))
-end
-redis.call('PEXPIRE', KEYS[1], ARGV[5])
-redis.call('PEXPIRE', KEYS[2], ARGV[5])
-return #old
-"""
+def _lua(name: str) -> str:
+    """The Lua script ``app/adapters/lua/<name>.lua`` (shipped with the package), read once at import."""
+    return (resources.files("app.adapters") / "lua" / f"{name}.lua").read_text(encoding="utf-8")
 
 
-LOAD_STATE_LUA = """
--- Read a city's state for one epoch in one call (a consistent snapshot, as a script runs alone).
--- KEYS[1] meta hash, KEYS[2] open tasks hash, KEYS[3 .. 2+ARGV[1]] count hashes, then visit sets.
--- Returns {meta {version, last_time, last_epoch}, tasks (flat), counts (flat)..., visits...}, each visit
--- set as one string of its members joined by ',': thousands of sets, one reply each, not one per member.
-local n_counts = tonumber(ARGV[1])
-local out = {redis.call('HMGET', KEYS[1], 'version', 'last_time', 'last_epoch')}
-out[2] = redis.call('HGETALL', KEYS[2])
-for i = 3, 2 + n_counts do
-  out[#out + 1] = redis.call('HGETALL', KEYS[i])
-end
-for i = 3 + n_counts, #KEYS do
-  out[#out + 1] = table.concat(redis.call('SMEMBERS', KEYS[i]), ',')
-end
-return out
-"""
+COMMIT_EPOCH_LUA = _lua("commit_epoch")
+
+REWIND_LUA = _lua("rewind")
+
+PUBLISH_RECOMMENDATION_LUA = _lua("publish_recommendation")
+
+RELEASE_LOCK_LUA = _lua("release_lock")
+
+ENQUEUE_SOLVE_LUA = _lua("enqueue_solve")
+
+WORKER_BEAT_LUA = _lua("worker_beat")
+
+
+LOAD_STATE_LUA = _lua("load_state")
 
 
 RedisMode = Literal["standalone", "cluster"]

@@ -9,7 +9,7 @@ from app.api.deps import ReadAccess
 from app.api.responses import errors
 from app.errors import InvalidInput
 from app.schemas.dro import WorstCaseIn, WorstCaseOut
-from services.dro import DroInputError, worst_case
+from services.fleet.dro import DroInputError, worst_case
 
 __all__ = ["router"]
 

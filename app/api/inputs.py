@@ -16,7 +16,7 @@ from app.settings import Settings
 from app.usecases import EpochCommand
 from services.city import City
 from services.model import IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
-from services.network import SnapError
+from services.network.network import SnapError
 
 __all__ = [
     "Limits",

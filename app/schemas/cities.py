@@ -6,8 +6,8 @@ from pydantic import Field
 
 from app.schemas.common import ResponseModel
 from services.city import City
-from services.dispatch import step3_reach
-from services.grid import node_col_row
+from services.routing.step3 import step3_reach
+from services.sensing.grid import node_col_row
 
 __all__ = [
     "NetworkSizeOut",

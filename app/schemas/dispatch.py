@@ -7,6 +7,7 @@ import hashlib
 import json
 import math
 import re
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from itertools import chain
@@ -30,7 +31,7 @@ from app.schemas.tasks import TaskOut, task_doc, task_of
 from app.usecases import EpochResult, StoredDecision
 from services.city import City
 from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
-from services.network import Network
+from services.network.network import Network
 from services.rfc3339 import parse_rfc3339
 
 __all__ = [
@@ -171,17 +172,20 @@ def body_hash(body: EpochIn, taxis: PlainTaxis | None = None) -> str:
 
 
 _EXTERNAL_IDS: dict[int, tuple[Network, list[int]]] = {}  # id(network) -> (network, its node ids as ints)
+_EXTERNAL_IDS_LOCK = threading.Lock()  # responses are rendered on the threadpool
 
 
 def _external_ids(city: City) -> list[int]:
-    """The city's external node ids as a list of ints, kept for the few most recent networks."""
+    """The city's external node ids as a list of ints, kept for the few most recent networks (the entry
+    holds its network, so an id is never taken for another network's while it is kept)."""
     net = city.network
-    hit = _EXTERNAL_IDS.get(id(net))
-    if hit is None or hit[0] is not net:
-        if len(_EXTERNAL_IDS) >= 8:
-            _EXTERNAL_IDS.pop(next(iter(_EXTERNAL_IDS)), None)
-        hit = _EXTERNAL_IDS[id(net)] = (net, net.node_ids.tolist())
-    return hit[1]
+    with _EXTERNAL_IDS_LOCK:
+        hit = _EXTERNAL_IDS.get(id(net))
+        if hit is None or hit[0] is not net:
+            if len(_EXTERNAL_IDS) >= 8:
+                _EXTERNAL_IDS.pop(next(iter(_EXTERNAL_IDS)))
+            hit = _EXTERNAL_IDS[id(net)] = (net, net.node_ids.tolist())
+        return hit[1]
 
 
 def _ext_paths(city: City, paths: Sequence[tuple[int, ...]]) -> list[list[int]]:

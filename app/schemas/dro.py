@@ -7,7 +7,7 @@ from typing import Annotated, Literal, cast
 from pydantic import BeforeValidator, Field, Strict, ValidationInfo, field_validator
 
 from app.schemas.common import RequestModel, ResponseModel, integral
-from services.dro import WorstCase
+from services.fleet.dro import WorstCase
 
 __all__ = ["MAX_SAMPLES", "MAX_BINS", "WorstCaseIn", "WorstCaseOut"]
 

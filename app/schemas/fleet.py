@@ -1,4 +1,5 @@
-"""Response models of the fleet-sizing API (docs/FLEET.md) and their conversion from ``services.fleet``.
+"""Response models of the fleet-sizing API (docs/FLEET.md) and their conversion from
+``services.fleet.sizing``.
 
 The worker publishes a recommendation (``app.worker.sizing.Recommendation``) as the JSON of
 :class:`RecommendationBody` (``render_recommendation``, which the worker is given); the API adds the store's
@@ -15,7 +16,7 @@ from pydantic import Field
 
 from app.ports import FleetRecord
 from app.schemas.common import ResponseModel
-from services.fleet import CandidateTable, Choice, RollingHour, SubsidyPoint
+from services.fleet.sizing import CandidateTable, Choice, RollingHour, SubsidyPoint
 from services.rfc3339 import format_time
 
 if TYPE_CHECKING:  # the worker's machinery stays out of the API process
@@ -283,18 +284,47 @@ class RecommendationBody(ResponseModel):
     solve: SolveStatsOut
 
 
+def _picks(methods: dict[Method, int]) -> dict[int, list[Method]]:
+    """The methods that chose each size."""
+    out: dict[int, list[Method]] = {}
+    for m, x in methods.items():
+        out.setdefault(x, []).append(m)
+    return out
+
+
+def _data_window(rec: Recommendation, labels: list[str]) -> DataWindowOut:
+    """The demand days the recommendation was sized on."""
+    window, cfg = rec.window, rec.config
+    return DataWindowOut(
+        source=window.source,
+        days=labels,
+        n_days=len(window.days),
+        requests_per_day=list(rec.requests_per_day),
+        recorded_days_available=window.recorded_available,
+        seed=cfg.seed if window.source == "synthetic" else None,
+        note=window.note,
+    )
+
+
+def _simulation(rec: Recommendation) -> SimulationOut:
+    """The simulations' settings."""
+    cfg = rec.config
+    return SimulationOut(
+        n0=cfg.n0,
+        n_tasks=cfg.n_tasks if rec.tasks.templates is None else len(rec.tasks.templates),
+        tasks_source=rec.tasks.source,
+        reach_s=cfg.reach_s,
+        rate_per_hour=cfg.rate_per_hour,
+        seed=cfg.seed,
+    )
+
+
 def recommendation_body(rec: Recommendation) -> RecommendationBody:
     """The published document of a recommendation (the API adds version and computed_at)."""
     plan, cfg, window, hz = rec.plan, rec.config, rec.window, rec.city.horizon
     position = rec.position
     first = rec.target - position
     labels = [d.label for d in window.days]
-
-    def picks(methods: dict[Method, int]) -> dict[int, list[Method]]:
-        out: dict[int, list[Method]] = {}
-        for m, x in methods.items():
-            out.setdefault(x, []).append(m)
-        return out
 
     def hour(r: RollingHour) -> HourChoiceOut:
         base = ChoiceOut.of(r.choice).model_dump()
@@ -304,7 +334,7 @@ def recommendation_body(rec: Recommendation) -> RecommendationBody:
             position=r.hour,
             observed_hours=r.observed_hours,
             days=[labels[i] for i in r.table.days],
-            candidates=candidates_out(r.table, picks({"dro_rh": r.choice.size})),
+            candidates=candidates_out(r.table, _picks({"dro_rh": r.choice.size})),
         )
 
     by_hour = [hour(r) for r in plan.rolling]
@@ -337,7 +367,7 @@ def recommendation_body(rec: Recommendation) -> RecommendationBody:
         box_lp=ChoiceOut.of(plan.box_lp),
         dro_rh=by_hour[position],
         dro_rh_by_hour=by_hour,
-        candidates=candidates_out(plan.daily, picks(daily_picks)),
+        candidates=candidates_out(plan.daily, _picks(daily_picks)),
         observed=ObservedOut(
             date=observed.date,
             hours=len(observed.requests_per_hour),
@@ -348,23 +378,8 @@ def recommendation_body(rec: Recommendation) -> RecommendationBody:
         support=cfg.ambiguity.support,
         bins=cfg.ambiguity.bins,
         sizes=list(cfg.sizes),
-        data_window=DataWindowOut(
-            source=window.source,
-            days=labels,
-            n_days=len(window.days),
-            requests_per_day=list(rec.requests_per_day),
-            recorded_days_available=window.recorded_available,
-            seed=cfg.seed if window.source == "synthetic" else None,
-            note=window.note,
-        ),
-        simulation=SimulationOut(
-            n0=cfg.n0,
-            n_tasks=cfg.n_tasks if rec.tasks.templates is None else len(rec.tasks.templates),
-            tasks_source=rec.tasks.source,
-            reach_s=cfg.reach_s,
-            rate_per_hour=cfg.rate_per_hour,
-            seed=cfg.seed,
-        ),
+        data_window=_data_window(rec, labels),
+        simulation=_simulation(rec),
         solve=SolveStatsOut.of(rec.stats),
     )
 

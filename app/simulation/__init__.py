@@ -16,8 +16,8 @@ from app.simulation.executor import (
     InlineExecutor,
     ProcessExecutor,
     Started,
-    make_executor,
 )
+from app.simulation.factory import make_executor
 from app.simulation.result import RouteRecord, RunResult
 from app.simulation.runner import Progress, ProgressFn, RunBatch, RunFn, Runner
 from app.simulation.spec import CACHE_FORMAT, RunJob, RunSpec, TaskTemplate, demand_digest, tasks_digest

@@ -1,8 +1,8 @@
-"""Where runs execute: the seam between the runner (cache, order, progress) and the machinery that runs
-them. ``InlineExecutor`` runs in this process, ``ProcessExecutor`` on local worker processes and
-``DaskExecutor`` (``app.simulation.dask_executor``) on a Dask distributed cluster reached by address;
-``make_executor`` picks one by name. Each reports when an item starts (``Started``, again when the engine
-reruns it elsewhere) and when it finishes (``Finished``)."""
+"""Where runs execute: the seam between the runner (cache, order, progress) and the machinery that runs them.
+``InlineExecutor`` runs in this process, ``ProcessExecutor`` on local worker processes and ``DaskExecutor``
+(``app.simulation.dask_executor``) on a Dask distributed cluster reached by address; ``make_executor``
+(``app.simulation.factory``) picks one by name. Each reports when an item starts (``Started``, again when the
+engine reruns it elsewhere) and when it finishes (``Finished``)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,6 @@ __all__ = [
     "InlineExecutor",
     "ProcessExecutor",
     "ExecutorName",
-    "make_executor",
 ]
 
 T = TypeVar("T")
@@ -232,29 +231,3 @@ class ProcessExecutor:
             self._pool = None
             self._started.close()
             self._started = None
-
-
-def make_executor(
-    workers: int,
-    name: ExecutorName = "local",
-    *,
-    scheduler: str | None = None,
-    timeout_s: float = 10.0,
-    nice: int = 0,
-    in_process: bool = True,
-) -> Executor:
-    """The executor a configuration names: ``local`` runs in this process with one worker (unless
-    ``in_process`` is False: then on one local process), else on ``workers`` local processes started with
-    ``nice``; ``dask`` on the Dask cluster whose scheduler is at ``scheduler`` (the connection is made by
-    the first batch that has something to run)."""
-    if name == "dask":
-        if not scheduler:
-            raise ValueError("the dask executor needs the scheduler's address (SD_DASK_SCHEDULER)")
-        from app.simulation.dask_executor import DaskExecutor
-
-        return DaskExecutor(scheduler, timeout_s=timeout_s)
-    if name != "local":
-        raise ValueError(f"unknown executor {name!r}")
-    if workers == 1 and in_process:
-        return InlineExecutor()
-    return ProcessExecutor(workers, nice=nice)

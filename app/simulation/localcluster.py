@@ -85,10 +85,17 @@ class LocalCluster:
         come up within the start timeout."""
         self.port, self.dashboard_port = free_port(), free_port()
         self.scheduler = self._spawn(
-            ["distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", str(self.port),
-             "--dashboard-address", f"127.0.0.1:{self.dashboard_port}"],
+            [
+                "distributed.cli.dask_scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(self.port),
+                "--dashboard-address",
+                f"127.0.0.1:{self.dashboard_port}",
+            ],
             "scheduler",
-        )  # fmt: skip
+        )
         try:
             for _ in range(self.n_workers):
                 self.add_worker(wait=False)
@@ -103,11 +110,24 @@ class LocalCluster:
         name = f"w{self._names}"
         self._names += 1
         proc = self._spawn(
-            ["distributed.cli.dask_worker", self.address, "--name", name, "--nthreads", str(self.threads),
-             "--no-nanny", "--no-dashboard", "--host", "127.0.0.1", "--death-timeout", "60",
-             "--local-directory", str(self.directory / name)],
+            [
+                "distributed.cli.dask_worker",
+                self.address,
+                "--name",
+                name,
+                "--nthreads",
+                str(self.threads),
+                "--no-nanny",
+                "--no-dashboard",
+                "--host",
+                "127.0.0.1",
+                "--death-timeout",
+                "60",
+                "--local-directory",
+                str(self.directory / name),
+            ],
             name,
-        )  # fmt: skip
+        )
         self.workers[name] = proc
         if wait:
             self.wait_for_workers(sum(p.poll() is None for p in self.workers.values()))

@@ -1,5 +1,5 @@
-"""From finished runs to the fleet-sizing inputs (``services.fleet.DayOutcomes`` and hourly request volumes),
-one function for the worker and the experiment alike."""
+"""From finished runs to the fleet-sizing inputs (``services.fleet.sizing.DayOutcomes`` and hourly request
+volumes), one function for the worker and the experiment alike."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from app.simulation.result import RunResult
 from services.city import Horizon
-from services.fleet import DayOutcomes
+from services.fleet.sizing import DayOutcomes
 from services.sim.kpi import reachable_tasks_by_interval
 
 __all__ = ["day_outcomes", "hourly_volumes"]

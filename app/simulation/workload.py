@@ -8,7 +8,6 @@ import time
 from collections.abc import Sequence
 from functools import cached_property, lru_cache
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,9 +19,9 @@ from services.city import City
 from services.citydata import load_city, read_meta
 from services.dispatch import warm_up
 from services.model import Task, TaskId
-from services.network import SnapError
+from services.network.network import SnapError
 from services.sim.demand import DemandSet
-from services.sim.demand_chengdu import PoiDensity, chengdu_demand, poi_density, read_pois_csv
+from services.sim.demand_chengdu import DemandShape, PoiDensity, chengdu_demand, poi_density, read_pois_csv
 from services.sim.demand_nyc import TripRecords, manhattan_demand, read_nyc_requests
 from services.sim.engine import RunTrace, SimConfig, poi_tasks, simulate
 from services.sim.kpi import run_kpis
@@ -94,8 +93,10 @@ def demand_for(spec: RunSpec, bundle: Bundle) -> DemandSet:
     city = bundle.city
     density = bundle.density
     if density is not None:
-        kwargs: dict[str, Any] = {} if spec.rate_per_hour is None else {"rate_per_hour": spec.rate_per_hour}
-        return chengdu_demand(city, density, seed=spec.seed, scenario=spec.scenario, day=spec.day, **kwargs)
+        shape = DemandShape() if spec.rate_per_hour is None else DemandShape(rate_per_hour=spec.rate_per_hour)
+        return chengdu_demand(
+            city, density, seed=spec.seed, scenario=spec.scenario, day=spec.day, shape=shape
+        )
     if spec.scenario != 1:
         raise ValueError("scenarios 2 and 3 exist only for the synthetic generator (Chengdu)")
     return manhattan_demand(

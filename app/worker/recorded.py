@@ -17,7 +17,7 @@ from zoneinfo import ZoneInfo
 from app.adapters.codec import utc_day
 from app.ports import Store
 from services.city import City
-from services.network import SnapError
+from services.network.network import SnapError
 from services.sim.demand import DemandSet, Request
 
 __all__ = [

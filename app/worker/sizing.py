@@ -3,7 +3,7 @@
 One solve: pick the demand history (the last M local days the service recorded demand on, or a seeded
 synthetic history when it has fewer), simulate every (size, day) as a whole day (cached), form the KPI
 samples of the platform's total cost per hour (DRO_RH conditioned on the hours the day has shown), call
-:func:`services.fleet.plan_fleet`, and publish the recommendation with the next version (the
+:func:`services.fleet.sizing.plan_fleet`, and publish the recommendation with the next version (the
 document is rendered by the injected ``render``, ``app.schemas.fleet.render_recommendation`` in the worker).
 Every
 failure -- a run that raised, bad samples, a lost version race -- keeps the current recommendation and is
@@ -25,7 +25,7 @@ from app.simulation import ExecutorUnavailable, ProgressFn, RunJob, Runner, RunR
 from app.simulation.outcomes import day_outcomes, hourly_volumes
 from app.worker.recorded import demand_from_records, local_day_records, recorded_days
 from services.city import City
-from services.fleet import Ambiguity, CostModel, FleetPlan, SubsidyPoint, plan_fleet, subsidy_sweep
+from services.fleet.sizing import Ambiguity, CostModel, FleetPlan, SubsidyPoint, plan_fleet, subsidy_sweep
 from services.model import IntervalKey
 from services.sim.demand import DemandSet
 
@@ -381,9 +381,19 @@ class FleetSizing:
         requests = tuple(r.n_requests for r in runs[cfg.sizes[0]])
         stats = SolveStats(len(batch.results), batch.cached, batch.wall_s, self.runner.workers)
         return Recommendation(
-            city, target, plan, cfg, window, requests, stats, trigger, request_id, observed, tasks,
+            city,
+            target,
+            plan,
+            cfg,
+            window,
+            requests,
+            stats,
+            trigger,
+            request_id,
+            observed,
+            tasks,
             sweep=sweep,
-        )  # fmt: skip
+        )
 
     def solve(
         self, city_name: str, target: IntervalKey, *, request: SolveRequest | None = None, force: bool = False

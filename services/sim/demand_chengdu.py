@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from services.city import City
-from services.grid import cells_of_points
+from services.sensing.grid import cells_of_points
 from services.sim.demand import DemandFileError, DemandSet, Request, demand_rng
 
 __all__ = [
@@ -57,6 +57,7 @@ __all__ = [
     "HOURLY_PROFILE",
     "LENGTH_QUANTILES_KM",
     "SCENARIO_REMOTE_SHARE",
+    "DemandShape",
     "PoiDensity",
     "chengdu_demand",
     "length_quantile_m",
@@ -315,6 +316,29 @@ def pick_destinations(
     return out
 
 
+@dataclass(frozen=True, slots=True)
+class DemandShape:
+    """How much demand a synthetic day holds and how it varies (:func:`chengdu_demand`).
+
+    Attributes
+    ----------
+    rate_per_hour : mean requests per hour over the horizon (before the daily volume factor).
+    profile : relative volume of each interval (length ``n_intervals``).
+    volume_sd, jitter_sd : log-standard deviations of the daily volume factor and of each POI's daily
+        weight factor (lognormal with mean 1); 0 switches the variation off. Applied on every day, day 0
+        included.
+    remote_shares : scenario -> share of requests moved to remote cells (None: :data:`SCENARIO_REMOTE_SHARE`).
+    length_quantiles_km : knots (probability, km) of the trip-length quantile function.
+    """
+
+    rate_per_hour: float = 144.0
+    profile: Sequence[float] = HOURLY_PROFILE
+    volume_sd: float = 0.1
+    jitter_sd: float = 0.5
+    remote_shares: Mapping[int, float] | None = None
+    length_quantiles_km: Sequence[tuple[float, float]] = LENGTH_QUANTILES_KM
+
+
 def chengdu_demand(
     city: City,
     pois: ArrayLike | PoiDensity,
@@ -323,12 +347,7 @@ def chengdu_demand(
     scenario: int = 1,
     day: int = 0,
     date: str = "2016-11-02",
-    rate_per_hour: float = 144.0,
-    profile: Sequence[float] = HOURLY_PROFILE,
-    volume_sd: float = 0.1,
-    jitter_sd: float = 0.5,
-    remote_shares: dict[int, float] | None = None,
-    length_quantiles_km: Sequence[tuple[float, float]] = LENGTH_QUANTILES_KM,
+    shape: DemandShape = DemandShape(),
 ) -> DemandSet:
     """One day of synthetic requests over the city's horizon (module docstring: how and how well).
 
@@ -346,17 +365,8 @@ def chengdu_demand(
         Non-negative; each day is an independent draw (volume factor, jitter, requests).
     date : str
         Local calendar date ``YYYY-MM-DD`` the requests are placed on.
-    rate_per_hour : float
-        Mean requests per hour over the horizon (before the daily volume factor).
-    profile : sequence of float
-        Relative volume of each interval (length ``n_intervals``).
-    volume_sd, jitter_sd : float
-        Log-standard deviations of the daily volume factor and of each POI's daily weight factor
-        (lognormal with mean 1); 0 switches the variation off. Applied on every day, day 0 included.
-    remote_shares : dict, optional
-        Scenario -> share of requests moved to remote cells (default :data:`SCENARIO_REMOTE_SHARE`).
-    length_quantiles_km : sequence of (probability, km)
-        Knots of the trip-length quantile function.
+    shape : DemandShape
+        The volume, its profile and variation, the scenarios' remote shares and the trip lengths.
 
     Returns
     -------
@@ -365,7 +375,9 @@ def chengdu_demand(
         the drawn volume factor, the expected count per interval, the density settings and the number of
         requests whose destination was moved to a remote cell. Ids are ``d{day}-{i:05d}`` in time order.
     """
-    shares = SCENARIO_REMOTE_SHARE if remote_shares is None else remote_shares
+    rate_per_hour, volume_sd, jitter_sd = shape.rate_per_hour, shape.volume_sd, shape.jitter_sd
+    profile, length_quantiles_km = shape.profile, shape.length_quantiles_km
+    shares = SCENARIO_REMOTE_SHARE if shape.remote_shares is None else shape.remote_shares
     if scenario not in shares:
         raise ValueError(f"unknown scenario {scenario!r} (known: {sorted(shares)})")
     share = float(shares[scenario])

@@ -13,14 +13,14 @@ both give the same run.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from services.city import City
+from services.city import City, Horizon
 from services.model import (
     IntervalKey,
     Rider,
@@ -32,7 +32,7 @@ from services.model import (
     Taxi,
     TaxiId,
 )
-from services.sim.demand import DemandSet
+from services.sim.demand import DemandSet, Request
 from services.sim.drift import DriftMap, choose_target, drift_map, drift_walk
 from services.sim.local import Outcome
 
@@ -211,101 +211,40 @@ def simulate(
     """
     hz = city.horizon
     start_s = hz.start_s(demand.date)
-    end_s = start_s + hz.length_s
-    if n_epochs is None:
-        n_epochs = hz.length_s // hz.epoch_s
-    elif not 1 <= n_epochs <= hz.length_s // hz.epoch_s:
-        raise ValueError(f"n_epochs must lie in 1..{hz.length_s // hz.epoch_s}, got {n_epochs}")
-    else:
-        end_s = start_s + n_epochs * hz.epoch_s
+    n_epochs, end_s = _epochs(hz, start_s, n_epochs)
     last_epoch_s = start_s + (n_epochs - 1) * hz.epoch_s
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x51D]))
-    n_nodes = city.network.n_nodes
-    pfx = config.id_prefix
-    n_taxis = config.n_instrumented + config.n_ordinary
-    starts = rng.integers(n_nodes, size=n_taxis)
-    if start_nodes is not None:
-        if len(start_nodes) != n_taxis:
-            raise ValueError(f"start_nodes has {len(start_nodes)} nodes for {n_taxis} taxis")
-        starts = np.asarray(start_nodes, dtype=np.int64)
-    taxis = [
-        _TaxiState(TaxiId(f"{pfx}i{k:03d}"), True, int(starts[k])) for k in range(config.n_instrumented)
-    ] + [
-        _TaxiState(TaxiId(f"{pfx}o{k:03d}"), False, int(starts[config.n_instrumented + k]))
-        for k in range(config.n_ordinary)
-    ]
+    taxis = _fleet(config, city.network.n_nodes, rng, start_nodes)
     by_id = {t.id: t for t in taxis}
     dm: DriftMap | None = drift_map(city) if config.drift else None
 
     dispatcher.add_tasks(list(tasks))
     requests = sorted(demand.requests, key=lambda r: (r.time_s, r.id))
     posted = [r for r in requests if r.time_s <= last_epoch_s]
-    n_unposted = len(requests) - len(posted)
-    records: dict[RiderId, RiderRecord] = {}
-    waiting: dict[RiderId, Rider] = {}
-    assignments: list[tuple[float, TaskAssignment]] = []
-    epochs: list[EpochRecord] = []
-    recent: deque[tuple[float, int]] = deque()  # (request time, origin cell) for the drift density
+    books = _Books()
     nxt = 0
     for e in range(n_epochs):
         now = start_s + e * hz.epoch_s
         # 1. move: jobs run on; finished jobs leave their taxi vacant at the last node
-        for t in taxis:
-            if t.job is not None:
-                i = int(np.searchsorted(t.job.times, now, side="right")) - 1
-                t.node = int(t.job.nodes[max(i, 0)])
-                if t.job.times[-1] <= now:
-                    t.job = None
+        _move(taxis, now)
         # 2. new requests
-        while nxt < len(posted) and posted[nxt].time_s <= now:
-            r = posted[nxt]
-            rid = RiderId(pfx + r.id)
-            waiting[rid] = Rider(rid, r.origin, r.destination, r.time_s)
-            records[rid] = RiderRecord(rid, r.time_s)
-            if dm is not None:
-                recent.append((r.time_s, int(dm.node_cell[r.origin])))
-            nxt += 1
+        nxt = _post(books, posted, nxt, now, config.id_prefix, dm)
         # 3. decide
         snapshot = Snapshot(
-            epoch_id=f"{pfx}{demand.date}-{e:03d}",
+            epoch_id=f"{config.id_prefix}{demand.date}-{e:03d}",
             time_s=now,
-            riders=tuple(waiting.values()),
+            riders=tuple(books.waiting.values()),
             taxis=tuple(
                 Taxi(t.id, t.node, t.instrumented and not config.wait_only, t.job is None) for t in taxis
             ),
         )
         out = dispatcher.epoch(snapshot)
         # 4. apply
-        for m in out.rider_matches:
-            rec = records[m.rider_id]
-            rec.matched_at_s, rec.step, rec.taxi_id, rec.pickup_s = now, m.step, m.taxi_id, m.wait_s
-            waiting.pop(m.rider_id)
-            t = by_id[m.taxi_id]
-            t.job, t.target, t.at_target = _job(city, m.path, now), -1, False
-        for a in out.task_assignments:
-            t = by_id[a.taxi_id]
-            t.job, t.target, t.at_target = _job(city, a.path, now), -1, False
-            assignments.append((now, a))
-        for rid in out.expired_rider_ids:
-            if rid in waiting:
-                waiting.pop(rid)
-                records[rid].left_at_s = now
-        epochs.append(
-            EpochRecord(
-                time_s=now,
-                waiting=len(snapshot.riders),
-                vacant_instrumented=sum(1 for x in snapshot.taxis if x.vacant and x.instrumented),
-                vacant_ordinary=sum(1 for x in snapshot.taxis if x.vacant and not x.instrumented),
-                step1=sum(1 for m in out.rider_matches if m.step == 1),
-                step2=sum(1 for m in out.rider_matches if m.step == 2),
-                step3=len(out.task_assignments),
-                expired=len(out.expired_rider_ids),
-                solve_ms=out.solve_ms,
-            )
-        )
+        _apply(city, books, by_id, out, now)
+        books.epochs.append(_epoch_record(now, snapshot, out))
         # 5. idle taxis drift until the next epoch
         if dm is not None:
-            _drift(dm, taxis, recent, now, config, hz.epoch_s, rng)
+            _drift(dm, taxis, books.recent, now, config, hz.epoch_s, rng)
         if on_epoch is not None:
             on_epoch(e + 1, n_epochs)
 
@@ -316,12 +255,111 @@ def simulate(
         start_s=start_s,
         end_s=end_s,
         epoch_s=hz.epoch_s,
-        riders=tuple(records.values()),
+        riders=tuple(books.records.values()),
         tasks=tuple(sorted(dispatcher.tasks(), key=lambda t: (t.scheduled_at_s, t.id))),
-        assignments=tuple(assignments),
+        assignments=tuple(books.assignments),
         counts=counts,
-        epochs=tuple(epochs),
-        n_unposted=n_unposted,
+        epochs=tuple(books.epochs),
+        n_unposted=len(requests) - len(posted),
+    )
+
+
+@dataclass(slots=True)
+class _Books:
+    """What a run keeps as it goes: every rider's record, the riders waiting, the Step 3 assignments (with
+    their epoch's time), the epochs' records and the recent requests' (time, origin cell) for the drift
+    density."""
+
+    records: dict[RiderId, RiderRecord] = field(default_factory=dict)
+    waiting: dict[RiderId, Rider] = field(default_factory=dict)
+    assignments: list[tuple[float, TaskAssignment]] = field(default_factory=list)
+    epochs: list[EpochRecord] = field(default_factory=list)
+    recent: deque[tuple[float, int]] = field(default_factory=deque)
+
+
+def _epochs(hz: Horizon, start_s: float, n_epochs: int | None) -> tuple[int, float]:
+    """The number of epochs to run (the whole horizon's when None) and when the run ends."""
+    if n_epochs is None:
+        return hz.length_s // hz.epoch_s, start_s + hz.length_s
+    if not 1 <= n_epochs <= hz.length_s // hz.epoch_s:
+        raise ValueError(f"n_epochs must lie in 1..{hz.length_s // hz.epoch_s}, got {n_epochs}")
+    return n_epochs, start_s + n_epochs * hz.epoch_s
+
+
+def _fleet(
+    config: SimConfig, n_nodes: int, rng: np.random.Generator, start_nodes: Sequence[int] | None
+) -> list[_TaxiState]:
+    """The taxis (instrumented first) at ``start_nodes``, else at seeded random nodes (drawn either way)."""
+    pfx = config.id_prefix
+    n_taxis = config.n_instrumented + config.n_ordinary
+    starts = rng.integers(n_nodes, size=n_taxis)
+    if start_nodes is not None:
+        if len(start_nodes) != n_taxis:
+            raise ValueError(f"start_nodes has {len(start_nodes)} nodes for {n_taxis} taxis")
+        starts = np.asarray(start_nodes, dtype=np.int64)
+    return [
+        _TaxiState(TaxiId(f"{pfx}i{k:03d}"), True, int(starts[k])) for k in range(config.n_instrumented)
+    ] + [
+        _TaxiState(TaxiId(f"{pfx}o{k:03d}"), False, int(starts[config.n_instrumented + k]))
+        for k in range(config.n_ordinary)
+    ]
+
+
+def _move(taxis: Sequence[_TaxiState], now: float) -> None:
+    """Every taxi with a job where its job has it at ``now``; a finished job leaves its taxi vacant."""
+    for t in taxis:
+        if t.job is not None:
+            i = int(np.searchsorted(t.job.times, now, side="right")) - 1
+            t.node = int(t.job.nodes[max(i, 0)])
+            if t.job.times[-1] <= now:
+                t.job = None
+
+
+def _post(
+    books: _Books, posted: Sequence[Request], nxt: int, now: float, pfx: str, dm: DriftMap | None
+) -> int:
+    """The requests from ``posted[nxt]`` on made by ``now`` start waiting; the index of the next one."""
+    while nxt < len(posted) and posted[nxt].time_s <= now:
+        r = posted[nxt]
+        rid = RiderId(pfx + r.id)
+        books.waiting[rid] = Rider(rid, r.origin, r.destination, r.time_s)
+        books.records[rid] = RiderRecord(rid, r.time_s)
+        if dm is not None:
+            books.recent.append((r.time_s, int(dm.node_cell[r.origin])))
+        nxt += 1
+    return nxt
+
+
+def _apply(city: City, books: _Books, by_id: Mapping[TaxiId, _TaxiState], out: Outcome, now: float) -> None:
+    """The decision's matches and assignments become the taxis' jobs; expired riders leave."""
+    for m in out.rider_matches:
+        rec = books.records[m.rider_id]
+        rec.matched_at_s, rec.step, rec.taxi_id, rec.pickup_s = now, m.step, m.taxi_id, m.wait_s
+        books.waiting.pop(m.rider_id)
+        t = by_id[m.taxi_id]
+        t.job, t.target, t.at_target = _job(city, m.path, now), -1, False
+    for a in out.task_assignments:
+        t = by_id[a.taxi_id]
+        t.job, t.target, t.at_target = _job(city, a.path, now), -1, False
+        books.assignments.append((now, a))
+    for rid in out.expired_rider_ids:
+        if rid in books.waiting:
+            books.waiting.pop(rid)
+            books.records[rid].left_at_s = now
+
+
+def _epoch_record(now: float, snapshot: Snapshot, out: Outcome) -> EpochRecord:
+    """What the epoch at ``now`` saw and decided."""
+    return EpochRecord(
+        time_s=now,
+        waiting=len(snapshot.riders),
+        vacant_instrumented=sum(1 for x in snapshot.taxis if x.vacant and x.instrumented),
+        vacant_ordinary=sum(1 for x in snapshot.taxis if x.vacant and not x.instrumented),
+        step1=sum(1 for m in out.rider_matches if m.step == 1),
+        step2=sum(1 for m in out.rider_matches if m.step == 2),
+        step3=len(out.task_assignments),
+        expired=len(out.expired_rider_ids),
+        solve_ms=out.solve_ms,
     )
 
 

@@ -19,7 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.city import City
-from services.sensing import coverage_rate, gamma
+from services.model import Task
+from services.sensing.sensing import coverage_rate, gamma
 from services.sim.engine import RunTrace
 
 __all__ = [
@@ -113,6 +114,21 @@ def _median(values: list[float]) -> float:
     return float(np.median(values)) if values else float("nan")
 
 
+def _task_outcome(t: Task, end_s: float) -> TaskOutcome:
+    """What became of a task by the end of the run (``end_s``)."""
+    at = t.completed_at_s
+    done = t.status in ("assigned", "completed") and at is not None and at <= end_s
+    return TaskOutcome(
+        task_id=str(t.id),
+        node=t.node,
+        scheduled_at_s=t.scheduled_at_s,
+        completed_at_s=at if done else None,
+        delay_s=at - t.scheduled_at_s if done and at is not None else None,
+        mode=t.mode if done else None,
+        taxi_id=str(t.taxi_id) if done and t.taxi_id is not None else None,
+    )
+
+
 def run_kpis(city: City, trace: RunTrace) -> RunKpis:
     """The KPIs of one simulated horizon."""
     hz, p = city.horizon, city.params
@@ -129,21 +145,7 @@ def run_kpis(city: City, trace: RunTrace) -> RunKpis:
     waits = [float(r.wait_s) for r in matched if r.wait_s is not None]
     lost = sum(1 for r in riders if r.left_at_s is not None)
 
-    outcomes: list[TaskOutcome] = []
-    for t in trace.tasks:
-        at = t.completed_at_s
-        done = t.status in ("assigned", "completed") and at is not None and at <= trace.end_s
-        outcomes.append(
-            TaskOutcome(
-                task_id=str(t.id),
-                node=t.node,
-                scheduled_at_s=t.scheduled_at_s,
-                completed_at_s=at if done else None,
-                delay_s=at - t.scheduled_at_s if done and at is not None else None,
-                mode=t.mode if done else None,
-                taxi_id=str(t.taxi_id) if done and t.taxi_id is not None else None,
-            )
-        )
+    outcomes = [_task_outcome(t, trace.end_s) for t in trace.tasks]
     completed = [o for o in outcomes if o.completed_at_s is not None]
 
     day = sorted(trace.counts)

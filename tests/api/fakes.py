@@ -21,7 +21,7 @@ from services.model import (
     Task,
     Visit,
 )
-from services.network import build_network
+from services.network.network import build_network
 
 CITY = "tiny"
 N = 5  # 5 x 5 lattice

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from services.dro import DIVERGENCE_NAMES, worst_case
+from services.fleet.dro import DIVERGENCE_NAMES, worst_case
 from tests.api.conftest import DISPATCH, READ, MakeClient, auth
 
 PATH = "/v1/dro/worst-case"

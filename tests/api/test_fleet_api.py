@@ -21,7 +21,7 @@ from app.worker.sizing import (
     SolveStats,
     TaskSet,
 )
-from services.fleet import CostModel, DayOutcomes, plan_fleet
+from services.fleet.sizing import CostModel, DayOutcomes, plan_fleet
 from services.model import IntervalKey
 from tests.api.conftest import ALL, DISPATCH, READ, TOKENS, MakeClient, auth
 from tests.api.fakes import CITY, T0

@@ -1,7 +1,7 @@
-"""Issue 9, problem 5: a frozen store must not starve the API. Sixty readers hit a store that answers
-nothing; only ``store_concurrency`` of them may wait on it, the rest get a 503 while it is still frozen,
-and liveness and the routes that need no store answer meanwhile (before: /healthz and a city's description
-waited for the readers, i.e. for as long as the store stayed frozen)."""
+"""A frozen store must not starve the API. Sixty readers hit a store that answers nothing; only
+``store_concurrency`` of them may wait on it, the rest get a 503 while it is still frozen, and liveness and
+the routes that need no store (/healthz, a city's description) answer meanwhile instead of waiting behind the
+readers for as long as the store stays frozen."""
 
 from __future__ import annotations
 

@@ -1,10 +1,11 @@
-"""Issue 9, as a careless or hostile client tries it: each test here failed before the fix.
+"""The service as a careless or hostile client tries it:
 
-1. an epoch dated far ahead blocks the city (now a 422; and an admin rewind/reset undoes a block);
-2. a 1 MiB body of empty items amplifies into a huge error (now capped, refused before item validation);
-3. extreme UTC offsets overflow into a 500 (now a 422);
-6. a commit the store applied but whose reply was lost and re-sent is reported as a replay;
-7. 405 without ``Allow``; the OpenAPI looser than the server; ``/readyz`` naming the Redis host.
+1. an epoch dated far ahead cannot block the city (a 422; an admin rewind or reset undoes a block);
+2. a 1 MiB body of empty items cannot amplify into a huge error (the field list is capped, the body refused
+   before item validation);
+3. extreme UTC offsets are a 422, not an overflow;
+6. a commit the store applied but whose reply was lost and re-sent is reported as committed, not replayed;
+7. a 405 carries ``Allow``; the OpenAPI is as strict as the server; ``/readyz`` names no Redis host.
 """
 
 from __future__ import annotations
@@ -202,7 +203,7 @@ def test_hostile_epoch_body_gets_a_small_capped_422(make_app: MakeApp, name: str
     assert len(raw) <= MiB
     r = client.post(EPOCHS, content=raw, headers=auth() | {"Content-Type": "application/json"})
     assert r.status_code == 422, r.text[:300]
-    assert len(r.content) < 16 * 1024, len(r.content)  # was 75 MiB
+    assert len(r.content) < 16 * 1024, len(r.content)  # an uncapped error lists every item: 75 MiB
     body = r.json()
     assert body["error"] == "validation_error" and 1 <= len(body["fields"]) <= MAX_FIELDS
     assert fingerprint(store) == fingerprint(MemoryStore())

@@ -1,4 +1,4 @@
-"""Issue 9, problem 6 on a real Redis: the commit script runs, its reply is lost on the way back, redis-py
+"""A lost commit reply on a real Redis: the commit script runs, its reply is lost on the way back, redis-py
 sends the command again on a new connection. The post must say committed (not replayed), and the metrics
 must count it, while the script applied the epoch once."""
 
@@ -41,5 +41,5 @@ def test_commit_whose_reply_was_lost_is_reported_committed(
     assert "Idempotent-Replayed" not in r.headers
     assert fingerprint(store)[0] == 2  # each epoch applied once
     text = client.get("/metrics").text
-    assert 'sd_epochs_total{outcome="committed"} 2.0' in text  # was 1.0, plus a replay
+    assert 'sd_epochs_total{outcome="committed"} 2.0' in text  # the re-sent one is a commit, not a replay
     assert 'sd_epochs_total{outcome="replayed"} 1.0' not in text

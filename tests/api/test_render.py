@@ -1,11 +1,13 @@
 """The epoch response document: ``render_epoch`` (plain values, encoded once) writes byte for byte what the
-validated response models wrote before it (kept below as ``reference_render``), on real decisions and on
+validated response models write (``reference_render`` below renders through them), on real decisions and on
 decisions with awkward values (numpy scalars, NaN and infinities, missing optional task fields, non-ASCII
-ids); and every document it writes validates as ``EpochOut`` unchanged."""
+ids); every document it writes validates as ``EpochOut`` unchanged; the paths read their own network's node
+ids when many threads render at once."""
 
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -16,6 +18,7 @@ from app.schemas.dispatch import (
     RiderMatchOut,
     TaskAssignmentOut,
     _core_stats,
+    _ext_paths,
     epoch_doc,
     render_epoch,
 )
@@ -145,7 +148,7 @@ def _check(result: EpochResult, *, finite: bool = True) -> str:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_real_decisions_render_as_the_validated_models_did(seed: int) -> None:
+def test_real_decisions_render_as_the_validated_models_do(seed: int) -> None:
     city = grid_city(8, 300.0, cell_m=500.0)
     rng = np.random.default_rng(seed)
     n = city.network.n_nodes
@@ -162,7 +165,7 @@ def test_real_decisions_render_as_the_validated_models_did(seed: int) -> None:
     _check(_result(city, decision, snapshot))
 
 
-def test_awkward_values_render_as_the_validated_models_did() -> None:
+def test_awkward_values_render_as_the_validated_models_do() -> None:
     city = grid_city(3, 300.0, cell_m=500.0)
     snapshot = Snapshot("é-1", T0, (), (Taxi(TaxiId("t"), 0, True, True),))
     match = RiderMatch(
@@ -220,3 +223,20 @@ def test_awkward_values_render_as_the_validated_models_did() -> None:
     assert '"trip_time_s":null' in text and '"nan"' not in text and '"flag":1' in text
     doc = epoch_doc(_result(city, decision, snapshot))
     assert doc["rider_matches"][0]["path"] == [int(v) for v in city.network.node_ids[[0, 1, 2]]]
+
+
+def test_paths_read_their_own_networks_ids_under_threads() -> None:
+    """Sixteen threads render paths of twelve networks at once, more networks than the id cache keeps: every
+    path reads its own network's node ids."""
+    cities = [grid_city(k, 300.0, cell_m=500.0) for k in range(2, 14)]
+
+    def work(seed: int) -> int:
+        rng = np.random.default_rng(seed)
+        for _ in range(300):
+            city = cities[int(rng.integers(len(cities)))]
+            path = tuple(int(v) for v in rng.integers(city.network.n_nodes, size=5))
+            assert _ext_paths(city, [path]) == [city.network.node_ids[list(path)].tolist()]
+        return seed
+
+    with ThreadPoolExecutor(16) as pool:
+        assert sorted(pool.map(work, range(16))) == list(range(16))

@@ -1,7 +1,7 @@
-"""Issue 9, problem 8: on a real 3-master Redis Cluster every city works, whichever node owns its slot.
-Before, the store spoke to the one node in the URL: a city whose slot lived elsewhere failed (a MOVED
-reply, then a reset connection). Each city's keys share one slot (the ``{city}`` hash tag), so its scripts
-and transactions run on one node."""
+"""On a real 3-master Redis Cluster every city works, whichever node owns its slot (``SD_REDIS_MODE=cluster``:
+a store speaking to the one node in the URL would fail a city whose slot lives elsewhere with a MOVED reply,
+then a reset connection). Each city's keys share one slot (the ``{city}`` hash tag), so its scripts and
+transactions run on one node."""
 
 from __future__ import annotations
 
@@ -71,8 +71,8 @@ def test_every_node_serves_its_cities(
 def test_standalone_client_on_a_cluster_node_is_told_why(
     redis_cluster_url: str, cities_by_node: dict[str, str]
 ) -> None:
-    """What the issue saw, kept visible: a standalone store pointed at one node of a cluster cannot reach
-    the cities of the other nodes (the fix is SD_REDIS_MODE=cluster, not silence)."""
+    """A standalone store pointed at one node of a cluster cannot reach the cities of the other nodes, and
+    says so (the remedy is SD_REDIS_MODE=cluster, never silence)."""
     store = RedisStore(redis_cluster_url, prefix="sdtest-standalone")
     try:
         first = redis_cluster_url.split("//", 1)[1].split("/", 1)[0]

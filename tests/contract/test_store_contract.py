@@ -391,7 +391,7 @@ def test_retention_ttl_on_redis_keys(redis_store: RedisStore, redis_url: str) ->
     p = f"{redis_store.prefix}:{{{CITY}}}"
     client = redis.Redis.from_url(url=redis_url, decode_responses=True)
     try:
-        # the meta too (issue 9): an epoch dated far ahead cannot block the city beyond the retention
+        # the meta too: an epoch dated far ahead cannot block the city beyond the retention
         for key in (
             f"{p}:count:{K1}",
             f"{p}:visit:{K1}:{A}",
@@ -522,7 +522,7 @@ def test_commit_is_apply_decision(
     assert sorted(state.tasks, key=lambda t: t.id) == sorted(ledger.tasks.values(), key=lambda t: t.id)
 
 
-# -- issue 9: a re-sent commit, rewinding and resetting the epoch stream -------------------------------------
+# -- a re-sent commit, rewinding and resetting the epoch stream ----------------------------------------------
 
 
 def test_commit_sent_again_with_its_nonce_is_committed_once(case: StoreCase) -> None:

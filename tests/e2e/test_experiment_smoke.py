@@ -15,7 +15,7 @@ from app.replay_cli import replay_main
 from app.simulation import RunJob, RunResult, runner
 from research.cli import experiment_main, fleet_experiment_main, main
 from research.reference import ExperimentConfig, specs
-from services.dro import worst_case
+from services.fleet.dro import worst_case
 
 
 def test_experiment_smoke_writes_everything_and_resumes(

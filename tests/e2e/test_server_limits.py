@@ -1,7 +1,6 @@
-"""Issue 9, problem 4: slow and silent clients. A connection that never finishes its headers or its body
-is answered 408 and closed after the deadline (before: held forever); connections beyond the cap are
-refused at once with a 503 (before: held until the process ran out of descriptors); a token in a query
-string never reaches the access log."""
+"""Slow and silent clients. A connection that never finishes its headers or its body is answered 408 and
+closed after the deadline, not held forever; connections beyond the cap are refused at once with a 503, not
+held until the process runs out of descriptors; a token in a query string never reaches the access log."""
 
 from __future__ import annotations
 

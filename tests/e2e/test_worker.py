@@ -400,7 +400,7 @@ def test_the_rolling_recommendation_conditions_on_the_hours_recorded_today(tmp_p
     moved = tuple(
         Request(f"t-{r.id}", r.time_s + shift, r.origin, r.destination)
         for r in synthetic.requests
-        if r.time_s + shift < two_hours - 600  # recorded epochs run a little past the last request
+        if r.time_s + shift < two_hours - 600  # recorded epochs go on a little past the last request
     )
     record_demand(store, dataclasses.replace(synthetic, date=today, requests=moved))
     config = dataclasses.replace(TINY, rolling_days=2)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from services.assignment import lexicographic_assignment
+from services.matching.assignment import lexicographic_assignment
 from tests.reference import all_matchings
 
 

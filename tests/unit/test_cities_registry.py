@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from app.cities import BUNDLED_DIR, CityRegistry, UnknownCity, import_city, import_city_cli
-from services.citydata import CityDataError, load_city
-from services.network import SnapError
+from services.citydata import CityDataError, CityMeta, load_city
+from services.network.network import SnapError
 
 NODES = "id,lon,lat\n1,104.000,30.000\n2,104.001,30.000\n3,104.001,30.001\n"
 EDGES = "u,v,length_m\n1,2,100\n2,3,110\n3,1,150\n"
@@ -94,7 +94,7 @@ def test_import_then_serve_by_name(tmp_path: Path) -> None:
     user = tmp_path / "cities"
     reg = CityRegistry(user_dir=user)
     assert "tiny" not in reg.names()
-    path = import_city("csv", _csv(tmp_path), "tiny", user, timezone="Asia/Shanghai", start="07:00")
+    path = import_city("csv", _csv(tmp_path), CityMeta("tiny", timezone="Asia/Shanghai", start="07:00"), user)
     assert path == user / "tiny"
     assert "tiny" in reg.names() and "chengdu" in reg.names()
     city = reg.get("tiny")
@@ -104,8 +104,8 @@ def test_import_then_serve_by_name(tmp_path: Path) -> None:
         meta["built_with"]["input"] == ["nodes.csv", "edges.csv"] and len(meta["built_with"]["sha256"]) == 2
     )
     with pytest.raises(FileExistsError):
-        import_city("csv", _csv(tmp_path), "tiny", user)
-    import_city("csv", _csv(tmp_path), "tiny", user, timezone="UTC", overwrite=True)
+        import_city("csv", _csv(tmp_path), CityMeta("tiny"), user)
+    import_city("csv", _csv(tmp_path), CityMeta("tiny", timezone="UTC"), user, overwrite=True)
     reg.forget("tiny")
     assert reg.get("tiny").horizon.timezone == "UTC"
     assert [p.name for p in user.iterdir()] == ["tiny"]  # no temporary directories left behind
@@ -113,17 +113,19 @@ def test_import_then_serve_by_name(tmp_path: Path) -> None:
 
 def test_import_refuses_bad_name_timezone_and_data(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="invalid city name"):
-        import_city("csv", _csv(tmp_path), "Tiny City", tmp_path / "out")
+        import_city("csv", _csv(tmp_path), CityMeta("Tiny City"), tmp_path / "out")
     with pytest.raises(ValueError, match="unknown timezone"):
-        import_city("csv", _csv(tmp_path), "tiny", tmp_path / "out", timezone="Nowhere/Land")
+        import_city("csv", _csv(tmp_path), CityMeta("tiny", timezone="Nowhere/Land"), tmp_path / "out")
     (tmp_path / "edges.csv").write_text("u,v,length_m\n1,2,0\n", encoding="utf-8")
     with pytest.raises(CityDataError, match=r"edges\.csv, row 1: length_m must be positive"):
-        import_city("csv", [tmp_path / "nodes.csv", tmp_path / "edges.csv"], "tiny", tmp_path / "out")
+        import_city(
+            "csv", [tmp_path / "nodes.csv", tmp_path / "edges.csv"], CityMeta("tiny"), tmp_path / "out"
+        )
     assert not (tmp_path / "out" / "tiny").exists()
 
 
 def test_registry_refuses_mismatched_name(tmp_path: Path) -> None:
-    import_city("csv", _csv(tmp_path), "tiny", tmp_path / "c")
+    import_city("csv", _csv(tmp_path), CityMeta("tiny"), tmp_path / "c")
     (tmp_path / "c" / "tiny").rename(tmp_path / "c" / "other")
     with pytest.raises(CityDataError, match="names city 'tiny', not 'other'"):
         CityRegistry(user_dir=tmp_path / "c").get("other")

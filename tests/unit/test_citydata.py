@@ -10,18 +10,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from services.citydata import (
-    CityDataError,
-    CityMeta,
-    haversine_m,
-    load_city,
-    read_csv_network,
-    read_node_link,
-    read_osm,
-    save_bundle,
-    validate_city_name,
-)
-from services.network import Network
+from services.citydata import CityDataError, CityMeta, haversine_m, load_city, save_bundle, validate_city_name
+from services.importers import read_csv_network, read_node_link, read_osm
+from services.network.network import Network
 
 # ---------------------------------------------------------------------------------------------- OSM
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services import contraction, search
-from services.graph import INF, RoadGraph, prepare, road_graph
+from services.network import contraction, search
+from services.network.graph import INF, RoadGraph, prepare, road_graph
 from tests.citymaker import make_city
 from tests.reference import canonical_tree, tree_path
 

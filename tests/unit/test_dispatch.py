@@ -9,8 +9,8 @@ import pytest
 
 from services.city import DispatchParams
 from services.dispatch import decide
-from services.grid import segment_cells
 from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
+from services.sensing.grid import segment_cells
 from tests import reference as ref
 from tests.citymaker import T0, make_city
 
@@ -296,7 +296,7 @@ def test_algorithm2_never_lowers_total_utility(seed: int):
     assert d.stats["alg2_utility_final"] >= d.stats["alg2_utility_initial"]
     # and the reported joint utility is what the routes really give together
     if d.task_assignments:
-        from services.gains import joint_utility, pair_counts
+        from services.sensing.gains import joint_utility, pair_counts
 
         pairs = []
         for a in d.task_assignments:

@@ -20,9 +20,9 @@ from scipy.sparse import coo_matrix
 
 from services.citydata import load_city
 from services.dispatch import decide
-from services.graph import road_graph
-from services.grid import segment_cells
 from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Taxi, TaxiId
+from services.network.graph import road_graph
+from services.sensing.grid import segment_cells
 from tests import reference as ref
 
 BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"

@@ -1,6 +1,6 @@
-"""Fleet sizing (services.fleet, services.fleet_eval): the total-cost objective and the subsidy, exact
-hand-solvable cases, ties, the completion target, the rolling horizon's conditioning, realized test-day costs,
-and brute-force cross-checks against the DRO engine on random instances."""
+"""Fleet sizing (services.fleet.sizing, services.fleet.evaluation): the total-cost objective and the subsidy,
+exact hand-solvable cases, ties, the completion target, the rolling horizon's conditioning, realized test-day
+costs, and brute-force cross-checks against the DRO engine on random instances."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import pytest
 from scipy.optimize import brentq
 from scipy.stats import chi2
 
-from services.dro import DIVERGENCE_NAMES, worst_case
-from services.fleet import (
+from services.fleet.dro import DIVERGENCE_NAMES, worst_case
+from services.fleet.evaluation import realized_by_hour, realized_fixed, rolling_decisions
+from services.fleet.sizing import (
     Ambiguity,
     CandidateTable,
     CostModel,
@@ -26,7 +27,6 @@ from services.fleet import (
     size_table,
     subsidy_sweep,
 )
-from services.fleet_eval import realized_by_hour, realized_fixed, rolling_decisions
 
 
 def outcomes(cost: list[list[float]], due: int = 0, done: int = 0) -> DayOutcomes:

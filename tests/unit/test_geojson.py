@@ -16,9 +16,9 @@ from pyproj import Geod, Transformer
 from app.cities import BUNDLED_DIR, CityRegistry
 from services.city import City
 from services.geojson import DECIMALS, cell_rings, grid_geojson, network_geojson, routes_geojson
-from services.grid import Grid, build_grid, cells_of_points
 from services.model import RiderId, RiderMatch, Task, TaskAssignment, TaskId, TaxiId
-from services.network import Network, build_network, lonlat_of
+from services.network.network import Network, build_network, lonlat_of
+from services.sensing.grid import Grid, build_grid, cells_of_points
 from tests import rfc7946
 
 ROUND_M = 0.15  # 1e-6 degree of rounding is at most 0.11 m on either axis at these latitudes
@@ -157,7 +157,7 @@ def test_network_of_a_bundled_city_is_valid_and_complete() -> None:
 
 
 def _grid_corners_m(grid: Grid) -> np.ndarray:
-    """Projected corners of every cell's ring (the definition in services.grid), (n_cells, 5, 2)."""
+    """Projected corners of every cell's ring (the definition in services.sensing.grid), (n_cells, 5, 2)."""
     col = np.arange(grid.n_cells) % grid.n_cols
     row = np.arange(grid.n_cells) // grid.n_cols
     dc = np.array([0, 1, 1, 0, 0])

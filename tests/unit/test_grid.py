@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.grid import (
+from services.network.network import Network, build_network
+from services.sensing.grid import (
     EdgeCells,
     Grid,
     build_edge_cells,
@@ -16,7 +17,6 @@ from services.grid import (
     segment_cells,
     touched_cells,
 )
-from services.network import Network, build_network
 
 G = Grid(crs="EPSG:32648", origin_x_m=0.0, origin_y_m=0.0, cell_m=1000.0, n_cols=4, n_rows=4)
 

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from bench import metro
 from services.city import City
 from services.citydata import haversine_m
-from services.network import Network
+from services.network.network import Network
 
 SCALE = 0.18
 

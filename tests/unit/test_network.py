@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.network import (
+from services.network.network import (
     Network,
     SnapError,
     build_network,

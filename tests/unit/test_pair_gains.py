@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services import search
 from services.citydata import load_city
-from services.gains import counted_csr, eval_pairs, fixed_point_unit, gain_table, pair_gains_q
-from services.graph import road_graph
 from services.model import IntervalKey, TaxiId
+from services.network import search
+from services.network.graph import road_graph
+from services.sensing.gains import counted_csr, eval_pairs, fixed_point_unit, gain_table, pair_gains_q
 
 BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"
 

@@ -1,5 +1,5 @@
-"""The pickup candidates (``services.legs.pickups``) against a plain canonical reverse Dijkstra per rider
-(``tests.reference.canonical_tree``): every (taxi, rider) pair whose fastest pickup path is at most the
+"""The pickup candidates (``services.matching.legs.pickups``) against a plain canonical reverse Dijkstra per
+rider (``tests.reference.canonical_tree``): every (taxi, rider) pair whose fastest pickup path is at most the
 radius long, ordered by rider then taxi, with the path's wait in whole microseconds (its label), in
 seconds and its length summed from the taxi along the path. Taxis crowd a few nodes, as at the limits,
 where each node is looked at once per rider."""
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from services.citydata import load_city
-from services.graph import road_graph
-from services.legs import pickups
-from services.pads import pads_for
+from services.matching.legs import pickups
+from services.network.graph import road_graph
+from services.network.pads import pads_for
 from tests import reference as ref
 
 BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"

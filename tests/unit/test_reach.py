@@ -19,17 +19,18 @@ from numpy.typing import NDArray
 
 from bench import metro
 from bench.load import Centres, CentresDemand, Load, Platform
-from services import search
-from services.algorithm1 import Plans, plan_routes
-from services.assignment import lexicographic_assignment
 from services.city import City, DispatchParams
 from services.citydata import load_city
-from services.dispatch import PHI_BITS, decide, step3_reach_us
-from services.gains import Counted, Gains, counted_csr, gain_table
-from services.graph import INF, US_PER_S, RoadGraph, road_graph
+from services.dispatch import decide
 from services.ledger import Ledger, apply_decision, ledger_view
+from services.matching.assignment import lexicographic_assignment
 from services.model import CountsView, IntervalKey, Snapshot, Task
-from services.pads import Pads
+from services.network import search
+from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
+from services.network.pads import Pads
+from services.routing.algorithm1 import Plans, plan_routes, problem
+from services.routing.step3 import PHI_BITS, step3_reach_us
+from services.sensing.gains import Counted, Gains, counted_csr, gain_table
 from tests import reference as ref
 
 BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"
@@ -122,10 +123,8 @@ def _plans(city: City, reach_us: int, from_targets: bool | None, workers: int = 
     counted = counted_csr(view.visited, [t.id for t in free], k0)
     sources = np.array([t.node for t in free], dtype=np.int64)
     targets = _targets(snap, tasks)
-    plans = plan_routes(
-        graph, gn, counted, sources, targets, snap.time_s, KAPPAS, workers, Pads(graph),
-        reach_us=reach_us, fastest_from_targets=from_targets,
-    )  # fmt: skip
+    pb = problem(gn, counted, sources, targets, KAPPAS, snap.time_s, reach_us)
+    plans = plan_routes(graph, pb, workers, Pads(graph), fastest_from_targets=from_targets)
     return plans, Ctx(graph, gn, counted, sources, targets, snap.time_s)
 
 

@@ -16,12 +16,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services import algorithm1, search
-from services.algorithm1 import Drive, plan_one, plan_routes, route_pair
-from services.algorithm2 import improve_routes
 from services.citydata import load_city
 from services.dispatch import decide
-from services.gains import (
+from services.epoch import Epoch
+from services.kernel.parallel import parallel_map
+from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
+from services.network import search
+from services.network.graph import INF, prepare, road_graph
+from services.network.pads import Pads
+from services.routing import algorithm1
+from services.routing.algorithm1 import Drive, plan_one, plan_routes, problem, route_pair
+from services.routing.algorithm2 import improve_routes
+from services.sensing.gains import (
+    TreeOut,
     counted_csr,
     eval_path,
     eval_tree,
@@ -32,11 +39,7 @@ from services.gains import (
     timed_pairs,
     tree_scratch,
 )
-from services.graph import INF, prepare, road_graph
-from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
-from services.pads import Pads
-from services.parallel import parallel_map
-from services.sensing import timed_cells
+from services.sensing.sensing import timed_cells
 from tests import reference as ref
 from tests.citymaker import T0, make_city
 
@@ -92,13 +95,19 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
     targets = rng.choice(graph.n_nodes, 3, replace=False).astype(np.int64)  # fewer than half: POI trees
     plans = {
         how: plan_routes(
-            graph, gn, counted, sources, targets, now, KAPPAS, 1, Pads(graph), fastest_from_targets=how
+            graph,
+            problem(gn, counted, sources, targets, KAPPAS, now),
+            1,
+            Pads(graph),
+            fastest_from_targets=how,
         )
         for how in (True, False)
     }
     for name in ("kappa_index", "gain", "time_s", "length_m"):
         assert np.array_equal(getattr(plans[True], name), getattr(plans[False], name)), name
-    p = plan_routes(graph, gn, counted, sources, targets, now, KAPPAS, 2, Pads(graph))  # chooses itself
+    p = plan_routes(
+        graph, problem(gn, counted, sources, targets, KAPPAS, now), 2, Pads(graph)
+    )  # chooses itself
     assert np.array_equal(p.gain, plans[True].gain)
     for i, src in enumerate(sources.tolist()):
         book = ref.algorithm1(graph, gn, zeroed(counted, i), src, targets.tolist(), now, KAPPAS)
@@ -144,7 +153,11 @@ def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_c
         targets = rng.choice(graph.n_nodes, 5, replace=False).astype(np.int64)
         got = {
             how: plan_routes(
-                graph, gn, counted, sources, targets, now, KAPPAS, 2, Pads(graph), fastest_from_targets=how
+                graph,
+                problem(gn, counted, sources, targets, KAPPAS, now),
+                2,
+                Pads(graph),
+                fastest_from_targets=how,
             )
             for how in (True, False)
         }
@@ -187,7 +200,11 @@ def test_when_most_taxis_search_on_their_own_no_kappa_in_trees_are_grown(
         targets = rng.choice(graph.n_nodes, 5, replace=False).astype(np.int64)
         got = {
             how: plan_routes(
-                graph, gn, counted, sources, targets, now, KAPPAS, 2, Pads(graph), fastest_from_targets=how
+                graph,
+                problem(gn, counted, sources, targets, KAPPAS, now),
+                2,
+                Pads(graph),
+                fastest_from_targets=how,
             )
             for how in (True, False)
         }
@@ -223,7 +240,7 @@ def test_a_taxi_counted_where_utility_peaks_gets_its_own_normalization() -> None
     counted = counted_csr(counts.visited, taxis, k0)
     sources = rng.choice(graph.n_nodes, len(taxis), replace=False).astype(np.int64)
     targets = rng.choice(graph.n_nodes, 4, replace=False).astype(np.int64)
-    p = plan_routes(graph, gn, counted, sources, targets, now, KAPPAS, 1, Pads(graph))
+    p = plan_routes(graph, problem(gn, counted, sources, targets, KAPPAS, now), 1, Pads(graph))
     for i, src in enumerate(sources.tolist()):
         book = ref.algorithm1(graph, gn, zeroed(counted, i), src, targets.tolist(), now, KAPPAS)
         for j, (kappa, _edges, g, t, _length) in enumerate(book):
@@ -243,7 +260,7 @@ def test_plan_one_equals_plan_routes_for_one_target(seed: int) -> None:
     for i in range(len(taxis)):
         src, tgt = (int(x) for x in rng.choice(graph.n_nodes, 2, replace=False))
         plans = plan_routes(
-            graph, gn, counted, np.array([src] * len(taxis)), np.array([tgt]), now, KAPPAS, 1, pads
+            graph, problem(gn, counted, np.array([src] * len(taxis)), np.array([tgt]), KAPPAS, now), 1, pads
         )
         with pads.take() as pad:
             drive = Drive(i, src, tgt, int(plans.d0_us[i, 0]))
@@ -276,7 +293,7 @@ def test_eval_tree_equals_eval_path(seed: int) -> None:
     search.tree(graph.forward, ed, costs, src, int(INF), targets, targets, ws, out)
     g, t, length = np.zeros(len(targets)), np.zeros(len(targets)), np.zeros(len(targets))
     ts = tree_scratch(graph.n_nodes, gn.term.shape)
-    top = eval_tree(ed, gn, zmask, ws.pred, src, targets, now, ts, g, t, length)
+    top = eval_tree(ed, gn, zmask, ws.pred, src, targets, now, ts, TreeOut(g, t, length))
     stamp = np.zeros(gn.term.shape, dtype=np.int64)
     tops = []
     for i, v in enumerate(targets.tolist()):
@@ -287,7 +304,7 @@ def test_eval_tree_equals_eval_path(seed: int) -> None:
     assert top == max(tops)
     # the scratch is left as it was found, so the next call on it is the same
     again = np.zeros(len(targets)), np.zeros(len(targets)), np.zeros(len(targets))
-    eval_tree(ed, gn, zmask, ws.pred, src, targets, now, ts, *again)
+    eval_tree(ed, gn, zmask, ws.pred, src, targets, now, ts, TreeOut(*again))
     assert np.array_equal(again[0], g) and np.array_equal(again[1], t)
 
 
@@ -378,7 +395,8 @@ def test_algorithm2_against_the_book(workers: int) -> None:
                 routes.append(plan_one(graph, gn, counted, drive, f, KAPPAS, now, pad))
             fastest.append(f)
             assert routes[-1].edges.tolist() == edges
-        got = improve_routes(city, graph, counts, taxis, counted, routes, fastest, now, k0, 3, workers, pads)
+        ep = Epoch(city, graph, counts, now, k0, workers, pads)
+        got = improve_routes(ep, taxis, counted, routes, fastest, 3)
         assert got[2] == expect[2]
         assert got[1] == pytest.approx(expect[1], rel=1e-12)
         assert [r.edges.tolist() for r in got[0]] == [e for _, e, _ in expect[0]]

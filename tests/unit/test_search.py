@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services import search
 from services.citydata import load_city
-from services.graph import INF, RoadGraph, prepare, road_graph
+from services.network import search
+from services.network.graph import INF, RoadGraph, prepare, road_graph
 from tests.citymaker import make_city
 from tests.reference import canonical_tree as reference_tree
 from tests.reference import tree_path

@@ -41,7 +41,7 @@ from app.worker.recorded import RecordedDemandError, demand_from_records, local_
 from app.worker.schedule import coming_interval, due_interval
 from app.worker.sizing import FleetSizing, SizingConfig, TaskSet, observed_today
 from services.city import City, Horizon
-from services.dro import DIVERGENCE_NAMES
+from services.fleet.dro import DIVERGENCE_NAMES
 from services.model import Task, TaskId
 from services.sim.demand import DemandSet, Request
 from services.sim.kpi import HourKpis, RunKpis, TaskOutcome

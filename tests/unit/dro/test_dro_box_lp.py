@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.dro import (
+from services.fleet.dro import (
     DIVERGENCE_NAMES,
     binned_support,
     coordinate_bounds,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.dro import DIVERGENCE_NAMES, DIVERGENCES, divergence_value, get_divergence
-from services.dro.divergences import j_inverse_derivative
+from services.fleet.dro import DIVERGENCE_NAMES, DIVERGENCES, divergence_value, get_divergence
+from services.fleet.dro.divergences import j_inverse_derivative
 from tests.unit.dro.oracle import POPPING, textbook_divergence
 
 # docs/METHOD.md section 8: φ''(1) and popping; suppression from the paper's Table A.1

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from services.dro import (
+from services.fleet.dro import (
     DIVERGENCE_NAMES,
     DroInputError,
     binned_support,

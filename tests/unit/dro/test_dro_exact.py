@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from services.dro import (
+from services.fleet.dro import (
     DIVERGENCE_NAMES,
     DIVERGENCES,
     DroInputError,
@@ -19,7 +19,7 @@ from services.dro import (
     sample_support,
     solve_exact,
 )
-from services.dro.solvers import Reduced, solve_j
+from services.fleet.dro.solvers import Reduced, solve_j
 from tests.unit.dro.oracle import POPPING, primal_worst_case, textbook_divergence
 
 Instance = tuple[str, np.ndarray, np.ndarray, float]

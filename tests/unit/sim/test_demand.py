@@ -20,6 +20,7 @@ from services.sim.demand import DemandFileError, DemandSet, demand_from_json, de
 from services.sim.demand_chengdu import (
     HOURLY_PROFILE,
     LENGTH_QUANTILES_KM,
+    DemandShape,
     PoiDensity,
     chengdu_demand,
     length_quantile_m,
@@ -129,7 +130,7 @@ def test_hourly_counts_follow_the_profile(chengdu: City, days: dict[int, list[De
 
 
 def test_no_variation_gives_the_expected_volume(chengdu: City, density: PoiDensity) -> None:
-    s = chengdu_demand(chengdu, density, seed=1, volume_sd=0.0, jitter_sd=0.0)
+    s = chengdu_demand(chengdu, density, seed=1, shape=DemandShape(volume_sd=0.0, jitter_sd=0.0))
     assert s.params["volume_factor"] == 1.0
     expected = 144.0 * 4 * np.array(HOURLY_PROFILE) / sum(HOURLY_PROFILE)
     assert s.params["expected_per_interval"] == pytest.approx(expected.tolist())
@@ -206,7 +207,7 @@ def test_unknown_scenario_and_bad_profile_are_errors(chengdu: City, density: Poi
     with pytest.raises(ValueError, match="scenario"):
         chengdu_demand(chengdu, density, seed=0, scenario=4)
     with pytest.raises(ValueError, match="profile"):
-        chengdu_demand(chengdu, density, seed=0, profile=(1.0, 2.0))
+        chengdu_demand(chengdu, density, seed=0, shape=DemandShape(profile=(1.0, 2.0)))
     with pytest.raises(ValueError, match="seed"):
         chengdu_demand(chengdu, density, seed=-1)
 

@@ -1,0 +1,847 @@
+"""Algorithm 1: the enhanced A* drive-by sensing route from a taxi to a POI (docs/METHOD.md section 5).
+
+For one taxi and one POI, each kappa of the family (default 0, 0.3, 0.6, 0.9) gives the shortest path
+under the utility-discounted edge cost ``c_e = t_e (1 - kappa u_e / max u)``, ``u_e`` the first slot's
+marginal terms of the cells edge ``e`` enters, for this taxi (zero where it is already counted); the
+route kept is the one with the largest phi = gain / time (Eq. 12), ties to the smaller kappa, so kappa = 0
+(the fastest path) wins unless beaten. Costs are fixed for the epoch, so one canonical shortest-path tree
+per (taxi, kappa) serves every POI at once (the straight-line A* heuristic would only prune the search:
+the canonical path it returns is the same). Every candidate route is evaluated exactly (``gains``).
+
+Step 3 considers a (taxi, POI) pair when the POI lies within the reach of the taxi (its fastest path takes
+at most ``reach_us``; ``graph.INF``: every pair), so every search is bounded: the fastest paths by the
+reach, a taxi's discounted routes by its farthest POI in reach (a route's discounted cost is at most the
+travel time of the fastest path, since no edge costs more than its travel time).
+
+The kappa = 0 cost is the travel time whatever the taxi, and a taxi's kappa > 0 cost is the *base* cost
+(no cell zeroed) except on the edges entering a cell it is counted in, where it is higher, unless its
+largest utility is not the base's (every edge of the largest utility enters a cell it is counted in: its
+own normalization). So when an epoch has fewer POIs than taxis, the routes come from one in-tree per POI
+and kappa instead of one tree per taxi and kappa, and a taxi searches again only where its in-tree route
+enters one of its counted cells: the canonical path (``services.network.graph``) under the base costs avoids
+every edge where the taxi's costs differ, and those are nowhere lower, so it is the taxi's canonical path too.
+Both ways give the same routes, and the tests check it. A taxi's own costs are computed as its searches
+reach each edge (``graph.Lazy``), never for the whole network.
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.kernel.jit import compiled, compiled_inline
+from services.kernel.parallel import parallel_map
+from services.network import search
+from services.network.graph import (
+    INF,
+    Costs,
+    Edges,
+    Lazy,
+    RoadGraph,
+    SearchGraph,
+    fixed_super_edges,
+    kappa_cost,
+    no_lazy,
+    prepare_into,
+)
+from services.network.pads import Pad, Pads
+from services.sensing.gains import (
+    Counted,
+    Gains,
+    TreeOut,
+    TreeScratch,
+    eval_path,
+    eval_tree,
+    mark,
+    tree_scratch,
+)
+
+__all__ = [
+    "Plans",
+    "Problem",
+    "problem",
+    "Route",
+    "Drive",
+    "Scratch",
+    "scratch",
+    "plan_routes",
+    "plan_one",
+    "route_pair",
+    "evaluate",
+    "kit",
+]
+
+
+GUIDED_PER_TREE = 16
+"""About how many goal-directed searches (``search.guided``) from a taxi to one POI cost as much as one
+tree from the taxi to every POI, on a metropolitan street grid (``bench/bench_epoch.py``); only speed
+depends on it."""
+
+
+class Kit(NamedTuple):
+    """The network as Algorithm 1's kernels take it: the edges, both search graphs with the travel time
+    prepared for each, the edges that enter a cell (the only ones whose utility can be positive), and the
+    bucket queue's geometry of any taxi's kappa metric (row q: kappa ``kappas[q]``; width: the cheapest
+    super-edge when every edge is discounted fully)."""
+
+    ed: Edges
+    fg: SearchGraph
+    rg: SearchGraph
+    time_fwd: Costs
+    time_rev: Costs
+    crossing: NDArray[np.int64]
+    fixed: NDArray[np.int64]  # (S,) forward: the cost of a super-edge that enters no cell, else -1
+    floor_width: NDArray[np.int64]
+    floor_span: NDArray[np.int64]
+
+
+class Scratch(NamedTuple):
+    """One thread's scratch: a zero mask and an evaluation stamp over the gain table and the next stamp, a
+    lazy metric's costs per edge and super-edge, and the tree evaluation's scratch."""
+
+    zmask: NDArray[np.bool_]
+    stamp: NDArray[np.int64]
+    next_stamp: NDArray[np.int64]  # (1,)
+    edge_cost: NDArray[np.int64]  # (m,)
+    se_cost: NDArray[np.int64]  # (S,) forward super-edges
+    tree: TreeScratch
+
+
+class Tools(NamedTuple):
+    """What one thread's kernels work in: a forward and a reverse workspace and the scratch."""
+
+    wsf: search.Workspace
+    wsr: search.Workspace
+    sc: Scratch
+
+
+class Problem(NamedTuple):
+    """One epoch's Algorithm 1: the gains, the taxis' counted pairs (row ``i``: taxi ``i``), their nodes, the
+    POIs' nodes, the kappa family, the departure time and the reach in whole microseconds."""
+
+    gn: Gains
+    counted: Counted
+    sources: NDArray[np.int64]
+    targets: NDArray[np.int64]
+    kappas: NDArray[np.float64]
+    depart_s: float
+    reach_us: int
+
+
+class Best(NamedTuple):
+    """The best route found so far per (taxi, POI): its kappa (index; -1 none), phi, gain, time and length;
+    the fastest path's cost (``INF``: beyond the reach) and whether it enters a cell the taxi is counted
+    in during the first slot. Routes are folded in kappa order, so ties stay with the smaller kappa."""
+
+    kappa: NDArray[np.int64]
+    phi: NDArray[np.float64]
+    gain: NDArray[np.float64]
+    time_s: NDArray[np.float64]
+    length_m: NDArray[np.float64]
+    d0_us: NDArray[np.int64]
+    touched: NDArray[np.bool_]
+
+
+def _best(f: int, p: int) -> Best:
+    return Best(
+        np.full((f, p), -1, dtype=np.int64),
+        np.full((f, p), -np.inf),
+        np.zeros((f, p)),
+        np.full((f, p), np.nan),
+        np.zeros((f, p)),
+        np.full((f, p), INF, dtype=np.int64),
+        np.zeros((f, p), dtype=np.bool_),
+    )
+
+
+class BaseKappa(NamedTuple):
+    """What every taxi's kappa metrics share in one epoch: the largest entered utility with no cell zeroed
+    and the edges that attain it, and the base kappa metrics (no cell zeroed) prepared for the reverse
+    graph, for the POIs' in-trees (row q: kappa ``kappas[q]``; rows of kappa = 0 unused)."""
+
+    umax: float
+    top: NDArray[np.int64]
+    edge: NDArray[np.int64]  # (kappas, m)
+    se: NDArray[np.int64]  # (kappas, S reverse)
+    width: NDArray[np.int64]  # (kappas,)
+    span: NDArray[np.int64]
+
+
+@compiled
+def _base_kappa(kt: Kit, gn: Gains, kappas: NDArray[np.float64], in_trees: bool) -> BaseKappa:
+    """The epoch's ``BaseKappa`` (its reverse metrics only when ``in_trees``). Only the edges that enter a
+    cell have a utility; every other edge's kappa cost is its travel time."""
+    ed = kt.ed
+    nc = kt.crossing.shape[0]
+    u = np.zeros(nc)
+    umax = 0.0
+    for r in range(nc):
+        e = kt.crossing[r]
+        s = 0.0
+        for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
+            s += gn.term[0, ed.ec_cell[j]]
+        u[r] = s
+        umax = max(umax, s)
+    top = kt.crossing[u == umax] if umax > 0.0 else np.zeros(0, dtype=np.int64)
+    nk = kappas.shape[0] if in_trees else 0
+    m = ed.time_s.shape[0] if in_trees else 0
+    edge = np.zeros((nk, m), dtype=np.int64)
+    se = np.zeros((nk, kt.rg.se_tail.shape[0] if in_trees else 0), dtype=np.int64)
+    width = np.ones(nk, dtype=np.int64)
+    span = np.ones(nk, dtype=np.int64)
+    for q in range(nk):
+        if kappas[q] != 0.0 and umax > 0.0:
+            edge[q] = ed.time_us
+            for r in range(nc):
+                e = kt.crossing[r]
+                edge[q, e] = kappa_cost(ed.time_s[e], u[r], umax, kappas[q])
+            c = prepare_into(kt.rg, edge[q], se[q])
+            width[q] = c.width
+            span[q] = c.span
+    return BaseKappa(umax, top, edge, se, width, span)
+
+
+@compiled
+def _umax_scan(kt: Kit, gn: Gains, zmask: NDArray[np.bool_]) -> float:
+    """The largest entered utility of the taxi whose zero mask is ``zmask`` (the sums
+    ``gains.entered_utility`` makes, over the edges that enter a cell)."""
+    ed = kt.ed
+    top = 0.0
+    for e in kt.crossing:
+        s = 0.0
+        for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
+            c = ed.ec_cell[j]
+            if not zmask[0, c]:
+                s += gn.term[0, c]
+        top = max(top, s)
+    return top
+
+
+@compiled
+def _umax_of(kt: Kit, gn: Gains, zmask: NDArray[np.bool_], base: BaseKappa) -> float:
+    """``_umax_scan`` of the taxi, the base's largest when one edge attaining it enters no cell the taxi
+    is counted in (``base`` made from the same ``gn``)."""
+    ed = kt.ed
+    for e in base.top:
+        clear = True
+        for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
+            if zmask[0, ed.ec_cell[j]]:
+                clear = False
+                break
+        if clear:
+            return base.umax
+    return _umax_scan(kt, gn, zmask)
+
+
+@compiled_inline
+def _own_metric(kt: Kit, sc: Scratch, gn: Gains, q: int, kappa: float, umax: float) -> tuple[Costs, Lazy]:
+    """The kappa metric of the taxi whose zero mask ``sc`` holds, computed as a search reaches it."""
+    costs = Costs(sc.edge_cost, sc.se_cost, kt.floor_width[q], kt.floor_span[q])
+    return costs, Lazy(True, kappa, umax, gn.term[0], sc.zmask[0], kt.fixed)
+
+
+@compiled_inline
+def _fold(best: Best, a: int, j: int, q: int, g: float, t: float, length: float) -> None:
+    """Keep route (kappa ``q``, gain ``g``, time ``t``, length) for (taxi ``a``, POI ``j``) if its phi is
+    larger than the best so far (phi 0 for a zero-length route)."""
+    phi = g / t if t > 0 else 0.0
+    if phi > best.phi[a, j]:
+        best.phi[a, j] = phi
+        best.kappa[a, j] = q
+        best.gain[a, j] = g
+        best.time_s[a, j] = t
+        best.length_m[a, j] = length
+
+
+@compiled
+def _eval_walk(
+    ed: Edges, gn: Gains, sc: Scratch, succ: NDArray[np.int64], start: int, root: int, depart_s: float
+) -> tuple[float, float, float, int, bool]:
+    """``gains.eval_path`` along the in-tree path from ``start`` to ``root`` (same operations, same order),
+    and whether the path enters a cell the taxi is counted in during the first slot (its zero mask's row 0):
+    only on such an edge can the taxi's own kappa metric exceed the base one."""
+    n_slots = gn.term.shape[0]
+    sid = sc.next_stamp[0]
+    sc.next_stamp[0] = sid + 1
+    t = depart_s
+    g = 0.0
+    length = 0.0
+    max_slot = 0
+    touched = False
+    x = start
+    while x != root:
+        e = succ[x]
+        te = ed.time_s[e]
+        first = ed.ec_ptr[e]
+        for j in range(first, ed.ec_ptr[e + 1]):
+            c = ed.ec_cell[j]
+            if j > first and sc.zmask[0, c]:
+                touched = True
+            slot = int(np.floor((t + ed.ec_frac[j] * te + gn.shift_s) / gn.interval_s)) - gn.k0
+            if slot > max_slot:
+                max_slot = slot
+            if slot >= n_slots:
+                continue
+            if sc.stamp[slot, c] == sid:
+                continue
+            sc.stamp[slot, c] = sid
+            if not sc.zmask[slot, c]:
+                g += gn.term[slot, c]
+        t += te
+        length += ed.length_m[e]
+        x = ed.head[e]
+    return g, t - depart_s, length, max_slot, touched
+
+
+@compiled
+def _fastest_to(kt: Kit, pb: Problem, tl: Tools, best: Best, j: int) -> int:
+    """POI ``j``'s in-tree under the travel time, bounded by the reach and stopped once every taxi is
+    settled: every taxi's fastest route to it, evaluated and folded (kappa 0), with its cost and whether it
+    enters a cell the taxi is counted in. Returns the largest slot reached."""
+    ed = kt.ed
+    f = pb.sources.shape[0]
+    root = pb.targets[j]
+    ws = tl.wsr
+    search.run(kt.rg, ed, kt.time_rev, root, pb.reach_us, pb.sources, ws)
+    reached = np.empty(f, dtype=np.bool_)
+    search.unfold_many(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, reached)
+    label = np.empty((3, f), dtype=np.int64)
+    search.labels(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, label)
+    max_slot = 0
+    for a in range(f):
+        if not reached[a]:
+            continue
+        mark(tl.sc.zmask, pb.counted, a, True)
+        g, t, length, ms, touch = _eval_walk(ed, pb.gn, tl.sc, ws.pred, pb.sources[a], root, pb.depart_s)
+        mark(tl.sc.zmask, pb.counted, a, False)
+        best.d0_us[a, j] = label[0, a]
+        best.touched[a, j] = touch
+        _fold(best, a, j, 0, g, t, length)
+        max_slot = max(max_slot, ms)
+    return max_slot
+
+
+@compiled
+def _kappas_to(
+    kt: Kit, pb: Problem, base: BaseKappa, own: NDArray[np.bool_], tl: Tools, best: Best, j: int
+) -> tuple[int, int]:
+    """POI ``j``'s in-tree under each base kappa metric, grown to the farthest fastest route of a taxi in
+    reach (not ``own``): each such taxi's route in it is its own unless it enters a cell the taxi is
+    counted in; then the taxi is searched again under its own costs, goal-directed by the in-tree's labels
+    (``search.tree_guide``: they never exceed the taxi's own). Folded in kappa order. Returns the largest
+    slot reached and the number of goal-directed searches."""
+    ed = kt.ed
+    root = pb.targets[j]
+    limit = -1
+    n = 0
+    who = np.empty(pb.sources.shape[0], dtype=np.int64)
+    for a in range(pb.sources.shape[0]):
+        if not own[a] and best.d0_us[a, j] < INF:
+            who[n] = a
+            n += 1
+            limit = max(limit, best.d0_us[a, j])
+    if n == 0:
+        return 0, 0
+    who = who[:n]
+    nodes = pb.sources[who]
+    reached = np.empty(n, dtype=np.bool_)
+    max_slot = 0
+    guided = 0
+    for q in range(pb.kappas.shape[0]):
+        kappa = pb.kappas[q]
+        if kappa == 0.0 or base.umax <= 0.0:
+            continue
+        costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
+        search.run(kt.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), tl.wsr)
+        if not search.unfold_many(kt.rg, ed, costs, limit, nodes, tl.wsr, reached):
+            raise AssertionError("a discounted route costs more than the fastest path's time")
+        guide = search.tree_guide(tl.wsr, limit)
+        for r in range(n):
+            a = who[r]
+            mark(tl.sc.zmask, pb.counted, a, True)
+            g, t, length, ms, touch = _eval_walk(ed, pb.gn, tl.sc, tl.wsr.pred, nodes[r], root, pb.depart_s)
+            if touch:
+                mine, lazy = _own_metric(kt, tl.sc, pb.gn, q, kappa, base.umax)
+                search.guided(kt.fg, ed, mine, nodes[r], root, tl.wsf, guide, lazy)
+                guided += 1
+                search.unfold(kt.fg, ed, mine, INF, root, tl.wsf)
+                edges = search.path_to(ed, 1, tl.wsf.pred, nodes[r], root)
+                sid = tl.sc.next_stamp[0]
+                tl.sc.next_stamp[0] = sid + 1
+                g, _gq, t, length, ms = eval_path(
+                    ed, pb.gn, tl.sc.zmask, tl.sc.stamp, sid, edges, pb.depart_s
+                )
+            mark(tl.sc.zmask, pb.counted, a, False)
+            _fold(best, a, j, q, g, t, length)
+            max_slot = max(max_slot, ms)
+    return max_slot, guided
+
+
+@compiled
+def _from_taxi(
+    kt: Kit, pb: Problem, base: BaseKappa, tl: Tools, best: Best, i: int, fastest: bool
+) -> tuple[int, int]:
+    """Taxi ``i``'s trees: under the travel time (when ``fastest``: bounded by the reach, every POI a
+    target) and under each of its kappa metrics, bounded by its farthest fastest route to a POI in reach
+    with those POIs as targets; evaluated along the tree and folded in kappa order. Returns the largest
+    slot reached and the number of trees grown."""
+    ed = kt.ed
+    src = pb.sources[i]
+    sc = tl.sc
+    ws = tl.wsf
+    p = pb.targets.shape[0]
+    g = np.zeros(p)
+    t = np.zeros(p)
+    length = np.zeros(p)
+    out = TreeOut(g, t, length)
+    max_slot = 0
+    grown = 0
+    mark(sc.zmask, pb.counted, i, True)
+    if fastest:
+        search.run(kt.fg, ed, kt.time_fwd, src, pb.reach_us, pb.targets, ws)
+        grown += 1
+        reached = np.empty(p, dtype=np.bool_)
+        search.unfold_many(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, reached)
+        label = np.empty((3, p), dtype=np.int64)
+        search.labels(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, label)
+        near = np.flatnonzero(reached)
+        ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, pb.targets[near], pb.depart_s, sc.tree, out)
+        max_slot = max(max_slot, ms)
+        for r in range(near.shape[0]):
+            j = near[r]
+            best.d0_us[i, j] = label[0, j]
+            _fold(best, i, j, 0, g[r], t[r], length[r])
+    near = np.flatnonzero(best.d0_us[i] < INF)
+    if near.shape[0] > 0 and base.umax > 0.0:
+        limit = best.d0_us[i][near].max()
+        umax = _umax_of(kt, pb.gn, sc.zmask, base)
+        nodes = pb.targets[near]
+        reached = np.empty(near.shape[0], dtype=np.bool_)
+        for q in range(pb.kappas.shape[0]):
+            kappa = pb.kappas[q]
+            if kappa == 0.0 or umax <= 0.0:
+                continue
+            costs, lazy = _own_metric(kt, sc, pb.gn, q, kappa, umax)
+            search.grow(kt.fg, ed, costs, src, limit, nodes, ws, lazy)
+            grown += 1
+            if not search.unfold_many(kt.fg, ed, costs, limit, nodes, ws, reached):
+                raise AssertionError("a discounted route costs more than the fastest path's time")
+            ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, nodes, pb.depart_s, sc.tree, out)
+            max_slot = max(max_slot, ms)
+            for r in range(near.shape[0]):
+                _fold(best, i, near[r], q, g[r], t[r], length[r])
+    mark(sc.zmask, pb.counted, i, False)
+    return max_slot, grown
+
+
+@compiled
+def _own_normalized(kt: Kit, pb: Problem, base: BaseKappa, sc: Scratch) -> NDArray[np.bool_]:
+    """Per taxi: its largest utility is not the base's (its kappa metrics are not the base's raised)."""
+    f = pb.sources.shape[0]
+    out = np.zeros(f, dtype=np.bool_)
+    for i in range(f):
+        mark(sc.zmask, pb.counted, i, True)
+        out[i] = _umax_of(kt, pb.gn, sc.zmask, base) != base.umax
+        mark(sc.zmask, pb.counted, i, False)
+    return out
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Plans:
+    """Algorithm 1 from each of F taxis to each of P targets: the chosen kappa (index into ``kappas``; -1:
+    the target is beyond the taxi's reach), gain, travel time (NaN beyond the reach) and length of the
+    route, and the fastest path's cost in whole microseconds, as (F, P) arrays; the largest slot any
+    route reached."""
+
+    kappas: NDArray[np.float64]
+    kappa_index: NDArray[np.int64]
+    gain: NDArray[np.float64]
+    time_s: NDArray[np.float64]
+    length_m: NDArray[np.float64]
+    d0_us: NDArray[np.int64]
+    max_slot: int
+    in_trees: int = 0  # searches from the targets (one per kappa and target)
+    guided_searches: int = 0  # goal-directed searches of taxis whose in-tree route enters a counted cell
+    taxi_searches: int = 0  # searches from the taxis (one per taxi and kappa not served by the in-trees)
+
+    @property
+    def phi(self) -> NDArray[np.float64]:
+        """phi = gain / time (Eq. 12); 0 for a zero-length route or a pair beyond the reach."""
+        t = self.time_s
+        return np.divide(self.gain, t, out=np.zeros_like(self.gain), where=t > 0)
+
+    @property
+    def candidate(self) -> NDArray[np.bool_]:
+        """The (taxi, target) pairs within the reach."""
+        return self.kappa_index >= 0
+
+
+def problem(
+    gn: Gains,
+    counted: Counted,
+    sources: NDArray[np.int64],
+    targets: NDArray[np.int64],
+    kappas: Sequence[float],
+    depart_s: float,
+    reach_us: int = INF,
+) -> Problem:
+    """Algorithm 1 from every source (taxi ``i``'s counted pairs in row ``i`` of ``counted``) to every target
+    within its reach (the fastest path takes at most ``reach_us``; ``INF``: every target), departing at
+    ``depart_s`` on the gains ``gn``, as the kernels take it."""
+    return Problem(
+        gn,
+        counted,
+        np.asarray(sources, np.int64),
+        np.asarray(targets, np.int64),
+        np.asarray(kappas, dtype=np.float64),
+        depart_s,
+        int(reach_us),
+    )
+
+
+def plan_routes(
+    graph: RoadGraph,
+    pb: Problem,
+    workers: int,
+    pads: Pads,
+    *,
+    fastest_from_targets: bool | None = None,
+) -> Plans:
+    """Algorithm 1 for the problem ``pb`` (see :func:`problem`): the best route from every source to every
+    target within its reach, on ``workers`` threads.
+
+    When there are fewer than half as many targets as sources (``fastest_from_targets`` forces the choice),
+    the routes come from one in-tree per target and kappa under the metric every taxi shares (the travel
+    time; the base kappa metric, no cell zeroed); a taxi whose in-tree route enters a cell it is counted in
+    is searched again to that target under its own costs, goal-directed by the in-tree, and a taxi whose
+    normalization is its own, or whose fastest routes enter its counted cells on the way to more than
+    ``GUIDED_PER_TREE`` targets, grows its kappa > 0 trees itself; when fewer than twice as many taxis as
+    targets are left to read them, no kappa > 0 in-trees are grown. The routes are the same either way:
+    docs/DISPATCH.md proves it and the tests check it.
+
+    Raises
+    ------
+    ValueError
+        When a target cannot be reached from a source and there is no reach.
+    """
+    gn, kap = pb.gn, pb.kappas
+    f, p = len(pb.sources), len(pb.targets)
+    kt = kit(graph, tuple(kap.tolist()))
+    best = _best(f, p)
+    from_roots = (0 < 2 * p < f) if fastest_from_targets is None else (fastest_from_targets and p > 0)
+    base = _base_kappa(kt, gn, kap, from_roots)
+    own = np.zeros(f, dtype=np.bool_)
+    in_trees = guided = 0
+    slots: list[int] = []
+    if from_roots:
+
+        def fastest(js: Sequence[int]) -> list[int]:
+            with pads.take() as pad:
+                tl = tools(pad, gn)
+                return [_fastest_to(kt, pb, tl, best, j) for j in js]
+
+        slots += parallel_map(fastest, range(p), workers)
+        in_trees = p
+        with pads.take() as pad:
+            own = _own_normalized(kt, pb, base, tools(pad, gn).sc)
+        # A taxi whose fastest routes enter its counted cells on the way to many targets will likely need
+        # as many goal-directed searches per kappa: past GUIDED_PER_TREE of them, one tree of its own per
+        # kappa is cheaper (speed only: both give the canonical routes).
+        own |= best.touched.sum(axis=1) > GUIDED_PER_TREE
+        if 2 * p < f - int(own.sum()) and base.umax > 0.0:
+
+            def kappa_trees(js: Sequence[int]) -> list[tuple[int, int]]:
+                with pads.take() as pad:
+                    tl = tools(pad, gn)
+                    return [_kappas_to(kt, pb, base, own, tl, best, j) for j in js]
+
+            done = parallel_map(kappa_trees, range(p), workers)
+            slots += [ms for ms, _ in done]
+            guided = sum(n for _, n in done)
+            in_trees += p * int(np.count_nonzero(kap != 0.0))
+        else:
+            # The kappa > 0 in-trees pay only while they serve twice as many taxis as there are targets,
+            # as for kappa = 0 (speed only: both give the canonical routes).
+            own[:] = True
+
+    def taxis(rows: Sequence[int]) -> list[tuple[int, int]]:
+        with pads.take() as pad:
+            tl = tools(pad, gn)
+            return [_from_taxi(kt, pb, base, tl, best, i, not from_roots) for i in rows]
+
+    rows = np.flatnonzero(own).tolist() if from_roots else list(range(f))
+    done = parallel_map(taxis, rows, workers)
+    slots += [ms for ms, _ in done]
+    if pb.reach_us >= INF and f and p and (best.d0_us >= INF).any():
+        a, j = np.argwhere(best.d0_us >= INF)[0]
+        raise ValueError(f"node {int(pb.targets[j])} cannot be reached from node {int(pb.sources[a])}")
+    return Plans(
+        kap,
+        best.kappa,
+        best.gain,
+        best.time_s,
+        best.length_m,
+        best.d0_us,
+        max(slots, default=0),
+        in_trees,
+        guided,
+        sum(n for _, n in done),
+    )
+
+
+def scratch(pad: Pad, gn: Gains) -> Scratch:
+    """The pad's scratch for Algorithm 1 with tables shaped like ``gn`` (made on first need)."""
+    key = ("algorithm1", gn.term.shape)
+    got = pad.extra.get(key)
+    if not isinstance(got, Scratch):
+        graph = pad.graph
+        shape = gn.term.shape
+        got = pad.extra[key] = Scratch(
+            np.zeros(shape, np.bool_),
+            np.zeros(shape, np.int64),
+            np.ones(1, np.int64),
+            np.zeros(graph.n_edges, np.int64),
+            np.zeros(graph.forward.se_tail.shape[0], np.int64),
+            tree_scratch(graph.n_nodes, shape),
+        )
+    return got
+
+
+def tools(pad: Pad, gn: Gains) -> Tools:
+    """The pad's workspaces and scratch, as Algorithm 1's kernels take them."""
+    return Tools(pad.forward, pad.reverse, scratch(pad, gn))
+
+
+@compiled
+def _floor(
+    fg: SearchGraph, ed: Edges, time_fwd: Costs, kappas: NDArray[np.float64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Per kappa, the bucket width and span of any taxi's kappa metric: the cheapest super-edge with every
+    edge discounted fully (``kappa_cost`` never goes lower), and the travel time's dearest over it."""
+    nk = kappas.shape[0]
+    width = np.ones(nk, dtype=np.int64)
+    span = np.ones(nk, dtype=np.int64)
+    hi = 1
+    for s in range(time_fwd.se.shape[0]):
+        hi = max(hi, time_fwd.se[s])
+    for q in range(nk):
+        lo = INF
+        for s in range(fg.se_tail.shape[0]):
+            c = 0
+            for r in range(fg.se_ptr[s], fg.se_ptr[s + 1]):
+                c += kappa_cost(ed.time_s[fg.se_edges[r]], 1.0, 1.0, kappas[q])
+            lo = min(lo, c)
+        width[q] = max(lo if lo < INF else 1, 1)
+        span[q] = hi // width[q] + 2
+    return width, span
+
+
+_kits: weakref.WeakKeyDictionary[RoadGraph, dict[tuple[float, ...], Kit]] = weakref.WeakKeyDictionary()
+_kits_lock = threading.Lock()
+
+
+def kit(graph: RoadGraph, kappas: tuple[float, ...]) -> Kit:
+    """The ``Kit`` of ``graph`` for the kappa family ``kappas`` (built once per graph and family)."""
+    with _kits_lock:
+        per = _kits.setdefault(graph, {})
+        got = per.get(kappas)
+        if got is None:
+            ed = graph.edges
+            width, span = _floor(graph.forward, ed, graph.time_forward, np.asarray(kappas, dtype=np.float64))
+            got = per[kappas] = Kit(
+                ed,
+                graph.forward,
+                graph.reverse,
+                graph.time_forward,
+                graph.time_reverse,
+                graph.crossing,
+                fixed_super_edges(graph.forward, ed, graph.time_forward),
+                width,
+                span,
+            )
+        return got
+
+
+@dataclass(frozen=True, slots=True)
+class Route:
+    """One monitoring route: the kappa chosen, its edges and their exact evaluation."""
+
+    source: int
+    target: int
+    kappa: float
+    edges: NDArray[np.int64]
+    gain: float
+    time_s: float
+    length_m: float
+    max_slot: int
+
+    @property
+    def efficiency(self) -> float:
+        """phi = gain / travel time (Eq. 12); 0 for a zero-length route."""
+        return self.gain / self.time_s if self.time_s > 0 else 0.0
+
+
+class Drive(NamedTuple):
+    """One taxi's drive to one target: the taxi's row ``i`` of the counted pairs, its node, the target, and
+    a bound on the cost of any of its routes there (the fastest path's travel time, or more)."""
+
+    i: int
+    source: int
+    target: int
+    limit: int
+
+
+@compiled
+def _path(kt: Kit, ws: search.Workspace, costs: Costs, lazy: Lazy, leg: Drive) -> NDArray[np.int64]:
+    """The canonical path of ``leg`` under ``costs`` (computed as the search goes when ``lazy.on``)
+    (empty and ``ws.info[1] == -1`` when it is not reached within the leg's limit)."""
+    tgt = np.empty(1, dtype=np.int64)
+    tgt[0] = leg.target
+    search.grow(kt.fg, kt.ed, costs, leg.source, leg.limit, tgt, ws, lazy)
+    if not search.unfold(kt.fg, kt.ed, costs, leg.limit, leg.target, ws):
+        ws.info[1] = -1
+        return np.empty(0, dtype=np.int64)
+    return search.path_to(kt.ed, 1, ws.pred, leg.source, leg.target)
+
+
+@compiled
+def _kappa_path(
+    kt: Kit, tl: Tools, gn: Gains, counted: Counted, leg: Drive, q: int, kappa: float
+) -> NDArray[np.int64]:
+    """Taxi ``leg.i``'s canonical path under its kappa ``q`` metric (the fastest when it has no utility)."""
+    mark(tl.sc.zmask, counted, leg.i, True)
+    umax = _umax_scan(kt, gn, tl.sc.zmask) if kappa != 0.0 else 0.0
+    if kappa == 0.0 or umax <= 0.0:
+        route = _path(kt, tl.wsf, kt.time_fwd, no_lazy(), leg)
+    else:
+        costs, lazy = _own_metric(kt, tl.sc, gn, q, kappa, umax)
+        route = _path(kt, tl.wsf, costs, lazy, leg)
+    mark(tl.sc.zmask, counted, leg.i, False)
+    return route
+
+
+def route_pair(
+    graph: RoadGraph,
+    gn: Gains,
+    counted: Counted,
+    leg: Drive,
+    kappas: Sequence[float],
+    q: int,
+    pad: Pad,
+) -> NDArray[np.int64]:
+    """Taxi ``leg.i``'s kappa ``kappas[q]`` route to ``leg.target``: the canonical path its trees in
+    ``plan_routes`` held (found again rather than kept: a tree per taxi and kappa is too much memory at
+    metropolitan scale).
+
+    Raises
+    ------
+    ValueError
+        When the target cannot be reached within the leg's limit.
+    """
+    kt = kit(graph, tuple(float(k) for k in kappas))
+    tl = tools(pad, gn)
+    route = _kappa_path(kt, tl, gn, counted, leg, q, float(kappas[q]))
+    if tl.wsf.info[1] == -1:
+        raise ValueError(f"node {leg.target} cannot be reached from node {leg.source}")
+    return route
+
+
+@compiled
+def _evaluate(
+    ed: Edges, gn: Gains, sc: Scratch, counted: Counted, i: int, edges: NDArray[np.int64], depart_s: float
+) -> tuple[float, float, float, int]:
+    """``gains.eval_path`` of taxi ``i``'s path: gain, time, length, largest slot reached."""
+    mark(sc.zmask, counted, i, True)
+    sid = sc.next_stamp[0]
+    sc.next_stamp[0] = sid + 1
+    g, _gq, t, length, ms = eval_path(ed, gn, sc.zmask, sc.stamp, sid, edges, depart_s)
+    mark(sc.zmask, counted, i, False)
+    return g, t, length, ms
+
+
+def evaluate(
+    graph: RoadGraph, gn: Gains, counted: Counted, i: int, edges: NDArray[np.int64], depart_s: float, pad: Pad
+) -> tuple[float, float, float, int]:
+    """Taxi ``i``'s path evaluated against ``gn`` (Eq. 3): its gain, travel time, length and the largest slot
+    it reaches (a slot beyond the table gains nothing)."""
+    g, t, length, ms = _evaluate(graph.edges, gn, scratch(pad, gn), counted, i, edges, float(depart_s))
+    return float(g), float(t), float(length), int(ms)
+
+
+@compiled
+def _plan_one(
+    kt: Kit,
+    tl: Tools,
+    gn: Gains,
+    counted: Counted,
+    kappas: NDArray[np.float64],
+    leg: Drive,
+    fastest: NDArray[np.int64],
+    depart_s: float,
+) -> tuple[int, NDArray[np.int64], float, float, float, int]:
+    """``plan_one`` in one compiled call: (kappa index (-1: unreachable), edges, gain, time, length, largest
+    slot) of the best route."""
+    sc = tl.sc
+    mark(sc.zmask, counted, leg.i, True)
+    umax = _umax_scan(kt, gn, sc.zmask)
+    best_phi = -np.inf
+    best_k = -1
+    best_edges = fastest
+    best_g = 0.0
+    best_t = 0.0
+    best_l = 0.0
+    best_ms = 0
+    for ki in range(kappas.shape[0]):
+        kappa = kappas[ki]
+        if kappa == 0.0:
+            edges = fastest
+        elif umax > 0.0:
+            costs, lazy = _own_metric(kt, sc, gn, ki, kappa, umax)
+            edges = _path(kt, tl.wsf, costs, lazy, leg)
+            if tl.wsf.info[1] == -1:
+                best_k = -1
+                break
+        else:
+            continue
+        sid = sc.next_stamp[0]
+        sc.next_stamp[0] = sid + 1
+        g, _gq, t, length, ms = eval_path(kt.ed, gn, sc.zmask, sc.stamp, sid, edges, depart_s)
+        phi = g / t if t > 0 else 0.0
+        if phi > best_phi:
+            best_phi = phi
+            best_k = ki
+            best_edges = edges
+            best_g = g
+            best_t = t
+            best_l = length
+            best_ms = ms
+    mark(sc.zmask, counted, leg.i, False)
+    return best_k, best_edges, best_g, best_t, best_l, best_ms
+
+
+def plan_one(
+    graph: RoadGraph,
+    gn: Gains,
+    counted: Counted,
+    leg: Drive,
+    fastest: NDArray[np.int64],
+    kappas: Sequence[float],
+    depart_s: float,
+    pad: Pad,
+) -> Route:
+    """Algorithm 1 from taxi ``leg.i`` to one target, its fastest path given (the kappa = 0 cost is the
+    travel time whatever the gains, so the fastest path does not change when the gains do)."""
+    kap = np.asarray(kappas, dtype=np.float64)
+    kt = kit(graph, tuple(kap.tolist()))
+    ki, edges, g, t, length, ms = _plan_one(
+        kt, tools(pad, gn), gn, counted, kap, leg, np.asarray(fastest, dtype=np.int64), float(depart_s)
+    )
+    if ki < 0:
+        raise ValueError(f"node {leg.target} cannot be reached from node {leg.source}")
+    return Route(leg.source, leg.target, float(kap[ki]), edges, float(g), float(t), float(length), int(ms))

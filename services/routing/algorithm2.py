@@ -1,0 +1,151 @@
+"""Algorithm 2: several vacant instrumented taxis' routes improved together (docs/METHOD.md section 5).
+
+Start from the Step 3 routes, each planned against the counts of the epoch. Then, for each taxi in turn,
+re-plan its route (Algorithm 1, same POI) against the counts plus the other taxis' planned visits, and
+keep the new route only if the joint utility of all planned routes rises; stop after a pass that changes
+nothing or after ``max_iter`` passes. The joint utility after each accepted re-plan is returned, so it is
+non-decreasing by construction (the tests check it against a recomputation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections import Counter
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.epoch import Epoch
+from services.kernel.parallel import parallel_map
+from services.model import TaxiId
+from services.routing.algorithm1 import Drive, Route, evaluate, plan_one
+from services.sensing.gains import Counted, gain_table, joint_utility, route_pairs
+
+__all__ = ["improve_routes"]
+
+
+def improve_routes(
+    ep: Epoch,
+    taxi_ids: Sequence[TaxiId],
+    counted: Counted,
+    routes: list[Route],
+    fastest: Sequence[NDArray[np.int64]],
+    n_slots: int,
+) -> tuple[list[Route], list[float], int]:
+    """Algorithm 2 over ``routes`` (route ``i`` is taxi ``taxi_ids[i]``'s, row ``i`` of ``counted``;
+    ``fastest[i]`` its fastest path to the same POI), every route departing at ``ep.now`` on gain tables of
+    ``n_slots`` intervals from ``ep.k0``. Returns the routes, the joint utility after the
+    initial matching and after each accepted re-plan, and the number of passes.
+
+    The others' planned visits enter each re-plan's gain table as a dense count per (slot, cell), kept up
+    to date as routes are replaced (counts are whole numbers, so Lambda + n is the same float either way).
+    Re-plans are independent until one is accepted: a batch of the next ones is planned at once (on
+    ``workers`` threads) and taken in order; after an acceptance the rest of the batch is planned again
+    against the new counts, so the outcome is that of one re-plan after the other.
+    """
+    city, graph, counts, depart_s, k0, pads = ep.city, ep.graph, ep.counts, ep.now, ep.k0, ep.pads
+    kappas = city.params.kappas
+    visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
+    pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
+    total: Counter[tuple[int, int]] = Counter()
+    for ps in pairs:
+        total.update(ps)
+    slots_cells = functools.partial(_slots_cells, k0=k0, n_slots=n_slots)
+    dense = [slots_cells(ps) for ps in pairs]
+    total_n = np.zeros((n_slots, city.grid.n_cells), dtype=np.int64)
+    for rows, cells in dense:
+        total_n[rows, cells] += 1  # a route's pairs are distinct
+    history = [joint_utility(city, counts.counts, total)]
+    # no route of a taxi costs more under any kappa metric than its fastest path's travel time
+    limits = [int(graph.edges.time_us[f].sum()) for f in fastest]
+
+    def replan(total_n: NDArray[np.int64], todo: Sequence[int]) -> list[tuple[Route, NDArray[np.int64]]]:
+        out = []
+        with pads.take() as pad:
+            for i in todo:
+                r = routes[i]
+                others_n = total_n.copy()
+                others_n[dense[i]] -= 1
+                gn = gain_table(city, counts.counts, k0, n_slots, depart_s, extra_counts=others_n)
+                drive = Drive(i, r.source, r.target, limits[i])
+                cand = plan_one(graph, gn, counted, drive, fastest[i], kappas, depart_s, pad)
+                out.append((cand, others_n))
+        return out
+
+    batch = 1 if ep.workers <= 1 else 4 * ep.workers
+    passes = 0
+    accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
+    planned_at = [-1] * len(routes)
+    accepted_by = [False] * len(routes)  # the route is a re-plan's
+    for _ in range(city.params.max_iter):
+        passes += 1
+        changed = False
+        i = 0
+        while i < len(routes):
+            todo, i = _next_batch(planned_at, accepted, i, batch)
+            results = parallel_map(functools.partial(replan, total_n), todo, ep.workers)
+            for a, (cand, others_n) in zip(todo, results, strict=True):
+                planned_at[a] = accepted
+                if np.array_equal(cand.edges, routes[a].edges):
+                    continue
+                cand_pairs = route_pairs(city, cand.edges, visited[a], depart_s)
+                trial = total.copy()
+                trial.subtract(pairs[a])
+                trial.update(cand_pairs)
+                u_new = joint_utility(city, counts.counts, trial)
+                if u_new > history[-1] * (1 + 1e-12) + 1e-300:
+                    routes[a] = cand
+                    accepted_by[a] = True
+                    pairs[a] = cand_pairs
+                    total = trial
+                    dense[a] = slots_cells(cand_pairs)
+                    total_n = others_n
+                    total_n[dense[a]] += 1
+                    history.append(u_new)
+                    accepted += 1
+                    planned_at[a] = accepted
+                    changed = True
+                    i = a + 1  # the rest of the batch saw the old counts
+                    break
+        if not changed:
+            break
+    return _own_gains(ep, counted, routes, accepted_by, n_slots), history, passes
+
+
+def _next_batch(planned_at: Sequence[int], accepted: int, i: int, batch: int) -> tuple[list[int], int]:
+    """Up to ``batch`` routes from ``i`` on not re-planned since the last acceptance, and where to go on."""
+    todo: list[int] = []
+    j = i
+    while j < len(planned_at) and len(todo) < batch:
+        if planned_at[j] != accepted:
+            todo.append(j)
+        j += 1
+    return todo, j
+
+
+def _slots_cells(
+    ps: set[tuple[int, int]], k0: int, n_slots: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The (slot, cell) pairs of ``ps`` (interval, cell) within the ``n_slots`` tabulated from ``k0``."""
+    rows = np.array([k - k0 for k, _ in ps], dtype=np.int64)
+    cells = np.array([c for _, c in ps], dtype=np.int64)
+    keep = (rows >= 0) & (rows < n_slots)
+    return rows[keep], cells[keep]
+
+
+def _own_gains(
+    ep: Epoch, counted: Counted, routes: list[Route], replanned: Sequence[bool], n_slots: int
+) -> list[Route]:
+    """The routes with a re-planned route's gain taken against the epoch's counts, as every Step 3 route's
+    is (a re-plan evaluates its candidates against the counts plus the other routes' visits)."""
+    out = list(routes)
+    with ep.pads.take() as pad:
+        for i, r in enumerate(routes):
+            if not replanned[i]:
+                continue
+            gn = gain_table(ep.city, ep.counts.counts, ep.k0, max(n_slots, r.max_slot + 1), ep.now)
+            g, _t, _l, _ms = evaluate(ep.graph, gn, counted, i, r.edges, ep.now, pad)
+            out[i] = dataclasses.replace(r, gain=g)
+    return out
