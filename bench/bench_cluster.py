@@ -40,7 +40,13 @@ SMALL = SizingConfig(sizes=(10, 30, 60), days=4)
 FULL = SizingConfig()  # the worker's defaults: sizes 10..60, M = 10 days
 WARM = SizingConfig(sizes=(2, 4), days=2, n0=4, n_tasks=3, rate_per_hour=10.0, seed=99)
 NOOP_RUNS = 200
-METRO_EPOCH_S = 18.0  # the time of an epoch on a metropolitan network (a day = 72 epochs)
+
+
+def metro_epoch_s() -> float:
+    """A metropolitan epoch as one simulation run computes it: metro250k's in-process median on one thread in
+    the epoch benchmark's last run (``docs/perf_epoch.json``); a day is 72 epochs."""
+    doc = json.loads((ROOT / "docs" / "perf_epoch.json").read_text())
+    return float(doc["metro250k"]["inprocess_1thread"]["p50_ms"]) / 1000.0
 
 
 def noop(x: int) -> int:
@@ -183,7 +189,8 @@ def write(results: dict[str, Any]) -> None:
         f"{o['dask2']['median'] - o['local']['median']:.1f} ms to a run that takes seconds.",
         "",
         f"**Metropolitan scale, on paper.** A re-solve is 60 runs (6 sizes x M = 10 days) of 72 epochs; at "
-        f"{m['epoch_s']:g} s an epoch (the metropolitan epoch) a run takes {m['run_s'] / 60:.0f} min "
+        f"{m['epoch_s']:.2f} s an epoch (metro250k's in-process median on one thread, `Epoch latency` above; a run "
+        f"is one single-threaded process) a run takes {m['run_s'] / 60:.0f} min "
         f"and a re-solve {m['cpu_h']:.1f} CPU-hours. To finish within the hour it needs at least "
         f"**{math.ceil(m['cpu_h'])} single-threaded engine workers per city** (one core each, perfect scaling; a run "
         f"is never split, and one run fits well within the hour), about {m['workers']} at the 2-worker efficiency "
@@ -197,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--full", action="store_true", help="the worker's default re-solve (60 runs)")
     ap.add_argument("--reps", type=int, default=2)
-    ap.add_argument("--metro-epoch-s", type=float, default=METRO_EPOCH_S)
+    ap.add_argument("--metro-epoch-s", type=float, default=None, help="default: from docs/perf_epoch.json")
     ap.add_argument("--report-only", type=Path, metavar="JSON")
     args = ap.parse_args(argv)
     path = ROOT / "docs" / "perf_cluster.json"
@@ -206,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         results = measure(FULL if args.full else SMALL, args.reps, Path(tmp))
-    results["metro"] = metro(results, args.metro_epoch_s)
+    results["metro"] = metro(results, args.metro_epoch_s or metro_epoch_s())
     path.write_text(json.dumps(results, indent=1) + "\n")
     write(results)
     print(json.dumps(results, indent=1))
