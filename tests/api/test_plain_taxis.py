@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import json
 import random
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from app.api.bodies import _epoch, _json, _validate
@@ -201,3 +203,30 @@ def test_the_canonical_taxis_are_the_models_dump() -> None:
     assert plain is not None
     rest = EpochIn.model_validate({**obj, "taxis": []})
     assert body_hash(rest, plain) == body_hash(EpochIn.model_validate(obj))
+
+
+def test_lon_lat_positions_snapped_together_are_the_nodes_one_at_a_time() -> None:
+    """``snap_all`` snaps every lon/lat of an epoch in one call: each position gets the node and distance
+    ``Network.snap`` gives it alone; a position off the network is still refused naming its field."""
+    from app.api.inputs import node_of, snap_all
+    from app.errors import InvalidInput
+    from app.schemas.common import LocationIn
+    from services.citydata import load_city
+
+    city = load_city(Path(__file__).resolve().parents[2] / "app" / "data" / "cities" / "chengdu")
+    net = city.network
+    rng = np.random.default_rng(4)
+    pick = rng.integers(net.n_nodes, size=300)
+    locs = [
+        LocationIn(lon=float(net.lon[v]) + d, lat=float(net.lat[v]) - d)
+        for v, d in zip(pick, rng.uniform(-3e-4, 3e-4, 300), strict=True)
+    ]
+    locs.append(LocationIn(node=int(net.node_ids[7])))
+    far = LocationIn(lon=104.5, lat=30.9)
+    snapped = snap_all(city, [*locs, far])
+    assert len(snapped) == 301
+    for loc in locs[:-1]:
+        assert node_of(city, loc, "x", snapped) == net.snap(loc.lon, loc.lat, city.params.snap_limit_m)[0]  # type: ignore[arg-type]
+    assert node_of(city, locs[-1], "x", snapped) == 7
+    with pytest.raises(InvalidInput, match="farther than"):
+        node_of(city, far, "taxis[3].location", snapped)
