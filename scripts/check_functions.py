@@ -22,7 +22,7 @@ KNOWN: dict[str, tuple[int, int]] = {
     # metric's and the graph's arrays, taken from their records once per search. Relaxing a settled node's
     # super-edges in a function of its own would take them from the records again for every settled node,
     # and numba counts a reference for every array it takes. Allowed at its present size, not more.
-    "services/network/search.py:grow": (128, 8),
+    "services/network/search.py:grow": (121, 8),
 }
 """Functions allowed over a limit, by ``path:name``, with the (lines, parameters) they may not exceed."""
 

@@ -352,6 +352,33 @@ def _lazy_ends(
                 lazy_fill(g, ed, costs, lazy, g.pos_se[t, j])
 
 
+@compiled_inline
+def _crossing_cost(
+    se_ptr: NDArray[np.int64],
+    se_edges: NDArray[np.int64],
+    ec_ptr: NDArray[np.int64],
+    ec_cell: NDArray[np.int64],
+    time_s: NDArray[np.float64],
+    zmask: NDArray[np.bool_],
+    term: NDArray[np.float64],
+    umax: float,
+    kappa: float,
+    s: int,
+) -> int:
+    """A lazy metric's cost of super-edge ``s``, one of whose edges enters a cell (``graph.lazy_edge``
+    summed over its edges); the searches pass it plain arrays, since a call that takes records counts a
+    reference to each of their arrays."""
+    c = 0
+    for p in range(se_ptr[s], se_ptr[s + 1]):
+        e = se_edges[p]
+        u = 0.0
+        for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
+            if not zmask[ec_cell[j]]:
+                u += term[ec_cell[j]]
+        c += kappa_cost(time_s[e], u, umax, kappa)
+    return c
+
+
 @compiled
 def run(
     g: SearchGraph,
@@ -520,15 +547,8 @@ def grow(
                 c = d + se_cost[s]
             elif fixed[s] >= 0:
                 c = d + fixed[s]
-            else:  # graph.lazy_edge summed, written out (a call per super-edge counts references to arrays)
-                c = d
-                for p in range(se_ptr[s], se_ptr[s + 1]):
-                    e = se_edges[p]
-                    u = 0.0
-                    for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
-                        if not zmask[ec_cell[j]]:
-                            u += term[ec_cell[j]]
-                    c += kappa_cost(time_s[e], u, umax, kappa)
+            else:
+                c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
             if c > limit:
                 continue
             a = a0 + g.se_tie1[s]
@@ -848,15 +868,8 @@ def guided(
                 c = d + se_cost[s]
             elif fixed[s] >= 0:
                 c = d + fixed[s]
-            else:  # graph.lazy_edge summed, written out as in ``grow``
-                c = d
-                for p in range(se_ptr[s], se_ptr[s + 1]):
-                    e = se_edges[p]
-                    u = 0.0
-                    for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
-                        if not zmask[ec_cell[j]]:
-                            u += term[ec_cell[j]]
-                    c += kappa_cost(time_s[e], u, umax, kappa)
+            else:
+                c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
             a = a0 + g.se_tie1[s]
             b = b0 + g.se_tie2[s]
             if _less(c, a, b, cost[h], tie1[h], tie2[h]):
