@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from app.errors import NoData, NoWorker
-from app.ports import EnqueueResult, FleetRecord, SolveRequest, Store, WorkerBeat
+from app.ports import EnqueueResult, FleetRecord, FleetStore, SolveRequest, WorkerBeat
 from app.usecases import CityCatalog
 from services.city import City
 
@@ -48,7 +48,12 @@ class FleetDesk:
     """Reads the worker's results and status, queues solve requests (never solves)."""
 
     def __init__(
-        self, cities: CityCatalog, store: Store, *, stale_s: float, clock: Callable[[], float] = time.time
+        self,
+        cities: CityCatalog,
+        store: FleetStore,
+        *,
+        stale_s: float,
+        clock: Callable[[], float] = time.time,
     ) -> None:
         """``stale_s``: a worker not seen for longer is gone; ``clock`` is POSIX seconds (heartbeats are)."""
         self.cities = cities

@@ -211,7 +211,10 @@ class WorkerBeat:
     next_due_at_s: float | None = None
 
 
-class Store(Protocol):
+class EpochStore(Protocol):
+    """Epochs and counts: the idempotent epoch records, the consistent state an epoch is solved on, the
+    atomic commit, the counts per interval and the demand recorded with each epoch."""
+
     def ping(self) -> None:
         """Raise ``StoreUnavailable`` when the store cannot be reached."""
 
@@ -236,19 +239,6 @@ class Store(Protocol):
         epoch record and bump the version. The city's meta (version, last epoch) lives as long as the
         retention after the last commit, like everything else the commit writes."""
 
-    def rewind_epochs(self, city: str, time_s: float) -> RewindResult:
-        """Atomically set the city's last epoch time back to ``time_s`` (epochs at or after it are accepted
-        again); what committed epochs wrote stays."""
-
-    def reset_epochs(self, city: str) -> int:
-        """Delete the city's epoch stream (meta, epoch records, counts, visits, intervals, recorded demand,
-        tasks); fleet-sizing records and locks stay. Returns how many entries were deleted."""
-
-    def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
-        """Register tasks, idempotent per id (same content: unchanged; different content: conflict)."""
-
-    def list_tasks(self, city: str) -> list[Task]: ...
-
     def interval_counts(self, city: str, interval: IntervalKey) -> dict[int, int]: ...
 
     def list_intervals(self, city: str) -> list[IntervalKey]:
@@ -257,7 +247,31 @@ class Store(Protocol):
     def recorded_demand(self, city: str, day: str) -> list[str]:
         """The ``demand_json`` of the epochs committed on UTC day ``day`` (``YYYYMMDD``), in commit order."""
 
-    # -- fleet sizing (docs/FLEET.md) ------------------------------------------------------------------
+
+class TaskStore(Protocol):
+    """The monitoring tasks of a city (an epoch's commit updates them too)."""
+
+    def put_tasks(self, city: str, tasks: Sequence[Task]) -> PutTasksResult:
+        """Register tasks, idempotent per id (same content: unchanged; different content: conflict)."""
+
+    def list_tasks(self, city: str) -> list[Task]: ...
+
+
+class AdminStore(Protocol):
+    """Rewinding or resetting a city's epoch stream."""
+
+    def rewind_epochs(self, city: str, time_s: float) -> RewindResult:
+        """Atomically set the city's last epoch time back to ``time_s`` (epochs at or after it are accepted
+        again); what committed epochs wrote stays."""
+
+    def reset_epochs(self, city: str) -> int:
+        """Delete the city's epoch stream (meta, epoch records, counts, visits, intervals, recorded demand,
+        tasks); fleet-sizing records and locks stay. Returns how many entries were deleted."""
+
+
+class FleetStore(Protocol):
+    """Fleet sizing (docs/FLEET.md): the published recommendation and its history, the solve locks, the
+    queued solve requests and the workers' heartbeats."""
 
     def publish_recommendation(self, city: str, record: FleetRecord, history_limit: int) -> PublishResult:
         """Atomically, if ``record.version`` is the current version plus one (0 when none): make ``record``
@@ -296,5 +310,19 @@ class Store(Protocol):
 
     def worker_beats(self, city: str) -> list[WorkerBeat]:
         """The latest beat of every worker the city keeps, newest first."""
+
+
+class DispatchStore(EpochStore, TaskStore, AdminStore, Protocol):
+    """What the epoch, task and admin use cases read and write (``app.usecases.DispatchService``)."""
+
+
+class WorkerStore(FleetStore, TaskStore, EpochStore, Protocol):
+    """What the fleet worker reads and writes: its records, locks, requests and beats, the registered tasks
+    and the demand recorded with the epochs."""
+
+
+class Store(EpochStore, TaskStore, AdminStore, FleetStore, Protocol):
+    """The whole store: every part above (each adapter implements them all) and closing it. A use case
+    asks for the part it uses."""
 
     def close(self) -> None: ...

@@ -31,10 +31,10 @@ from app.errors import (
 )
 from app.ports import (
     CityState,
+    DispatchStore,
     EpochCommit,
     PutTasksResult,
     RewindResult,
-    Store,
     StoredEpoch,
 )
 from services.city import City
@@ -234,7 +234,7 @@ class DispatchService:
     def __init__(
         self,
         cities: CityCatalog,
-        store: Store,
+        store: DispatchStore,
         decide: DecideFn,
         *,
         render_epoch: EpochRenderer,

@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from dataclasses import replace
 from typing import Literal
 
-from app.ports import SolveProgress, Store, StoreUnavailable, WorkerBeat
+from app.ports import FleetStore, SolveProgress, StoreUnavailable, WorkerBeat
 from app.simulation import Progress
 
 __all__ = ["BEAT_KEEP_S", "WorkerStatus", "Heartbeat", "new_worker_id"]
@@ -117,7 +117,7 @@ class Heartbeat:
 
     def __init__(
         self,
-        store: Store,
+        store: FleetStore,
         status: WorkerStatus,
         cities: Sequence[str],
         *,

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from zoneinfo import ZoneInfo
 
 from app.adapters.codec import utc_day
-from app.ports import Store
+from app.ports import EpochStore
 from services.city import City
 from services.network.network import SnapError
 from services.sim.demand import DemandSet, Request
@@ -103,7 +103,7 @@ def demand_from_records(city: City, date: str | dt.date, records: Iterable[str])
     )
 
 
-def local_day_records(store: Store, city: City, day: dt.date) -> list[str]:
+def local_day_records(store: EpochStore, city: City, day: dt.date) -> list[str]:
     """The recorded epochs of the UTC days that overlap local ``day`` (the store keys demand by UTC day)."""
     tz = ZoneInfo(city.horizon.timezone)
     start = dt.datetime.combine(day, dt.time(0), tzinfo=tz).timestamp()
@@ -113,7 +113,7 @@ def local_day_records(store: Store, city: City, day: dt.date) -> list[str]:
 
 
 def recorded_days(
-    store: Store, city: City, before: dt.date, want: int, lookback_days: int
+    store: EpochStore, city: City, before: dt.date, want: int, lookback_days: int
 ) -> list[RecordedDay]:
     """Up to ``want`` local days before ``before`` (newest first, within ``lookback_days``) on which the
     service recorded at least one request."""

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from app.cities import CityRegistry
-from app.ports import FleetRecord, SolveRequest, Store
+from app.ports import FleetRecord, SolveRequest, WorkerStore
 from app.settings import Settings
 from app.simulation import ExecutorUnavailable, ProgressFn, RunJob, Runner, RunResult, RunSpec, TaskTemplate
 from app.simulation.outcomes import day_outcomes, hourly_volumes
@@ -165,7 +165,7 @@ class Observed:
     requests_per_hour: tuple[int, ...]
 
 
-def observed_today(store: Store, city: City, target: IntervalKey, now_s: float) -> Observed:
+def observed_today(store: WorkerStore, city: City, target: IntervalKey, now_s: float) -> Observed:
     """Recorded requests per hour of the target's local day, for the horizon hours that ended by ``now_s``
     (never the target hour or later)."""
     hz = city.horizon
@@ -235,7 +235,7 @@ class FleetSizing:
 
     def __init__(
         self,
-        store: Store,
+        store: WorkerStore,
         runner: Runner,
         config: SizingConfig,
         *,
