@@ -53,8 +53,9 @@ experiment: $(STAMP)
 fleet-experiment: $(STAMP)
 	$(PY) -m research fleet-experiment $(ARGS)
 
-# Every benchmark; each writes its own section of docs/PERFORMANCE.md.
-bench: bench-epoch bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service
+# Every benchmark; each writes its own section of docs/PERFORMANCE.md (the Redis one needs a redis-server at
+# REDIS_URL, default the local one).
+bench: bench-epoch bench-epoch-redis bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service
 
 bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
