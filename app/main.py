@@ -23,12 +23,11 @@ from app.api.inputs import Limits
 from app.api.limits import BodyLimit
 from app.cities import CityRegistry
 from app.errors import ServiceError
-from app.fleet_desk import FleetDesk
 from app.metrics import Metrics
 from app.ports import Store
 from app.schemas.dispatch import read_epoch, render_epoch
 from app.settings import Settings
-from app.usecases import CityCatalog, DecideFn, DispatchService, EpochLimits
+from app.usecases import CityCatalog, DecideFn, EpochLimits, UseCases
 
 __all__ = ["create_app", "make_store", "API_VERSION"]
 
@@ -68,13 +67,13 @@ def _default_decide(workers: int) -> DecideFn:
     return functools.partial(decide, workers=workers)
 
 
-def _service(
+def _use_cases(
     settings: Settings,
     registry: CityCatalog,
     store: Store,
     decide: DecideFn | None,
     clock: Callable[[], float] | None,
-) -> DispatchService:
+) -> UseCases:
     """The use cases over ``store``, with the settings' limits."""
     limits = EpochLimits(
         retention_s=settings.retention_s,
@@ -83,13 +82,14 @@ def _service(
         solve_queue_s=settings.solve_queue_s,
         max_ahead_s=settings.epoch_max_ahead_s,
     )
-    return DispatchService(
+    return UseCases.over(
         registry,
         store,
         decide or _default_decide(settings.dispatch_workers),
         render_epoch=render_epoch,
         read_epoch=read_epoch,
         limits=limits,
+        worker_stale_s=settings.worker_stale_s,
         **({} if clock is None else {"clock": clock}),
     )
 
@@ -116,14 +116,7 @@ def create_app(
     the_store = BoundedStore(raw_store, settings.store_concurrency, settings.store_queue_s)
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
-    service = _service(settings, the_registry, the_store, decide, clock)
-
-    fleet_desk = FleetDesk(
-        the_registry,
-        the_store,
-        stale_s=settings.worker_stale_s,
-        **({} if clock is None else {"clock": clock}),
-    )
+    use_cases = _use_cases(settings, the_registry, the_store, decide, clock)
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
@@ -132,7 +125,7 @@ def create_app(
         if tune_gc:
             gc.set_threshold(*GC_THRESHOLD)
         warmed = threading.Event()
-        service.warming = warmed
+        use_cases.readiness.warming = warmed
         threading.Thread(
             target=_warm, args=(the_registry, tune_gc, warmed), name="warm-cities", daemon=True
         ).start()
@@ -158,8 +151,7 @@ def create_app(
         generate_unique_id_function=_operation_id,
     )
     app.state.settings = settings
-    app.state.service = service
-    app.state.fleet = fleet_desk
+    app.state.use_cases = use_cases
     app.state.metrics = metrics
     install_error_handlers(app, metrics)
 

@@ -4,6 +4,7 @@ contract suite (``tests/contract``)."""
 
 from __future__ import annotations
 
+import datetime as dt
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
@@ -27,7 +28,14 @@ __all__ = [
     "SolveProgress",
     "WorkerBeat",
     "Store",
+    "utc_day",
 ]
+
+
+def utc_day(time_s: float) -> str:
+    """The UTC calendar day of a POSIX time as ``YYYYMMDD``: the day ``EpochStore.recorded_demand`` keys an
+    epoch's demand by."""
+    return dt.datetime.fromtimestamp(time_s, tz=dt.UTC).strftime("%Y%m%d")
 
 
 class StoreUnavailable(RuntimeError):
@@ -312,13 +320,19 @@ class FleetStore(Protocol):
         """The latest beat of every worker the city keeps, newest first."""
 
 
-class DispatchStore(EpochStore, TaskStore, AdminStore, Protocol):
-    """What the epoch, task and admin use cases read and write (``app.usecases.DispatchService``)."""
+class DispatchStore(EpochStore, TaskStore, Protocol):
+    """What the epoch use cases read and write (``app.usecases.EpochService``): the epoch stream and its
+    counts, and the tasks an epoch assigns."""
+
+
+class StreamStore(EpochStore, AdminStore, Protocol):
+    """What the admin use cases read and write (``app.usecases.AdminService``): the epoch stream they rewind
+    or reset."""
 
 
 class WorkerStore(FleetStore, TaskStore, EpochStore, Protocol):
-    """What the fleet worker reads and writes: its records, locks, requests and beats, the registered tasks
-    and the demand recorded with the epochs."""
+    """What the fleet worker's use cases read and write (``app.usecases.SizingService``): its records,
+    locks, requests and beats, the registered tasks and the demand recorded with the epochs."""
 
 
 class Store(EpochStore, TaskStore, AdminStore, FleetStore, Protocol):

@@ -32,6 +32,7 @@ from app.schemas.fleet import render_recommendation
 from app.simulation import Executor, Finished, ProcessExecutor, RunCache, Runner, open_bundle
 from app.simulation.dask_executor import DaskExecutor
 from app.simulation.localcluster import LocalCluster
+from app.usecases import SizingService
 from app.worker.sizing import FleetSizing, SizingConfig
 from bench.report import ROOT, stamp, write_section
 
@@ -66,7 +67,9 @@ def summary(values: list[float]) -> dict[str, float]:
 def resolve(executor: Executor, config: SizingConfig, cache: Path) -> tuple[float, dict[str, Any], int]:
     """One re-solve from an empty cache: wall time, the recommendation without its statistics, runs."""
     store = MemoryStore()
-    sizing = FleetSizing(store, Runner(RunCache(cache), executor), config, render=render_recommendation)
+    sizing = FleetSizing(
+        SizingService(store), Runner(RunCache(cache), executor), config, render=render_recommendation
+    )
     city = sizing.load_city(CITY)
     target = city.horizon.interval_of(city.horizon.start_s("2026-11-23"))
     started = time.perf_counter()

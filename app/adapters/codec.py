@@ -3,7 +3,6 @@ demand days."""
 
 from __future__ import annotations
 
-import datetime as dt
 import json
 import secrets
 from collections.abc import Callable, Sequence
@@ -19,7 +18,6 @@ __all__ = [
     "same_registration",
     "classify_tasks",
     "TaskClassification",
-    "utc_day",
     "format_time",
     "fleet_record_to_json",
     "fleet_record_from_json",
@@ -107,11 +105,6 @@ def classify_tasks(lookup: Callable[[TaskId], Task | None], tasks: Sequence[Task
     if conflicts:
         return TaskClassification(PutTasksResult(conflicts=conflicts))
     return TaskClassification(PutTasksResult(created=created, unchanged=unchanged), pending)
-
-
-def utc_day(time_s: float) -> str:
-    """The UTC calendar day of a POSIX time as ``YYYYMMDD`` (the demand list key suffix)."""
-    return dt.datetime.fromtimestamp(time_s, tz=dt.UTC).strftime("%Y%m%d")
 
 
 def fleet_record_to_json(record: FleetRecord) -> str:

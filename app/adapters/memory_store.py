@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from itertools import repeat
 from typing import Literal
 
-from app.adapters.codec import check_fleet_record, classify_tasks, new_lock_token, utc_day
+from app.adapters.codec import check_fleet_record, classify_tasks, new_lock_token
 from app.ports import (
     CityState,
     CommitResult,
@@ -23,6 +23,7 @@ from app.ports import (
     SolveRequest,
     StoredEpoch,
     WorkerBeat,
+    utc_day,
 )
 from services.ledger import Ledger, apply_decision
 from services.model import DONE, IntervalKey, Task, TaskId, TaxiId

@@ -35,7 +35,6 @@ from app.adapters.codec import (
     solve_request_to_json,
     task_from_json,
     task_to_json,
-    utc_day,
     worker_beat_from_json,
     worker_beat_to_json,
 )
@@ -53,6 +52,7 @@ from app.ports import (
     StoredEpoch,
     StoreUnavailable,
     WorkerBeat,
+    utc_day,
 )
 from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from app.api.bodies import ResetBody, RewindBody, request_body
-from app.api.deps import AdminAccess, CityName, ServiceDep
+from app.api.deps import AdminAccess, AdminDep, CityName
 from app.api.responses import errors
 from app.errors import InvalidInput
 from app.schemas.admin import EpochStreamOut, ResetIn, RewindIn
@@ -45,13 +45,13 @@ def _out(change: StreamChange) -> EpochStreamOut:
     summary="Rewind a city's epoch stream",
     openapi_extra=request_body(RewindIn),
 )
-def post_rewind(city: CityName, body: RewindBody, _: AdminAccess, service: ServiceDep) -> EpochStreamOut:
+def post_rewind(city: CityName, body: RewindBody, _: AdminAccess, admin: AdminDep) -> EpochStreamOut:
     """Move the city's last epoch time back to `to`, so that epochs at `to` or later are accepted again
     (after an epoch dated far ahead made every later one `stale_epoch`). What committed epochs wrote (counts,
     tasks, epoch records) stays; epoch ids stay used. 404 `no_data` when no epoch was committed; 422 when
     `to` is later than the last epoch time or `confirm` is not the city's name."""
     _confirmed(city, body.confirm)
-    return _out(service.rewind(city, body.to.timestamp()))
+    return _out(admin.rewind(city, body.to.timestamp()))
 
 
 @router.post(
@@ -60,10 +60,10 @@ def post_rewind(city: CityName, body: RewindBody, _: AdminAccess, service: Servi
     summary="Reset a city's epoch stream",
     openapi_extra=request_body(ResetIn),
 )
-def post_reset(city: CityName, body: ResetBody, _: AdminAccess, service: ServiceDep) -> EpochStreamOut:
+def post_reset(city: CityName, body: ResetBody, _: AdminAccess, admin: AdminDep) -> EpochStreamOut:
     """Delete the city's epoch stream: committed epoch records, grid counts and visits, recorded demand, the
     epoch count and last time, and its tasks. Fleet-sizing recommendations stay. Stop posting the city's
     epochs first: a commit racing the reset may leave part of itself behind. 422 when `confirm` is not the
     city's name."""
     _confirmed(city, body.confirm)
-    return _out(service.reset(city))
+    return _out(admin.reset(city))

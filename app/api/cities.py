@@ -8,13 +8,14 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
 
-from app.api.deps import CityName, ReadAccess, ServiceDep
+from app.api.deps import CitiesDep, CityName, CoverageDep, ReadAccess, TasksDep
 from app.api.geojson import Packed, dump, geojson_responses, pack, respond
 from app.api.inputs import INTERVAL_PATTERN, interval_of
 from app.api.responses import READ_ERRORS
 from app.schemas.cities import CitiesOut, CityOut, GraphOut
 from app.schemas.coverage import CoverageOut
 from app.schemas.tasks import TaskOut, TasksOut
+from app.usecases import city_names
 from services.city import City
 from services.geojson import grid_geojson, network_geojson
 
@@ -24,21 +25,21 @@ router = APIRouter(prefix="/v1/cities", tags=["cities"], responses=READ_ERRORS)
 
 
 @router.get("", response_model=CitiesOut, summary="Served cities")
-def list_cities(_: ReadAccess, service: ServiceDep) -> CitiesOut:
+def list_cities(_: ReadAccess, catalog: CitiesDep) -> CitiesOut:
     """Every served city with its network size, grid, horizon and parameters."""
-    return CitiesOut(cities=[CityOut.of(service.city(name)) for name in service.city_names()])
+    return CitiesOut(cities=[CityOut.of(catalog.get(name)) for name in city_names(catalog)])
 
 
 @router.get("/{city}", response_model=CityOut, summary="One city")
-def get_city(city: CityName, _: ReadAccess, service: ServiceDep) -> CityOut:
+def get_city(city: CityName, _: ReadAccess, catalog: CitiesDep) -> CityOut:
     """A city's network size, bbox, grid, horizon, dispatch parameters and source."""
-    return CityOut.of(service.city(city))
+    return CityOut.of(catalog.get(city))
 
 
 @router.get("/{city}/graph", response_model=GraphOut, summary="Road network")
-def get_graph(city: CityName, _: ReadAccess, service: ServiceDep) -> Response:
+def get_graph(city: CityName, _: ReadAccess, catalog: CitiesDep) -> Response:
     """Nodes (external id, lon/lat, grid cell) and directed edges (external ids, length, time)."""
-    return Response(content=_graph_json(service.city(city)), media_type="application/json")
+    return Response(content=_graph_json(catalog.get(city)), media_type="application/json")
 
 
 @lru_cache(maxsize=8)
@@ -56,9 +57,9 @@ def _graph_json(city: City) -> bytes:
         "(external node ids), `length_m` and `travel_time_s`; gzipped when the client accepts it."
     ),
 )
-def get_graph_geojson(city: CityName, _: ReadAccess, service: ServiceDep, request: Request) -> Response:
+def get_graph_geojson(city: CityName, _: ReadAccess, catalog: CitiesDep, request: Request) -> Response:
     """The road network for GIS tools (QGIS, kepler.gl, geopandas) and the dashboard's base map."""
-    return respond(request, _graph_geojson(service.city(city)))
+    return respond(request, _graph_geojson(catalog.get(city)))
 
 
 @lru_cache(maxsize=8)
@@ -68,9 +69,9 @@ def _graph_geojson(city: City) -> Packed:
 
 
 @router.get("/{city}/tasks", response_model=TasksOut, summary="Monitoring tasks")
-def list_tasks(city: CityName, _: ReadAccess, service: ServiceDep) -> TasksOut:
+def list_tasks(city: CityName, _: ReadAccess, registered: TasksDep) -> TasksOut:
     """Every task of the city with its status, completion time, taxi and mode."""
-    served, tasks = service.list_tasks(city)
+    served, tasks = registered.list_tasks(city)
     return TasksOut(tasks=[TaskOut.of(served, t) for t in tasks])
 
 
@@ -78,7 +79,8 @@ def list_tasks(city: CityName, _: ReadAccess, service: ServiceDep) -> TasksOut:
 def get_coverage(
     city: CityName,
     _: ReadAccess,
-    service: ServiceDep,
+    catalog: CitiesDep,
+    coverage: CoverageDep,
     interval: Annotated[
         str | None,
         Query(
@@ -90,8 +92,8 @@ def get_coverage(
     ] = None,
 ) -> CoverageOut:
     """Lambda per covered cell, coverage rate and Gamma so far for one sensing interval."""
-    k = None if interval is None else interval_of(service.city(city), interval)
-    return CoverageOut.of(service.coverage(city, k))
+    k = None if interval is None else interval_of(catalog.get(city), interval)
+    return CoverageOut.of(coverage.coverage(city, k))
 
 
 @router.get(
@@ -108,7 +110,8 @@ def get_coverage(
 def get_coverage_geojson(
     city: CityName,
     _: ReadAccess,
-    service: ServiceDep,
+    catalog: CitiesDep,
+    coverage: CoverageDep,
     request: Request,
     interval: Annotated[
         str,
@@ -120,7 +123,7 @@ def get_coverage_geojson(
     ],
 ) -> Response:
     """Lambda of every grid cell in one sensing interval: the cells of `GET .../coverage` as polygons."""
-    cov = service.coverage(city, interval_of(service.city(city), interval))
+    cov = coverage.coverage(city, interval_of(catalog.get(city), interval))
     doc = grid_geojson(cov.city.grid, cov.counts, cov.city.cell_weight)
     doc.update({"city": cov.city.name, "interval": cov.city.horizon.label(cov.interval)})
     doc["interval_key"] = int(cov.interval)

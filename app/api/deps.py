@@ -12,14 +12,27 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from app.api.inputs import Limits
 from app.errors import Forbidden, Unauthorized
-from app.fleet_desk import FleetDesk
 from app.metrics import Metrics
 from app.settings import Scope, Settings
-from app.usecases import DispatchService
+from app.usecases import (
+    AdminService,
+    CityCatalog,
+    CoverageService,
+    EpochService,
+    FleetService,
+    ReadinessService,
+    TaskService,
+    UseCases,
+)
 
 __all__ = [
     "Principal",
-    "ServiceDep",
+    "CitiesDep",
+    "EpochsDep",
+    "TasksDep",
+    "AdminDep",
+    "CoverageDep",
+    "ReadinessDep",
     "FleetDep",
     "MetricsDep",
     "SettingsDep",
@@ -31,16 +44,44 @@ __all__ = [
 ]
 
 
-async def get_service(request: Request) -> DispatchService:
-    """The app's use cases."""
-    service: DispatchService = request.app.state.service
-    return service
+def _use_cases(request: Request) -> UseCases:
+    use_cases: UseCases = request.app.state.use_cases
+    return use_cases
 
 
-async def get_fleet(request: Request) -> FleetDesk:
-    """The app's fleet-sizing use cases."""
-    fleet: FleetDesk = request.app.state.fleet
-    return fleet
+async def get_cities(request: Request) -> CityCatalog:
+    """The served cities."""
+    return _use_cases(request).cities
+
+
+async def get_epochs(request: Request) -> EpochService:
+    """The epoch use cases."""
+    return _use_cases(request).epochs
+
+
+async def get_tasks(request: Request) -> TaskService:
+    """The task use cases."""
+    return _use_cases(request).tasks
+
+
+async def get_admin(request: Request) -> AdminService:
+    """The admin use cases."""
+    return _use_cases(request).admin
+
+
+async def get_coverage(request: Request) -> CoverageService:
+    """The coverage use case."""
+    return _use_cases(request).coverage
+
+
+async def get_readiness(request: Request) -> ReadinessService:
+    """The readiness use case."""
+    return _use_cases(request).readiness
+
+
+async def get_fleet(request: Request) -> FleetService:
+    """The fleet-sizing use cases."""
+    return _use_cases(request).fleet
 
 
 async def get_metrics(request: Request) -> Metrics:
@@ -55,8 +96,13 @@ async def get_settings(request: Request) -> Settings:
     return settings
 
 
-ServiceDep = Annotated[DispatchService, Depends(get_service)]
-FleetDep = Annotated[FleetDesk, Depends(get_fleet)]
+CitiesDep = Annotated[CityCatalog, Depends(get_cities)]
+EpochsDep = Annotated[EpochService, Depends(get_epochs)]
+TasksDep = Annotated[TaskService, Depends(get_tasks)]
+AdminDep = Annotated[AdminService, Depends(get_admin)]
+CoverageDep = Annotated[CoverageService, Depends(get_coverage)]
+ReadinessDep = Annotated[ReadinessService, Depends(get_readiness)]
+FleetDep = Annotated[FleetService, Depends(get_fleet)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

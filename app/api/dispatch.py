@@ -7,7 +7,7 @@ import time
 from fastapi import APIRouter, Response
 
 from app.api.bodies import EpochBody, TasksBody, request_body
-from app.api.deps import CityName, DispatchAccess, LimitsDep, MetricsDep, ServiceDep
+from app.api.deps import CitiesDep, CityName, DispatchAccess, EpochsDep, LimitsDep, MetricsDep, TasksDep
 from app.api.inputs import epoch_command, tasks_of
 from app.api.responses import WRITE_ERRORS
 from app.errors import ServiceError
@@ -30,11 +30,12 @@ def post_tasks(
     city: CityName,
     _: DispatchAccess,
     tasks: TasksBody,
-    service: ServiceDep,
+    catalog: CitiesDep,
+    registered: TasksDep,
     limits: LimitsDep,
 ) -> TasksPutOut:
     """Register tasks: an id already stored with the same content is unchanged, with other content 409."""
-    return TasksPutOut.of(service.put_tasks(city, tasks_of(service.city(city), tasks, limits)))
+    return TasksPutOut.of(registered.put_tasks(city, tasks_of(catalog.get(city), tasks, limits)))
 
 
 @router.post(
@@ -58,15 +59,16 @@ def post_epoch(
     city: CityName,
     _: DispatchAccess,
     epoch: EpochBody,
-    service: ServiceDep,
+    catalog: CitiesDep,
+    epochs: EpochsDep,
     metrics: MetricsDep,
     limits: LimitsDep,
 ) -> Response:
     """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
     started = time.perf_counter()
     try:
-        command = epoch_command(service.city(city), epoch.body, limits, epoch.taxis)
-        outcome = service.submit_epoch(city, command)
+        command = epoch_command(catalog.get(city), epoch.body, limits, epoch.taxis)
+        outcome = epochs.submit_epoch(city, command)
     except ServiceError as err:
         metrics.epochs.labels(outcome=err.kind).inc()
         raise

@@ -7,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Request, Response
 
-from app.api.deps import CityName, ReadAccess, ServiceDep
+from app.api.deps import CityName, EpochsDep, ReadAccess
 from app.api.geojson import dump, geojson_responses, respond
 from app.api.responses import READ_ERRORS
 from app.schemas.common import ID_MAX_LEN
@@ -26,9 +26,9 @@ EpochId = Annotated[
 
 
 @router.get("/{city}/epochs", response_model=EpochLogOut, summary="Committed epochs")
-def get_epoch_log(city: CityName, _: ReadAccess, service: ServiceDep) -> EpochLogOut:
+def get_epoch_log(city: CityName, _: ReadAccess, epochs: EpochsDep) -> EpochLogOut:
     """How many epochs the city has committed and the last one (its id names it in the routes below)."""
-    return EpochLogOut.of(service.epoch_log(city))
+    return EpochLogOut.of(epochs.epoch_log(city))
 
 
 @router.get(
@@ -46,10 +46,10 @@ def get_epoch_log(city: CityName, _: ReadAccess, service: ServiceDep) -> EpochLo
     ),
 )
 def get_epoch_routes(
-    city: CityName, epoch_id: EpochId, _: ReadAccess, service: ServiceDep, request: Request
+    city: CityName, epoch_id: EpochId, _: ReadAccess, epochs: EpochsDep, request: Request
 ) -> Response:
     """The paths one committed epoch planned, for GIS tools and the dashboard."""
-    routes = service.epoch_routes(city, epoch_id)
+    routes = epochs.epoch_routes(city, epoch_id)
     d, served = routes.decision, routes.city
     doc = routes_geojson(
         served.network, d.time_s, served.horizon.timezone, d.rider_matches, d.task_assignments, routes.tasks
@@ -60,7 +60,7 @@ def get_epoch_routes(
 
 
 @router.get("/{city}/epochs/{epoch_id:path}", response_model=EpochOut, summary="A committed epoch's decision")
-def get_epoch(city: CityName, epoch_id: EpochId, _: ReadAccess, service: ServiceDep) -> Response:
+def get_epoch(city: CityName, epoch_id: EpochId, _: ReadAccess, epochs: EpochsDep) -> Response:
     """The stored response of a committed epoch, byte for byte what its post returned."""
-    stored = service.stored_epoch(city, epoch_id)
+    stored = epochs.stored_epoch(city, epoch_id)
     return Response(content=stored.response_json, media_type="application/json")

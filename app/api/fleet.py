@@ -13,10 +13,10 @@ from pydantic import ValidationError
 from app.api.deps import AdminAccess, CityName, FleetDep, ReadAccess
 from app.api.responses import READ_ERRORS, errors
 from app.errors import InternalError
-from app.fleet_desk import START_WORKER_HINT
 from app.ports import FleetRecord
 from app.schemas.fleet import FleetHistoryEntryOut, FleetHistoryOut, FleetRecommendationOut, SolveRequestOut
 from app.schemas.fleet_status import FleetStatusOut
+from app.usecases import START_WORKER_HINT
 from services.rfc3339 import format_time
 
 __all__ = ["router", "AdminAccess"]

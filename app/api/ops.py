@@ -7,7 +7,7 @@ import logging
 from fastapi import APIRouter, Response
 from starlette.concurrency import run_in_threadpool
 
-from app.api.deps import FleetDep, MetricsDep, ServiceDep, SettingsDep
+from app.api.deps import FleetDep, MetricsDep, ReadinessDep, SettingsDep
 from app.api.responses import errors
 from app.metrics import CONTENT_TYPE
 from app.schemas.ops import HealthOut, ReadyOut
@@ -32,11 +32,11 @@ async def healthz() -> HealthOut:
     summary="Warmed up, store reachable and cities loaded",
     responses=errors(503),
 )
-def readyz(service: ServiceDep, settings: SettingsDep) -> ReadyOut:
+def readyz(readiness: ReadinessDep, settings: SettingsDep) -> ReadyOut:
     """Readiness: start-up's warm-up has finished (every city loaded and the routing kernels compiled or
     read from their cache), the store answers a ping and every city loads (503 otherwise; the error says
     only "store unreachable", never where the store is)."""
-    return ReadyOut(status="ready", store=settings.store, cities=service.ready())
+    return ReadyOut(status="ready", store=settings.store, cities=readiness.ready())
 
 
 @router.get(

@@ -360,7 +360,7 @@ def _core_stats(decision: Decision) -> dict[str, float | int | str]:
 
 
 def render_epoch(result: EpochResult) -> str:
-    """The response document of a decided epoch (``DispatchService``'s renderer): ``epoch_doc`` encoded by
+    """The response document of a decided epoch (``EpochService``'s renderer): ``epoch_doc`` encoded by
     pydantic's JSON encoder, without validating the values it was built from a second time."""
     return pydantic_core.to_json(epoch_doc(result), inf_nan_mode="null").decode()
 
@@ -413,5 +413,5 @@ def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:
 
 
 def read_epoch(city: City, response_json: str) -> StoredDecision:
-    """The decision inside a stored response document (``DispatchService``'s reader)."""
+    """The decision inside a stored response document (``EpochService``'s reader)."""
     return decision_of(city, json.loads(response_json))

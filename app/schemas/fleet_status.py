@@ -8,9 +8,9 @@ from typing import Literal
 
 from pydantic import Field
 
-from app.fleet_desk import FleetStatus
 from app.ports import WorkerBeat
 from app.schemas.common import ResponseModel
+from app.usecases import FleetStatus
 from services.city import Horizon
 from services.rfc3339 import format_time
 

@@ -13,6 +13,7 @@ from app.ports import Store
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
 from app.simulation import Progress, ResultCache, RunCache, Runner, make_executor
+from app.usecases.sizing import SizingService
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker, WorkerMetrics
 from app.worker.sizing import FleetSizing, SizingConfig
@@ -76,8 +77,11 @@ def assemble_worker(
         metrics.progress(p)
         status.progress(p)
 
+    service = SizingService(
+        store, history_limit=settings.worker_history, lock_ttl_s=float(settings.worker_lock_ttl_s)
+    )
     sizing = FleetSizing(
-        store,
+        service,
         runner,
         SizingConfig.from_settings(settings),
         render=render_recommendation,
@@ -92,5 +96,5 @@ def assemble_worker(
         metrics=metrics,
         status=status,
     )
-    heartbeat = Heartbeat(store, status, cities, interval_s=settings.worker_heartbeat_s)
+    heartbeat = Heartbeat(service, status, cities, interval_s=settings.worker_heartbeat_s)
     return AssembledWorker(worker, heartbeat, runner, metrics, status)

@@ -20,8 +20,9 @@ from contextlib import contextmanager
 from dataclasses import replace
 from typing import Literal
 
-from app.ports import FleetStore, SolveProgress, StoreUnavailable, WorkerBeat
+from app.ports import SolveProgress, StoreUnavailable, WorkerBeat
 from app.simulation import Progress
+from app.usecases.sizing import SizingService
 
 __all__ = ["BEAT_KEEP_S", "WorkerStatus", "Heartbeat", "new_worker_id"]
 
@@ -117,14 +118,14 @@ class Heartbeat:
 
     def __init__(
         self,
-        store: FleetStore,
+        service: SizingService,
         status: WorkerStatus,
         cities: Sequence[str],
         *,
         interval_s: float,
         keep_s: float = BEAT_KEEP_S,
     ) -> None:
-        self.store = store
+        self.service = service
         self.status = status
         self.cities = list(cities)
         self.interval_s = interval_s
@@ -137,7 +138,7 @@ class Heartbeat:
         """One beat for every city; whether the store took them all."""
         try:
             for city in self.cities:
-                self.store.record_worker_beat(city, self.status.beat(city), self.keep_s)
+                self.service.beat(city, self.status.beat(city), self.keep_s)
         except StoreUnavailable as exc:
             if not self._failing:
                 log.warning("fleet worker heartbeat: store unavailable, retrying: %s", exc)

@@ -1,7 +1,7 @@
 """Recorded demand → demand sets: the requests the service saw on one local day, as the simulator takes them.
 
 Every committed epoch's riders are recorded in the store (``EpochCommit.demand_json``, keyed by UTC day, see
-``app.usecases._demand_json``). A rider who waits recurs in every epoch until matched or gone, so
+``app.usecases.epochs``). A rider who waits recurs in every epoch until matched or gone, so
 riders are deduplicated by id, keeping the first request time seen; node ids become network indices.
 """
 
@@ -12,24 +12,31 @@ import json
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Protocol
 from zoneinfo import ZoneInfo
 
-from app.adapters.codec import utc_day
-from app.ports import EpochStore
 from services.city import City
 from services.network.network import SnapError
 from services.sim.demand import DemandSet, Request
 
 __all__ = [
+    "DemandLog",
     "RECORDED_GENERATOR",
     "RecordedDemandError",
     "RecordedDay",
     "demand_from_records",
-    "local_day_records",
     "recorded_days",
 ]
 
 RECORDED_GENERATOR = "recorded"
+
+
+class DemandLog(Protocol):
+    """Where the demand recorded with the epochs is read (``app.usecases.SizingService``)."""
+
+    def recorded_day(self, city: City, day: dt.date) -> list[str]:
+        """The demand documents recorded with the epochs of the UTC days that overlap local ``day``."""
+        ...
 
 
 class RecordedDemandError(ValueError):
@@ -103,24 +110,15 @@ def demand_from_records(city: City, date: str | dt.date, records: Iterable[str])
     )
 
 
-def local_day_records(store: EpochStore, city: City, day: dt.date) -> list[str]:
-    """The recorded epochs of the UTC days that overlap local ``day`` (the store keys demand by UTC day)."""
-    tz = ZoneInfo(city.horizon.timezone)
-    start = dt.datetime.combine(day, dt.time(0), tzinfo=tz).timestamp()
-    end = dt.datetime.combine(day + dt.timedelta(days=1), dt.time(0), tzinfo=tz).timestamp() - 1.0
-    keys = list(dict.fromkeys((utc_day(start), utc_day(end))))
-    return [text for key in keys for text in store.recorded_demand(city.name, key)]
-
-
 def recorded_days(
-    store: EpochStore, city: City, before: dt.date, want: int, lookback_days: int
+    source: DemandLog, city: City, before: dt.date, want: int, lookback_days: int
 ) -> list[RecordedDay]:
     """Up to ``want`` local days before ``before`` (newest first, within ``lookback_days``) on which the
     service recorded at least one request."""
     found: list[RecordedDay] = []
     for back in range(1, lookback_days + 1):
         day = before - dt.timedelta(days=back)
-        records = local_day_records(store, city, day)
+        records = source.recorded_day(city, day)
         if not records:
             continue
         demand = demand_from_records(city, day, records)

@@ -19,11 +19,12 @@ from dataclasses import dataclass
 from typing import Literal
 
 from app.cities import CityRegistry
-from app.ports import FleetRecord, SolveRequest, WorkerStore
+from app.ports import FleetRecord, SolveRequest
 from app.settings import Settings
 from app.simulation import ExecutorUnavailable, ProgressFn, RunJob, Runner, RunResult, RunSpec, TaskTemplate
 from app.simulation.outcomes import day_outcomes, hourly_volumes
-from app.worker.recorded import demand_from_records, local_day_records, recorded_days
+from app.usecases.sizing import SizingService
+from app.worker.recorded import DemandLog, demand_from_records, recorded_days
 from services.city import City
 from services.fleet.sizing import Ambiguity, CostModel, FleetPlan, SubsidyPoint, plan_fleet, subsidy_sweep
 from services.model import IntervalKey
@@ -43,7 +44,6 @@ __all__ = [
     "SolveOutcome",
     "SolveFailed",
     "FleetSizing",
-    "lock_name",
 ]
 
 log = logging.getLogger(__name__)
@@ -73,8 +73,6 @@ class SizingConfig:
     rate_per_hour: float | None = None
     seed: int = 0
     lookback_days: int = 9
-    history_limit: int = 100
-    lock_ttl_s: float = 1800.0
 
     def __post_init__(self) -> None:
         if not self.sizes or any(x < 1 for x in self.sizes) or len(set(self.sizes)) != len(self.sizes):
@@ -100,8 +98,6 @@ class SizingConfig:
             rate_per_hour=s.worker_rate_per_hour,
             seed=s.worker_seed,
             lookback_days=max(1, s.retention_s // 86400 + 1),
-            history_limit=s.worker_history,
-            lock_ttl_s=float(s.worker_lock_ttl_s),
         )
 
 
@@ -143,11 +139,6 @@ class SolveFailed(RuntimeError):
     """A solve could not produce a recommendation (the message is the reason recorded in the history)."""
 
 
-def lock_name(interval: int) -> str:
-    """The store lock of one hour's solve."""
-    return f"fleet-solve:{int(interval)}"
-
-
 @dataclass(frozen=True, slots=True)
 class TaskSet:
     """The POI tasks every simulated day of a solve carries: the platform's registered tasks of the day
@@ -165,7 +156,7 @@ class Observed:
     requests_per_hour: tuple[int, ...]
 
 
-def observed_today(store: WorkerStore, city: City, target: IntervalKey, now_s: float) -> Observed:
+def observed_today(source: DemandLog, city: City, target: IntervalKey, now_s: float) -> Observed:
     """Recorded requests per hour of the target's local day, for the horizon hours that ended by ``now_s``
     (never the target hour or later)."""
     hz = city.horizon
@@ -175,7 +166,7 @@ def observed_today(store: WorkerStore, city: City, target: IntervalKey, now_s: f
     past = min(position, max(0, int((now_s - start) // hz.interval_s)))
     if past == 0:
         return Observed(day.isoformat(), ())
-    records = local_day_records(store, city, day)
+    records = source.recorded_day(city, day)
     if not records:  # the service saw no epoch today: nothing observed (not a day of zero demand)
         return Observed(day.isoformat(), ())
     counts = [0] * past
@@ -235,7 +226,7 @@ class FleetSizing:
 
     def __init__(
         self,
-        store: WorkerStore,
+        service: SizingService,
         runner: Runner,
         config: SizingConfig,
         *,
@@ -246,7 +237,7 @@ class FleetSizing:
     ) -> None:
         """``cities`` defaults to the bundled cities (``CityRegistry.from_settings`` in a deployment);
         ``progress`` sees the runs of every solve start and finish (the worker's metrics)."""
-        self.store = store
+        self.service = service
         self.runner = runner
         self.config = config
         self.render = render
@@ -260,11 +251,11 @@ class FleetSizing:
 
     def claim_request(self, city: str) -> SolveRequest | None:
         """Take the city's pending admin request off the queue, if any."""
-        return self.store.claim_solve_request(city)
+        return self.service.claim_request(city)
 
     def requeue(self, city: str, request: SolveRequest) -> None:
         """Put a claimed request back for the next poll (another worker holds the hour's lock)."""
-        self.store.enqueue_solve_request(city, request)
+        self.service.requeue(city, request)
 
     # ------------------------------------------------------------------ inputs
 
@@ -272,7 +263,7 @@ class FleetSizing:
         """The last M recorded local days before the target hour's date, else the seeded synthetic days."""
         cfg = self.config
         day = city.horizon.local_start(target).date()
-        found = recorded_days(self.store, city, day, cfg.days, cfg.lookback_days)
+        found = recorded_days(self.service, city, day, cfg.days, cfg.lookback_days)
         if len(found) >= cfg.days:
             return HistoryWindow(
                 "recorded",
@@ -296,7 +287,7 @@ class FleetSizing:
         start = hz.start_s(hz.local_start(target).date())
         templates = tuple(
             TaskTemplate(str(t.id), int(t.node), float(t.scheduled_at_s - start))
-            for t in sorted(self.store.list_tasks(city.name), key=lambda t: (t.scheduled_at_s, str(t.id)))
+            for t in self.service.registered_tasks(city.name)
             if 0.0 <= t.scheduled_at_s - start < hz.length_s
         )
         if templates:
@@ -340,7 +331,7 @@ class FleetSizing:
         cfg = self.config
         window = self.window(city, target)
         tasks = self.task_set(city, target)
-        observed = observed_today(self.store, city, target, self.clock())
+        observed = observed_today(self.service, city, target, self.clock())
         jobs = self.jobs(city, window, tasks)
         try:
             batch = self.runner.run(list(jobs.values()), self.progress)
@@ -402,11 +393,10 @@ class FleetSizing:
         even when the current recommendation already covers that hour."""
         started = time.perf_counter()
         request_id = None if request is None else request.request_id
-        token = self.store.acquire_lock(city_name, lock_name(target), self.config.lock_ttl_s)
-        if token is None:
-            return SolveOutcome(city_name, target, "busy", request_id=request_id)
-        try:
-            current = self.store.current_recommendation(city_name)
+        with self.service.hour_lock(city_name, target) as held:
+            if not held:
+                return SolveOutcome(city_name, target, "busy", request_id=request_id)
+            current = self.service.current(city_name)
             if current is not None and current.interval == target and not (force or request is not None):
                 return SolveOutcome(city_name, target, "skipped", version=current.version)
             expected = 0 if current is None or current.version is None else current.version
@@ -428,7 +418,7 @@ class FleetSizing:
                 body_json=body_json,
                 request_id=request_id,
             )
-            result = self.store.publish_recommendation(city_name, record, self.config.history_limit)
+            result = self.service.publish(city_name, record)
             if result.status != "published":
                 reason = f"superseded: version {result.version} was published while this solve ran"
                 return self._fail(city_name, target, reason, request_id, started)
@@ -444,8 +434,6 @@ class FleetSizing:
                 wall,
             )
             return SolveOutcome(city_name, target, "published", result.version, None, request_id, wall)
-        finally:
-            self.store.release_lock(city_name, lock_name(target), token)
 
     def _fail(
         self, city: str, target: IntervalKey, reason: str, request_id: str | None, started: float
@@ -456,5 +444,5 @@ class FleetSizing:
             "fleet %s, interval %d: solve failed, last good recommendation kept: %s", city, target, reason
         )
         record = FleetRecord("failed", self.clock(), int(target), reason=reason, request_id=request_id)
-        self.store.record_solve_failure(city, record, self.config.history_limit)
+        self.service.record_failure(city, record)
         return SolveOutcome(city, target, "failed", None, reason, request_id, time.perf_counter() - started)

@@ -111,7 +111,7 @@ def beat(age_s: float = 1.0, **kw: object) -> WorkerBeat:
 
 def store_of(client: TestClient) -> Store:
     """The app's store."""
-    store: Store = client.app.state.service.store  # type: ignore[attr-defined]
+    store: Store = client.app.state.use_cases.fleet.store  # type: ignore[attr-defined]
     return store
 
 
@@ -211,7 +211,7 @@ def test_history_lists_published_and_failed_solves_newest_first(
     make_client: MakeClient, registry: CityRegistry
 ) -> None:
     client = make_client()
-    store = client.app.state.service.store  # type: ignore[attr-defined]
+    store = client.app.state.use_cases.fleet.store  # type: ignore[attr-defined]
     publish(store, registry, 1, dt.datetime(2026, 11, 23, 0, 0, tzinfo=dt.UTC))
     failure = FleetRecord("failed", T0.timestamp(), int(target(registry)), reason="2 of 6 runs failed: boom")
     store.record_solve_failure(CITY, failure, 100)
@@ -283,7 +283,7 @@ def test_scopes(make_client: MakeClient) -> None:
 
 def test_an_unreadable_stored_document_is_a_500_with_the_error_shape(make_client: MakeClient) -> None:
     client = make_client(raise_errors=False)
-    store = client.app.state.service.store  # type: ignore[attr-defined]
+    store = client.app.state.use_cases.fleet.store  # type: ignore[attr-defined]
     record = FleetRecord("published", T0.timestamp(), 0, version=1, body_json='{"city": "tiny"}')
     assert store.publish_recommendation(CITY, record, 10).status == "published"
     r = client.get(f"{BASE}/recommendation", headers=auth(READ))

@@ -14,7 +14,7 @@ from app.adapters import MemoryStore
 from app.cities import CityRegistry
 from app.errors import EpochConflict, NoData, TaskConflict, UnknownEpoch
 from app.schemas.dispatch import EpochIn, body_hash
-from app.usecases import DispatchService, EpochCommand, EpochResult, StoredDecision
+from app.usecases import EpochCommand, EpochResult, StoredDecision, UseCases
 from services.city import City
 from services.model import (
     IntervalKey,
@@ -58,12 +58,10 @@ class Reader:
         return StoredDecision(epoch_id, T0.timestamp(), (), assignments, ())
 
 
-def service(
-    registry: CityRegistry, reader: Reader | None = None
-) -> tuple[DispatchService, MemoryStore, Renderer]:
+def service(registry: CityRegistry, reader: Reader | None = None) -> tuple[UseCases, MemoryStore, Renderer]:
     store, render = MemoryStore(), Renderer()
     read = reader or Reader({})
-    return DispatchService(registry, store, FakeDecide(), render_epoch=render, read_epoch=read), store, render
+    return UseCases.over(registry, store, FakeDecide(), render_epoch=render, read_epoch=read), store, render
 
 
 def command(registry: CityRegistry, epoch_id: str, minutes: float, digest: str = "h1") -> EpochCommand:
@@ -77,7 +75,7 @@ def command(registry: CityRegistry, epoch_id: str, minutes: float, digest: str =
 
 def test_an_epoch_is_rendered_once_and_replayed_verbatim(registry: CityRegistry) -> None:
     uc, store, render = service(registry)
-    first = uc.submit_epoch(CITY, command(registry, "e1", 0.0))
+    first = uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0))
     assert not first.replayed and first.matches_by_step == {1: 1, 2: 0} and first.attempts == 1
     assert first.response_json == '{"rendered": "e1", "n": 1}'
     stored = store.get_epoch(CITY, "e1")
@@ -88,24 +86,24 @@ def test_an_epoch_is_rendered_once_and_replayed_verbatim(registry: CityRegistry)
     assert result.epoch.time_text == "as posted" and len(result.decision.rider_matches) == 1
     assert result.gamma_after > result.gamma_before == 0.0  # the taxi's cells are the first counted
 
-    again = uc.submit_epoch(CITY, command(registry, "e1", 0.0))
+    again = uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0))
     assert again.replayed and again.response_json == first.response_json and len(render.results) == 1
     with pytest.raises(EpochConflict):
-        uc.submit_epoch(CITY, command(registry, "e1", 0.0, digest="h2"))
+        uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0, digest="h2"))
 
 
 def test_coverage_of_the_last_epoch_and_of_a_given_interval(registry: CityRegistry) -> None:
     uc, store, _ = service(registry)
     with pytest.raises(NoData):
-        uc.coverage(CITY, None)
-    uc.submit_epoch(CITY, command(registry, "e1", 0.0))
-    cov = uc.coverage(CITY, None)
+        uc.coverage.coverage(CITY, None)
+    uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0))
+    cov = uc.coverage.coverage(CITY, None)
     k = registry.get(CITY).horizon.interval_of(T0.timestamp())
     assert cov.interval == k and cov.city.name == CITY
     counted = store.interval_counts(CITY, k)
     assert {int(c): int(n) for c, n in enumerate(cov.counts) if n} == counted and counted
     assert cov.coverage_rate == len(counted) / cov.city.n_cells_touched
-    later = uc.coverage(CITY, IntervalKey(k + 1))
+    later = uc.coverage.coverage(CITY, IntervalKey(k + 1))
     assert not np.any(later.counts) and later.gamma_so_far == cov.gamma_so_far
 
 
@@ -113,14 +111,14 @@ def test_task_conflicts_name_their_positions(registry: CityRegistry) -> None:
     uc, _, _ = service(registry)
     node = registry.get(CITY).network.index_of(node_id(2, 2))
     a, b = Task(TaskId("a"), node, T0.timestamp()), Task(TaskId("b"), node, T0.timestamp())
-    assert uc.put_tasks(CITY, [a]).created == ["a"]
+    assert uc.tasks.put_tasks(CITY, [a]).created == ["a"]
     moved = Task(TaskId("a"), node, T0.timestamp() + 60.0)
     with pytest.raises(TaskConflict) as err:
-        uc.put_tasks(CITY, [b, moved])
+        uc.tasks.put_tasks(CITY, [b, moved])
     assert [(f.loc, f.msg) for f in err.value.fields] == [
         ("[1].id", "task 'a' exists with different content")
     ]
-    assert [t.id for t in uc.list_tasks(CITY)[1]] == ["a"]  # nothing written
+    assert [t.id for t in uc.tasks.list_tasks(CITY)[1]] == ["a"]  # nothing written
 
 
 def test_body_hash_is_the_sha256_of_the_canonical_json() -> None:
@@ -153,19 +151,19 @@ def test_body_hash_is_the_sha256_of_the_canonical_json() -> None:
 def test_committed_epochs_are_read_back_through_the_reader(registry: CityRegistry) -> None:
     reader = Reader({"e2": [TaskId("a"), TaskId("ghost")]})
     uc, store, _ = service(registry, reader)
-    log = uc.epoch_log(CITY)
+    log = uc.epochs.epoch_log(CITY)
     assert (log.committed, log.last_epoch_id, log.last_epoch_time_s) == (0, None, None)
     store.put_tasks(CITY, [Task(TaskId("a"), 3, T0.timestamp() - 60.0)])
-    uc.submit_epoch(CITY, command(registry, "e1", 0))
-    uc.submit_epoch(CITY, command(registry, "e2", 4))
-    log = uc.epoch_log(CITY)
+    uc.epochs.submit_epoch(CITY, command(registry, "e1", 0))
+    uc.epochs.submit_epoch(CITY, command(registry, "e2", 4))
+    log = uc.epochs.epoch_log(CITY)
     assert (log.committed, log.last_epoch_id, log.last_epoch_time_s) == (2, "e2", T0.timestamp() + 240.0)
-    assert json.loads(uc.stored_epoch(CITY, "e1").response_json) == {"rendered": "e1", "n": 1}
+    assert json.loads(uc.epochs.stored_epoch(CITY, "e1").response_json) == {"rendered": "e1", "n": 1}
     with pytest.raises(UnknownEpoch):
-        uc.stored_epoch(CITY, "e3")
+        uc.epochs.stored_epoch(CITY, "e3")
     assert reader.read == []  # the stored document is served as it is, not read back
 
-    routes = uc.epoch_routes(CITY, "e2")
+    routes = uc.epochs.epoch_routes(CITY, "e2")
     assert reader.read == ["e2"] and routes.city is registry.get(CITY)
     a, ghost = routes.tasks
     # the registered task as the epoch left it: assigned to the route's taxi, reached at the route's end

@@ -11,8 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from app.adapters import RedisStore
-from app.adapters.codec import utc_day
-from app.ports import CityState, EpochCommit, Store, StoredEpoch, StoreUnavailable
+from app.ports import CityState, EpochCommit, Store, StoredEpoch, StoreUnavailable, utc_day
 from services.ledger import Ledger, apply_decision
 from services.model import IntervalKey, Task, TaskId, TaxiId, Visit
 

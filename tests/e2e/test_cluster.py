@@ -22,6 +22,7 @@ from app.simulation import Event, Executor, Progress, RunCache, RunJob, Runner, 
 from app.simulation.dask_executor import DaskExecutor
 from app.simulation.localcluster import LocalCluster, free_port
 from app.simulation.workload import open_bundle
+from app.usecases import SizingService
 from app.worker import main as worker_main
 from app.worker.service import WorkerMetrics
 from app.worker.sizing import FleetSizing
@@ -39,7 +40,12 @@ def sizing(
     runner: Runner, store: MemoryStore, progress: Callable[[Progress], None] | None = None
 ) -> FleetSizing:
     return FleetSizing(
-        store, runner, TINY, render=render_recommendation, clock=Clock(local(23, 7, 0)), progress=progress
+        SizingService(store),
+        runner,
+        TINY,
+        render=render_recommendation,
+        clock=Clock(local(23, 7, 0)),
+        progress=progress,
     )
 
 

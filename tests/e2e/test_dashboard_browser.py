@@ -31,6 +31,7 @@ from app.adapters.redis_store import RedisStore
 from app.replay import HttpDispatcher
 from app.schemas.fleet import render_recommendation
 from app.simulation import RunCache, Runner
+from app.usecases import SizingService
 from app.worker.sizing import FleetSizing, SizingConfig
 from services.city import City
 from services.citydata import load_city
@@ -100,7 +101,11 @@ def _publish_recommendations(redis_url: str, prefix: str, cache: Path) -> None:
         clock = {"t": hours[0]}
         config = SizingConfig(sizes=(2, 4, 6), days=3, n0=4, n_tasks=3, rate_per_hour=10.0, lookback_days=9)
         sizing = FleetSizing(
-            store, Runner(RunCache(cache)), config, render=render_recommendation, clock=lambda: clock["t"]
+            SizingService(store),
+            Runner(RunCache(cache)),
+            config,
+            render=render_recommendation,
+            clock=lambda: clock["t"],
         )
         city = load_city(ROOT / "app" / "data" / "cities" / CITY)
         for t in hours:

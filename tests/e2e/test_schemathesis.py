@@ -22,6 +22,7 @@ from app.adapters import MemoryStore
 from app.main import create_app
 from app.serve import serve_app_in_thread
 from app.settings import Settings
+from app.usecases import SizingService
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 
 TOKEN = "schemathesis-token-0001"
@@ -37,7 +38,10 @@ def run_schemathesis(max_examples: int) -> tuple[int, str]:
     app = create_app(settings, store=store)
     # a fleet worker's heartbeat (it never solves): a solve request is queued, as a deployment answers it
     beats = Heartbeat(
-        store, WorkerStatus(embedded=False, poll_s=2.0), ["chengdu", "manhattan"], interval_s=2.0
+        SizingService(store),
+        WorkerStatus(embedded=False, poll_s=2.0),
+        ["chengdu", "manhattan"],
+        interval_s=2.0,
     )
     beats.start()
     with serve_app_in_thread(app, settings) as url:

@@ -37,6 +37,7 @@ from app.simulation import (
     open_bundle,
     run_job,
 )
+from app.usecases import SizingService
 from app.worker import main as worker_main
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker
@@ -95,7 +96,7 @@ def worker(
 ) -> FleetWorker:
     progress = None if status is None else status.progress
     sizing = FleetSizing(
-        store,
+        SizingService(store),
         runner or Runner(RunCache(cache)),
         config,
         render=render_recommendation,
@@ -291,7 +292,7 @@ def test_an_admin_request_is_picked_up_at_the_next_poll(tmp_path: Path) -> None:
     slow = Runner(RunCache(tmp_path), run_fn=slow_run_job)  # each run takes 0.2 s more: progress to see
     w = worker(store, tmp_path, clock, runner=slow, status=status)
     assert w.tick() == []
-    heartbeat = Heartbeat(store, status, [CITY], interval_s=0.05)
+    heartbeat = Heartbeat(SizingService(store), status, [CITY], interval_s=0.05)
     solve_url, status_url = f"/v1/cities/{CITY}/fleet/solve", f"/v1/cities/{CITY}/fleet/status"
     with client_for(store, clock) as client:
         r = client.post(solve_url, headers=auth(ADMIN))
@@ -434,7 +435,10 @@ def test_the_rolling_recommendation_conditions_on_the_hours_recorded_today(tmp_p
 def test_two_processes_give_the_same_runs_as_one(tmp_path: Path) -> None:
     city = BUNDLE.city
     sizing = FleetSizing(
-        MemoryStore(), Runner(RunCache(tmp_path / "unused")), TINY, render=render_recommendation
+        SizingService(MemoryStore()),
+        Runner(RunCache(tmp_path / "unused")),
+        TINY,
+        render=render_recommendation,
     )
     jobs = list(sizing.jobs(city, sizing.window(city, city.horizon.interval_of(local(23, 8)))).values())
     pooled = Runner(RunCache(tmp_path / "pool"), ProcessExecutor(2))

@@ -1,4 +1,5 @@
-"""The core stays framework-free: nothing under ``services/`` imports the shell or reads the environment."""
+"""The layers hold: nothing under ``services/`` imports the shell or reads the environment, and the API and
+the fleet worker reach the store only through the use cases."""
 
 from __future__ import annotations
 
@@ -67,3 +68,59 @@ def test_the_check_catches_violations(tmp_path: Path) -> None:
         "from os import environ\nx = os.environ.get('A')\ny = os.getenv('B')\n"
     )
     assert len(_violations(bad)) == 6
+
+
+APP = SERVICES.parent / "app"
+STORE_PARTS = {
+    "Store",
+    "EpochStore",
+    "TaskStore",
+    "AdminStore",
+    "FleetStore",
+    "DispatchStore",
+    "StreamStore",
+    "WorkerStore",
+}
+"""The store port's protocols (``app.ports``): what a use case takes (its records and errors are free)."""
+COMPOSITION = {"app/worker/assembly.py", "app/worker/embedded.py", "app/worker/cli.py"}
+"""Where the worker is put together: they hand the store to the use cases."""
+CALLERS = sorted(
+    p
+    for p in [*(APP / "api").glob("*.py"), *(APP / "worker").glob("*.py")]
+    if str(p.relative_to(APP.parent)) not in COMPOSITION
+)
+
+
+def _store_imports(path: Path) -> list[str]:
+    """The store port's protocols and adapters ``path`` imports."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    found: list[str] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module == "app.ports":
+            found += [f"line {node.lineno}: {a.name}" for a in node.names if a.name in STORE_PARTS]
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("app.adapters"):
+            found.append(f"line {node.lineno}: {node.module}")
+        elif isinstance(node, ast.Import):
+            found += [
+                f"line {node.lineno}: {a.name}" for a in node.names if a.name.startswith("app.adapters")
+            ]
+    return found
+
+
+@pytest.mark.parametrize("path", CALLERS, ids=[str(p.relative_to(APP)) for p in CALLERS])
+def test_the_api_and_the_worker_reach_the_store_through_the_use_cases(path: Path) -> None:
+    assert _store_imports(path) == [], f"{path.name} takes the store itself, not a use case (docs/DESIGN.md)"
+
+
+def test_the_store_check_catches_a_store(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.py"
+    bad.write_text(
+        "from app.ports import FleetRecord, WorkerStore\nfrom app.adapters.memory_store import MemoryStore\n"
+        "import app.adapters.redis_store\n"
+    )
+    assert _store_imports(bad) == [
+        "line 1: WorkerStore",
+        "line 2: app.adapters.memory_store",
+        "line 3: app.adapters.redis_store",
+    ]
+    assert len(CALLERS) >= 15

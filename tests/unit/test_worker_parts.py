@@ -36,8 +36,9 @@ from app.simulation import (
     tasks_for,
 )
 from app.simulation.workload import placed_tasks
+from app.usecases import SizingService
 from app.worker.cli import parser, settings_from_args
-from app.worker.recorded import RecordedDemandError, demand_from_records, local_day_records, recorded_days
+from app.worker.recorded import RecordedDemandError, demand_from_records, recorded_days
 from app.worker.schedule import coming_interval, due_interval
 from app.worker.sizing import FleetSizing, SizingConfig, TaskSet, observed_today
 from services.city import City, Horizon
@@ -109,7 +110,7 @@ def test_due_in_another_time_zone_and_lead() -> None:
 
 
 def record(epoch: str, time_s: float, riders: list[tuple[str, int, int, float]]) -> str:
-    """An epoch's demand as the service records it (``app.usecases._demand_json``)."""
+    """An epoch's demand as the service records it (``app.usecases.epochs``)."""
     return json.dumps(
         {
             "epoch_id": epoch,
@@ -182,14 +183,16 @@ def test_a_local_day_spans_two_utc_days(tiny: City) -> None:
     r2 = ("r2", node_id(1, 1), node_id(2, 2), at(23, 9))  # UTC 23 Nov 01:00
     r3 = ("r3", node_id(2, 2), node_id(3, 3), at(24, 1))  # UTC 23 Nov 17:00, local 24 Nov
     commit_demand(store, CITY, [(r[3] + 60, record(r[0], r[3] + 60, [r])) for r in (r1, r2, r3)])
-    assert len(local_day_records(store, tiny, dt.date(2026, 11, 23))) == 3
-    found = recorded_days(store, tiny, dt.date(2026, 11, 25), want=5, lookback_days=4)
+    assert len(SizingService(store).recorded_day(tiny, dt.date(2026, 11, 23))) == 3
+    found = recorded_days(SizingService(store), tiny, dt.date(2026, 11, 25), want=5, lookback_days=4)
     assert [(d.date.isoformat(), [r.id for r in d.demand.requests]) for d in found] == [
         ("2026-11-24", ["r3"]),
         ("2026-11-23", ["r1", "r2"]),
     ]
-    assert [d.date.day for d in recorded_days(store, tiny, dt.date(2026, 11, 25), 1, 4)] == [24]
-    assert recorded_days(store, tiny, dt.date(2026, 11, 25), 5, lookback_days=1) == found[:1]
+    assert [d.date.day for d in recorded_days(SizingService(store), tiny, dt.date(2026, 11, 25), 1, 4)] == [
+        24
+    ]
+    assert recorded_days(SizingService(store), tiny, dt.date(2026, 11, 25), 5, lookback_days=1) == found[:1]
 
 
 def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path: Path) -> None:
@@ -202,7 +205,7 @@ def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path:
     k = tiny.horizon.interval_of(at(23, 9))
     runner = Runner(RunCache(tmp_path))
     two = FleetSizing(
-        store, runner, SizingConfig(days=2, lookback_days=7), render=render_recommendation
+        SizingService(store), runner, SizingConfig(days=2, lookback_days=7), render=render_recommendation
     ).window(tiny, k)
     assert two.source == "recorded" and two.recorded_available == 2
     assert [d.label for d in two.days] == ["2026-11-22", "2026-11-21"]
@@ -212,7 +215,10 @@ def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path:
     ]
     assert all(d.demand is not None and len(d.demand.requests) == 1 for d in two.days)
     four = FleetSizing(
-        store, runner, SizingConfig(days=4, lookback_days=7, seed=5), render=render_recommendation
+        SizingService(store),
+        runner,
+        SizingConfig(days=4, lookback_days=7, seed=5),
+        render=render_recommendation,
     ).window(tiny, k)
     assert four.source == "synthetic" and four.recorded_available == 3
     assert [(d.label, d.spec_day, d.demand) for d in four.days] == [
@@ -221,7 +227,7 @@ def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path:
     assert "3 day(s) of recorded demand" in four.note and "seed 5" in four.note
     # the look-back bounds the search (retention): two days back finds only the 22nd
     short = FleetSizing(
-        store, runner, SizingConfig(days=2, lookback_days=1), render=render_recommendation
+        SizingService(store), runner, SizingConfig(days=2, lookback_days=1), render=render_recommendation
     ).window(tiny, k)
     assert short.source == "synthetic" and short.recorded_available == 1
 
@@ -235,11 +241,15 @@ def test_registered_tasks_of_the_day_become_templates_else_one_seeded_set(
     k = tiny.horizon.interval_of(at(23, 9))
     runner = Runner(RunCache(tmp_path))
     sizing = FleetSizing(
-        store, runner, SizingConfig(sizes=(2, 4), days=2), render=render_recommendation, cities=tiny_cities
+        SizingService(store),
+        runner,
+        SizingConfig(sizes=(2, 4), days=2),
+        render=render_recommendation,
+        cities=tiny_cities,
     )
     assert sizing.task_set(tiny, k) == TaskSet("synthetic", None)
     varying = FleetSizing(
-        store,
+        SizingService(store),
         runner,
         SizingConfig(sizes=(2, 4), days=2, vary_tasks=True),
         render=render_recommendation,
@@ -281,12 +291,14 @@ def test_observed_hours_are_the_whole_horizon_hours_past(tiny: City) -> None:
     ]
     commit_demand(store, CITY, [(r[3] + 5, record(r[0], r[3] + 5, [r])) for r in riders])
     k11 = tiny.horizon.interval_of(at(23, 11))
-    seen = observed_today(store, tiny, k11, at(23, 10, 5))
+    seen = observed_today(SizingService(store), tiny, k11, at(23, 10, 5))
     assert seen.date == "2026-11-23" and seen.requests_per_hour == (2, 1)
-    assert observed_today(store, tiny, k11, at(23, 11, 30)).requests_per_hour == (2, 1, 1)
+    assert observed_today(SizingService(store), tiny, k11, at(23, 11, 30)).requests_per_hour == (2, 1, 1)
     k9 = tiny.horizon.interval_of(at(23, 9))
-    assert observed_today(store, tiny, k9, at(23, 8)).requests_per_hour == ()
-    assert observed_today(store, tiny, k9, at(23, 11)).requests_per_hour == (2,)  # never the hour itself
+    assert observed_today(SizingService(store), tiny, k9, at(23, 8)).requests_per_hour == ()
+    assert observed_today(SizingService(store), tiny, k9, at(23, 11)).requests_per_hour == (
+        2,
+    )  # never the hour itself
 
 
 def test_tasks_day_fixes_the_task_draw_across_days(tiny_cities: CityRegistry) -> None:

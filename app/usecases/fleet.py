@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 from app.errors import NoData, NoWorker
 from app.ports import EnqueueResult, FleetRecord, FleetStore, SolveRequest, WorkerBeat
-from app.usecases import CityCatalog
+from app.usecases.cities import CityCatalog
 from services.city import City
 
-__all__ = ["FleetDesk", "FleetStatus", "START_WORKER_HINT"]
+__all__ = ["FleetService", "FleetStatus", "START_WORKER_HINT"]
 
 START_WORKER_HINT = (
     "start one: `python -m app worker` with the API's SD_STORE and SD_REDIS_URL (on the memory store "
@@ -44,7 +44,7 @@ class FleetStatus:
         return tuple(b for b in self.beats if self.now_s - b.seen_at_s <= self.stale_after_s)
 
 
-class FleetDesk:
+class FleetService:
     """Reads the worker's results and status, queues solve requests (never solves)."""
 
     def __init__(

@@ -1,6 +1,7 @@
-"""Use cases: the only door to the store. They take the core's types (a resolved epoch, tasks, an interval
-key) and return the core's results; the API turns requests into those types (``app.api.inputs``) and
-renders the results (``app.schemas``). The exactly-once epoch flow is ``DispatchService.submit_epoch``."""
+"""The epoch use cases: solve and commit a posted epoch exactly once (``EpochService.submit_epoch``), and
+read committed epochs back (the log, the stored document, the routes an epoch planned). They take the core's
+types (a resolved epoch) and return the core's results; the API turns requests into those types
+(``app.api.inputs``) and renders the results (``app.schemas``)."""
 
 from __future__ import annotations
 
@@ -13,32 +14,25 @@ import time
 import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
-
-import numpy as np
-from numpy.typing import NDArray
+from typing import Any
 
 from app.errors import (
     Busy,
     EpochConflict,
     FieldIssue,
     InvalidInput,
-    NoData,
     StaleEpoch,
-    TaskConflict,
-    Unavailable,
     UnknownEpoch,
 )
 from app.ports import (
     CityState,
     DispatchStore,
     EpochCommit,
-    PutTasksResult,
-    RewindResult,
     StoredEpoch,
 )
+from app.usecases.cities import CityCatalog
 from services.city import City
-from services.ledger import counts_view, dense_counts
+from services.ledger import counts_view
 from services.model import (
     CountsView,
     Decision,
@@ -50,10 +44,9 @@ from services.model import (
     TaxiId,
 )
 from services.rfc3339 import format_time
-from services.sensing.sensing import coverage_rate, gamma
+from services.sensing.sensing import gamma
 
 __all__ = [
-    "CityCatalog",
     "DecideFn",
     "EpochRenderer",
     "EpochCommand",
@@ -63,10 +56,8 @@ __all__ = [
     "EpochReader",
     "EpochLog",
     "EpochRoutes",
-    "Coverage",
-    "DispatchService",
+    "EpochService",
     "EpochLimits",
-    "StreamChange",
     "LOOKAHEAD_INTERVALS",
 ]
 
@@ -75,15 +66,6 @@ log = logging.getLogger(__name__)
 LOOKAHEAD_INTERVALS = 2  # intervals after the epoch's own that are loaded before solving
 
 DecideFn = Callable[[City, CountsView, Snapshot, Sequence[Task]], Decision]
-
-
-class CityCatalog(Protocol):
-    """The served cities (implemented by ``app.cities.CityRegistry``)."""
-
-    def names(self) -> list[str]: ...
-
-    def get(self, name: str) -> City:
-        """The city; raises ``app.errors.UnknownCityError`` (or a subclass) when not served."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,30 +156,6 @@ class EpochRoutes:
     tasks: tuple[Task, ...]
 
 
-@dataclass(frozen=True, slots=True)
-class StreamChange:
-    """What a rewind or a reset did to a city's epoch stream (times are POSIX seconds, None when unset)."""
-
-    city: City
-    action: str
-    previous_time_s: float | None
-    time_s: float | None
-    committed: int
-    deleted: int
-
-
-@dataclass(frozen=True, slots=True)
-class Coverage:
-    """The grid counts of one sensing interval: ``counts`` is Lambda over every cell; ``gamma_so_far`` is
-    Gamma over that day's horizon intervals as counted so far."""
-
-    city: City
-    interval: IntervalKey
-    counts: NDArray[np.int64]
-    coverage_rate: float
-    gamma_so_far: float
-
-
 def _gamma_before_after(
     city: City, counts: CountsView, decision: Decision, day: Sequence[IntervalKey]
 ) -> tuple[float, float]:
@@ -223,8 +181,8 @@ class EpochLimits:
     max_ahead_s: float = 86400.0
 
 
-class DispatchService:
-    """The use cases of the API: cities, tasks, epochs and coverage over one store.
+class EpochService:
+    """Posted epochs solved and committed exactly once, and committed epochs read back.
 
     ``render_epoch`` writes the response document of a decided epoch (the API's, ``app.schemas.dispatch``):
     it is committed with the epoch in one atomic step, so a replay is answered with the same bytes;
@@ -253,42 +211,6 @@ class DispatchService:
         self._solve_slots = threading.BoundedSemaphore(limits.max_solves)
         self.max_ahead_s = limits.max_ahead_s
         self.clock = clock
-        self.warming: threading.Event | None = None
-        """Set by the app's start-up: unset while the cities are being warmed up (``ready`` is 503)."""
-
-    # ------------------------------------------------------------------ cities
-
-    def city(self, name: str) -> City:
-        """The city called ``name`` (the catalog raises ``UnknownCityError``, a 404, when not served)."""
-        return self.cities.get(name)
-
-    def city_names(self) -> list[str]:
-        """Names of the served cities."""
-        return sorted(self.cities.names())
-
-    # ------------------------------------------------------------------ tasks
-
-    def put_tasks(self, name: str, tasks: Sequence[Task]) -> PutTasksResult:
-        """Register tasks, idempotent per id (409 naming the conflicting ids' positions; nothing written)."""
-        self.city(name)
-        result = self.store.put_tasks(name, tasks)
-        if result.conflicts:
-            index = {t.id: i for i, t in enumerate(tasks)}
-            raise TaskConflict(
-                "tasks exist with different content: " + ", ".join(map(str, result.conflicts)),
-                [
-                    FieldIssue(f"[{index[c]}].id", f"task {c!r} exists with different content")
-                    for c in result.conflicts
-                ],
-            )
-        return result
-
-    def list_tasks(self, name: str) -> tuple[City, list[Task]]:
-        """The city and its tasks (open ones, and finished ones within the retention), in scheduled order."""
-        city = self.city(name)
-        return city, sorted(self.store.list_tasks(name), key=lambda t: (t.scheduled_at_s, t.id))
-
-    # ------------------------------------------------------------------ epochs
 
     def _replay(self, stored: StoredEpoch, digest: str) -> EpochOutcome:
         if stored.body_hash != digest:
@@ -340,7 +262,7 @@ class DispatchService:
         """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs"). At most
         ``max_solves`` epochs are solved at once: one finding every slot taken waits ``solve_queue_s``, then
         is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot."""
-        city = self.city(name)
+        city = self.cities.get(name)
         snapshot = epoch.snapshot
         self._check_window(city, snapshot.time_s)
         stored = self.store.get_epoch(name, snapshot.epoch_id)
@@ -421,62 +343,15 @@ class DispatchService:
             f"city {name!r} is busy: {self.commit_attempts} commit attempts lost to concurrent epochs; retry"
         )
 
-    # ------------------------------------------------------------------ admin: rewind and reset
-
-    def rewind(self, name: str, time_s: float) -> StreamChange:
-        """Set the city's last epoch time back to ``time_s`` (404 ``no_data`` with no epoch committed; 422
-        on ``to`` when it is later than the last epoch time)."""
-        city = self.city(name)
-        result: RewindResult = self.store.rewind_epochs(name, time_s)
-        if result.status == "empty":
-            raise NoData(f"no epoch committed for {name!r}: nothing to rewind")
-        if result.status == "ahead":
-            assert result.previous_time_s is not None
-            last = format_time(result.previous_time_s, city.horizon.timezone)
-            raise InvalidInput.at("to", f"later than the last epoch time {last}: nothing to rewind")
-        log.warning("epoch stream of %s rewound from %s to %s", name, result.previous_time_s, time_s)
-        return StreamChange(city, "rewind", result.previous_time_s, time_s, result.version, 0)
-
-    def reset(self, name: str) -> StreamChange:
-        """Delete the city's epoch stream and tasks (fleet records stay)."""
-        city = self.city(name)
-        before = self.store.load_state(name, [], [])
-        deleted = self.store.reset_epochs(name)
-        log.warning("epoch stream of %s reset: %d entries deleted", name, deleted)
-        return StreamChange(city, "reset", before.last_epoch_time_s, None, 0, deleted)
-
-    # ------------------------------------------------------------------ readiness
-
-    def ready(self) -> list[str]:
-        """The served cities once the store answers, the start-up warm-up (``warming``) has finished and every
-        city loads (``Unavailable``, a 503, else)."""
-        if self.warming is not None and not self.warming.is_set():
-            raise Unavailable(
-                "warming up: the cities are loading and the routing kernels compiling (minutes on a fresh "
-                "install, under a second once they are cached); epochs posted now wait for it"
-            )
-        self.store.ping()
-        names = self.city_names()
-        if not names:
-            raise Unavailable("no cities are installed")
-        for name in names:
-            try:
-                self.city(name)
-            except Exception as exc:  # a broken city bundle makes the instance not ready, not crashed
-                raise Unavailable(f"city {name!r} failed to load: {exc}") from exc
-        return names
-
-    # ------------------------------------------------------------------ committed epochs
-
     def epoch_log(self, name: str) -> EpochLog:
         """How many epochs the city has committed and which was the last."""
-        city = self.city(name)
+        city = self.cities.get(name)
         state = self.store.load_state(name, [], [])
         return EpochLog(city, state.version, state.last_epoch_id, state.last_epoch_time_s)
 
     def stored_epoch(self, name: str, epoch_id: str) -> StoredEpoch:
         """The stored record of a committed epoch (404 ``unknown_epoch`` when there is none)."""
-        self.city(name)
+        self.cities.get(name)
         stored = self.store.get_epoch(name, epoch_id)
         if stored is None:
             raise UnknownEpoch(
@@ -486,7 +361,7 @@ class DispatchService:
 
     def epoch_routes(self, name: str, epoch_id: str) -> EpochRoutes:
         """The paths a committed epoch planned and the tasks it touched, as it left them."""
-        city = self.city(name)
+        city = self.cities.get(name)
         decision = self.read_epoch(city, self.stored_epoch(name, epoch_id).response_json)
         known = {t.id: t for t in self.store.list_tasks(name)}
         tasks: list[Task] = []
@@ -505,23 +380,6 @@ class DispatchService:
             )
         tasks.extend(decision.tasks_completed)
         return EpochRoutes(city, decision, tuple(tasks))
-
-    # ------------------------------------------------------------------ coverage
-
-    def coverage(self, name: str, interval: IntervalKey | None) -> Coverage:
-        """Lambda per cell, coverage rate and Gamma so far for one interval (default: the last epoch's)."""
-        city = self.city(name)
-        if interval is not None:
-            k = interval
-        else:
-            state = self.store.load_state(name, [], [])
-            if state.last_epoch_time_s is None:
-                raise NoData(f"no epoch committed for {name!r} yet; pass ?interval=")
-            k = city.horizon.interval_of(state.last_epoch_time_s)
-        day = city.horizon.day_intervals(k)
-        wanted = sorted(set(day) | {k})
-        counts = {j: dense_counts(self.store.interval_counts(name, j), city.grid.n_cells) for j in wanted}
-        return Coverage(city, k, counts[k], coverage_rate(city, counts[k]), gamma(city, counts, day))
 
 
 def _demand_json(city: City, epoch: EpochCommand) -> str:

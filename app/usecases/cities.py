@@ -1,0 +1,23 @@
+"""The served cities, as the use cases see them: a catalog by name (``app.cities.CityRegistry``)."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from services.city import City
+
+__all__ = ["CityCatalog", "city_names"]
+
+
+class CityCatalog(Protocol):
+    """The served cities (implemented by ``app.cities.CityRegistry``)."""
+
+    def names(self) -> list[str]: ...
+
+    def get(self, name: str) -> City:
+        """The city; raises ``app.errors.UnknownCityError`` (or a subclass) when not served."""
+
+
+def city_names(cities: CityCatalog) -> list[str]:
+    """The served cities' names, sorted."""
+    return sorted(cities.names())
