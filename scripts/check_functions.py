@@ -17,13 +17,7 @@ MAX_LINES = 80
 MAX_PARAMS = 10
 ROOT = Path(__file__).resolve().parents[1]
 
-KNOWN: dict[str, tuple[int, int]] = {
-    # The searches' innermost loop (every Dijkstra of an epoch runs it): its locals are the workspace's, the
-    # metric's and the graph's arrays, taken from their records once per search. Relaxing a settled node's
-    # super-edges in a function of its own would take them from the records again for every settled node,
-    # and numba counts a reference for every array it takes. Allowed at its present size, not more.
-    "services/network/search.py:grow": (121, 8),
-}
+KNOWN: dict[str, tuple[int, int]] = {}
 """Functions allowed over a limit, by ``path:name``, with the (lines, parameters) they may not exceed."""
 
 
