@@ -520,7 +520,8 @@ def _settle_dead_ends(
 # record, so a helper taking the records would take them again for every settled node. Even with plain
 # arrays, a helper that spans both the ring's and the heap's branch (taking the next node, queueing one), or
 # that writes an array after an inlined call, leaves reference counting in the loop (measured: up to 1.75
-# times the time); the loop keeps those steps in its own body and calls only helpers that cost nothing.
+# times the time); the loop keeps those steps in its own body, and its helpers time within 2 % of the loop
+# written out (Chengdu and the generated metropolis, plain and lazy metrics).
 @compiled
 def grow(
     g: SearchGraph,
