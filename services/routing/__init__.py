@@ -3,7 +3,8 @@
 
 * ``algorithm1``: the enhanced A* family (Algorithm 1): sensing-aware routes from many taxis to many POIs.
 * ``step3``: Step 3, vacant instrumented taxis matched to POIs within their reach.
-* ``algorithm2``: the joint re-planning of Step 3's routes (Algorithm 2).
+* ``algorithm2``: the joint re-planning of Step 3's routes (Algorithm 2) and its objective, the joint
+  utility of several routes (the pairs each adds to Lambda, and Gamma's gain from all of them together).
 """
 
 from services.routing.algorithm1 import (
@@ -20,7 +21,7 @@ from services.routing.algorithm1 import (
     route_pair,
     scratch,
 )
-from services.routing.algorithm2 import improve_routes
+from services.routing.algorithm2 import improve_routes, joint_utility, pair_counts, route_pairs
 from services.routing.step3 import PHI_BITS, Step3, step3_monitoring_routes, step3_reach, step3_reach_us
 
 __all__ = [
@@ -42,4 +43,7 @@ __all__ = [
     "step3_reach",
     "step3_reach_us",
     "improve_routes",
+    "route_pairs",
+    "joint_utility",
+    "pair_counts",
 ]

@@ -12,18 +12,23 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from services.epoch import Epoch
 from services.kernel.parallel import parallel_map
-from services.model import TaxiId
+from services.model import IntervalKey, TaxiId
 from services.routing.algorithm1 import Drive, Route, evaluate, plan_one
-from services.sensing.gains import Counted, gain_table, joint_utility, route_pairs
+from services.sensing.gains import Counted, gain_table, timed_pairs
+from services.sensing.sensing import theta_gain
 
-__all__ = ["improve_routes"]
+if TYPE_CHECKING:
+    from services.city import City
+
+__all__ = ["improve_routes", "route_pairs", "joint_utility", "pair_counts"]
 
 
 def improve_routes(
@@ -149,3 +154,35 @@ def _own_gains(
             g, _t, _l, _ms = evaluate(ep.graph, gn, counted, i, r.edges, ep.now, pad)
             out[i] = dataclasses.replace(r, gain=g)
     return out
+
+
+def route_pairs(
+    city: City, edges: NDArray[np.int64], visited: frozenset[tuple[IntervalKey, int]] | None, depart_s: float
+) -> set[tuple[int, int]]:
+    """The (interval, cell) pairs a path would add to Lambda (first visits the taxi is not counted in)."""
+    seen = visited or frozenset()
+    return {p for p in timed_pairs(city, edges, depart_s) if p not in seen}
+
+
+def joint_utility(
+    city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], taxis_per_pair: Mapping[tuple[int, int], int]
+) -> float:
+    """Marginal Gamma of several paths together: sum mu s ((L + n)**rho - L**rho), n the number of taxis
+    adding a (interval, cell) pair."""
+    rho = city.params.rho
+    total = 0.0
+    for (k, c), n in taxis_per_pair.items():
+        if n <= 0:
+            continue
+        lam_arr = counts.get(IntervalKey(k))
+        lam = float(lam_arr[c]) if lam_arr is not None else 0.0
+        total += city.mu(k) * float(city.cell_weight[c]) * float(theta_gain(lam, n, rho))
+    return total
+
+
+def pair_counts(pair_sets: Iterable[set[tuple[int, int]]]) -> Counter[tuple[int, int]]:
+    """How many of the sets hold each pair."""
+    n: Counter[tuple[int, int]] = Counter()
+    for ps in pair_sets:
+        n.update(ps)
+    return n

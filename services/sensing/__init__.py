@@ -21,12 +21,9 @@ from services.sensing.gains import (
     eval_tree,
     fixed_point_unit,
     gain_table,
-    joint_utility,
     mark,
-    pair_counts,
     pair_gains_q,
     path_facts,
-    route_pairs,
     timed_pairs,
     tree_scratch,
 )
@@ -76,8 +73,5 @@ __all__ = [
     "path_facts",
     "entered_utility",
     "timed_pairs",
-    "route_pairs",
-    "joint_utility",
-    "pair_counts",
     "fixed_point_unit",
 ]

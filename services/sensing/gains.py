@@ -15,8 +15,7 @@ interval ``floor((t + shift) / interval)``; a (slot, cell) pair counts at its fi
 
 from __future__ import annotations
 
-from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -48,9 +47,6 @@ __all__ = [
     "path_facts",
     "entered_utility",
     "timed_pairs",
-    "route_pairs",
-    "joint_utility",
-    "pair_counts",
     "fixed_point_unit",
 ]
 
@@ -660,38 +656,6 @@ def timed_pairs(city: City, edges: NDArray[np.int64], depart_s: float) -> list[t
         city.grid.n_cells,
     )
     return [(IntervalKey(k), c) for k, c in zip(ks.tolist(), cs.tolist(), strict=True)]
-
-
-def route_pairs(
-    city: City, edges: NDArray[np.int64], visited: frozenset[tuple[IntervalKey, int]] | None, depart_s: float
-) -> set[tuple[int, int]]:
-    """The (interval, cell) pairs a path would add to Lambda (first visits the taxi is not counted in)."""
-    seen = visited or frozenset()
-    return {p for p in timed_pairs(city, edges, depart_s) if p not in seen}
-
-
-def joint_utility(
-    city: City, counts: Mapping[IntervalKey, NDArray[np.int64]], taxis_per_pair: Mapping[tuple[int, int], int]
-) -> float:
-    """Marginal Gamma of several paths together: sum mu s ((L + n)**rho - L**rho), n the number of taxis
-    adding a (interval, cell) pair."""
-    rho = city.params.rho
-    total = 0.0
-    for (k, c), n in taxis_per_pair.items():
-        if n <= 0:
-            continue
-        lam_arr = counts.get(IntervalKey(k))
-        lam = float(lam_arr[c]) if lam_arr is not None else 0.0
-        total += city.mu(k) * float(city.cell_weight[c]) * float(theta_gain(lam, n, rho))
-    return total
-
-
-def pair_counts(pair_sets: Iterable[set[tuple[int, int]]]) -> Counter[tuple[int, int]]:
-    """How many of the sets hold each pair."""
-    n: Counter[tuple[int, int]] = Counter()
-    for ps in pair_sets:
-        n.update(ps)
-    return n
 
 
 def fixed_point_unit(top_term: float, terms_per_path: int, bits: int = 48) -> float:

@@ -296,7 +296,7 @@ def test_algorithm2_never_lowers_total_utility(seed: int):
     assert d.stats["alg2_utility_final"] >= d.stats["alg2_utility_initial"]
     # and the reported joint utility is what the routes really give together
     if d.task_assignments:
-        from services.sensing.gains import joint_utility, pair_counts
+        from services.routing.algorithm2 import joint_utility, pair_counts
 
         pairs = []
         for a in d.task_assignments:

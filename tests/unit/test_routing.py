@@ -26,16 +26,14 @@ from services.network.graph import INF, prepare, road_graph
 from services.network.pads import Pads
 from services.routing import algorithm1
 from services.routing.algorithm1 import Drive, plan_one, plan_routes, problem, route_pair
-from services.routing.algorithm2 import improve_routes
+from services.routing.algorithm2 import improve_routes, joint_utility, route_pairs
 from services.sensing.gains import (
     TreeOut,
     counted_csr,
     eval_path,
     eval_tree,
     gain_table,
-    joint_utility,
     path_facts,
-    route_pairs,
     timed_pairs,
     tree_scratch,
 )
