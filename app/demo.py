@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 
 from app.cities import CityRegistry
 from app.replay import HttpDispatcher, ReplayError, service_client
+from app.runs import RunSpec, demand_for, open_bundle
 from app.settings import Settings
-from app.simulation import RunSpec, demand_for, open_bundle
 from services.city import City
 from services.model import IntervalKey, Snapshot, Task
 from services.sim.demand import demand_on_date

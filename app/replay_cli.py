@@ -14,8 +14,8 @@ from typing import TextIO
 from tqdm import tqdm
 
 from app.cities import CityRegistry
+from app.runs import RunSpec, demand_for, open_bundle, tasks_for
 from app.settings import Settings
-from app.simulation import RunSpec, demand_for, open_bundle, tasks_for
 from services.city import City
 from services.model import Task
 from services.sim.demand import DemandSet, demand_on_date

@@ -28,10 +28,10 @@ import numpy as np
 
 from app.adapters import MemoryStore
 from app.cities import CityRegistry
+from app.runs import Executor, Finished, ProcessExecutor, RunCache, Runner, open_bundle
+from app.runs.dask_executor import DaskExecutor
+from app.runs.localcluster import LocalCluster
 from app.schemas.fleet import render_recommendation
-from app.simulation import Executor, Finished, ProcessExecutor, RunCache, Runner, open_bundle
-from app.simulation.dask_executor import DaskExecutor
-from app.simulation.localcluster import LocalCluster
 from app.usecases import SizingService
 from app.worker.sizing import FleetSizing, SizingConfig
 from bench.report import ROOT, stamp, write_section
@@ -165,7 +165,7 @@ def write(results: dict[str, Any]) -> None:
         f"{', '.join(map(str, c['sizes']))} x {c['days']} days = {results['runs']} whole-day runs ({c['n0']} ordinary "
         f"taxis, {c['tasks']} POI tasks), from an empty run cache, {results['reps']} repeats per executor in "
         f"alternating order. Dask clusters: a scheduler and single-threaded worker processes on loopback ports "
-        f"(`app.simulation.localcluster`). Load average during the runs {ld['min']:.1f}-{ld['max']:.1f} "
+        f"(`app.runs.localcluster`). Load average during the runs {ld['min']:.1f}-{ld['max']:.1f} "
         f"(median {ld['median']:.1f}) on {results['cpus']} cores shared with other work.",
         "",
         "| executor | wall per re-solve, median (s) | min-max (s) | vs 2 local processes |",

@@ -110,7 +110,7 @@ def load_city(sc: Scenario) -> City:
         return grid_city()
     if sc.city == "metro":
         return metro.metro_city()
-    from app.simulation.workload import open_bundle
+    from app.runs.workload import open_bundle
 
     return open_bundle(ROOT / "app" / "data" / "cities" / sc.city).city
 
@@ -122,8 +122,8 @@ def demand(sc: Scenario, city: City) -> Demand:
         return CentresDemand(city, Centres(city, xy, weight, 2_500.0))
     if sc.city == "grid":
         return CentresDemand(city, Centres.on_bbox(city, 2_000.0), trip_median_m=3_000.0, trip_max_m=12_000.0)
-    from app.simulation.spec import RunSpec
-    from app.simulation.workload import demand_for, open_bundle
+    from app.runs.spec import RunSpec
+    from app.runs.workload import demand_for, open_bundle
 
     bundle = open_bundle(ROOT / "app" / "data" / "cities" / sc.city)
     day = demand_for(RunSpec(city=sc.city, n1=sc.load.n_instrumented, n0=sc.load.n_ordinary), bundle)

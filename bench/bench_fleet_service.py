@@ -34,7 +34,7 @@ import numpy as np
 
 from app.cities import CityRegistry
 from app.replay import HttpDispatcher
-from app.simulation import RunSpec, demand_for, open_bundle, tasks_for
+from app.runs import RunSpec, demand_for, open_bundle, tasks_for
 from bench.report import ROOT, stamp, write_section
 from services.sim.demand import demand_on_date
 from services.sim.engine import SimConfig, simulate

@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from app.simulation import RunResult  # noqa: E402
+from app.runs import RunResult  # noqa: E402
 from research.reference import ExperimentConfig  # noqa: E402
 from services.city import City  # noqa: E402
 

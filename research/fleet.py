@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from app.cities import CityRegistry
-from app.simulation import RunResult, RunSpec
-from app.simulation.outcomes import day_outcomes, hourly_volumes
+from app.runs import RunResult, RunSpec
+from app.runs.outcomes import day_outcomes, hourly_volumes
 from research.fleet_config import DEFAULT_ZETAS, FleetExperimentConfig, Variant
 from research.fleet_report import write_fleet_report
 from research.runs import city_of, run_all, versions

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from app.runs import RunSpec
 from app.settings import SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR
-from app.simulation import RunSpec
 
 __all__ = ["DEFAULT_ZETAS", "FleetExperimentConfig", "Variant"]
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from app.simulation import RunResult, RunSpec
+from app.runs import RunResult, RunSpec
 from services.sim.kpi import price_of_sensing
 
 __all__ = ["ExperimentConfig", "specs", "rows", "aggregate", "KPI_COLUMNS"]

@@ -1,5 +1,5 @@
 """The experiments' runs: specs become jobs on the deployment's city registry and run through the shared
-``app.simulation.Runner`` (cache under ``<out>/runs``, resumable), with a progress bar; plus provenance."""
+``app.runs.Runner`` (cache under ``<out>/runs``, resumable), with a progress bar; plus provenance."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import scipy
 from tqdm import tqdm
 
 from app.cities import CityRegistry
-from app.simulation import (
+from app.runs import (
     ExecutorUnavailable,
     Progress,
     RunCache,

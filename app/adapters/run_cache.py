@@ -1,6 +1,6 @@
 """Finished simulation runs in Redis, shared by every fleet worker and experiment that names the server:
 ``<prefix>:run:<job key>`` holds the run's JSON document (``RunResult.to_json``) and expires after
-``ttl_s``. Implements ``app.simulation.ResultCache``."""
+``ttl_s``. Implements ``app.runs.ResultCache``."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from redis.exceptions import TimeoutError as RedisTimeoutError
 
 from app.adapters.redis_client import describe
 from app.ports import StoreUnavailable
-from app.simulation import RunResult
+from app.runs import RunResult
 
 __all__ = ["RedisRunCache"]
 

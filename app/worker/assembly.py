@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 from app.cities import CityRegistry
 from app.ports import Store
+from app.runs import Progress, ResultCache, RunCache, Runner, make_executor
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
-from app.simulation import Progress, ResultCache, RunCache, Runner, make_executor
 from app.usecases.sizing import SizingService
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker, WorkerMetrics

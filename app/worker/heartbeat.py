@@ -21,7 +21,7 @@ from dataclasses import replace
 from typing import Literal
 
 from app.ports import SolveProgress, StoreUnavailable, WorkerBeat
-from app.simulation import Progress
+from app.runs import Progress
 from app.usecases.sizing import SizingService
 
 __all__ = ["BEAT_KEEP_S", "WorkerStatus", "Heartbeat", "new_worker_id"]

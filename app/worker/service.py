@@ -19,7 +19,7 @@ from typing import Literal
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
 from app.ports import StoreUnavailable
-from app.simulation import Progress
+from app.runs import Progress
 from app.worker.heartbeat import WorkerStatus
 from app.worker.schedule import coming_interval, due_interval
 from app.worker.sizing import FleetSizing, SolveOutcome

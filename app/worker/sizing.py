@@ -20,9 +20,9 @@ from typing import Literal
 
 from app.cities import CityRegistry
 from app.ports import FleetRecord, SolveRequest
+from app.runs import ExecutorUnavailable, ProgressFn, RunJob, Runner, RunResult, RunSpec, TaskTemplate
+from app.runs.outcomes import day_outcomes, hourly_volumes
 from app.settings import Settings
-from app.simulation import ExecutorUnavailable, ProgressFn, RunJob, Runner, RunResult, RunSpec, TaskTemplate
-from app.simulation.outcomes import day_outcomes, hourly_volumes
 from app.usecases.sizing import SizingService
 from app.worker.recorded import DemandLog, demand_from_records, recorded_days
 from services.city import City

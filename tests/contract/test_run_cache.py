@@ -13,8 +13,8 @@ import pytest
 from app.adapters.redis_client import redis_client
 from app.adapters.run_cache import RedisRunCache
 from app.ports import StoreUnavailable
-from app.simulation import ResultCache, RunCache
-from app.simulation.localcluster import free_port
+from app.runs import ResultCache, RunCache
+from app.runs.localcluster import free_port
 from tests.unit.test_worker_parts import result
 
 # Writes an unreadable entry for ``key`` behind the cache's back.

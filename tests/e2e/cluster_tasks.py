@@ -3,7 +3,7 @@ package name (pytest imports test modules under their bare file name, which a wo
 
 from __future__ import annotations
 
-from app.simulation import RunJob, open_bundle
+from app.runs import RunJob, open_bundle
 
 
 def where_opened(job: RunJob) -> str:

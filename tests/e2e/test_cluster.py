@@ -1,5 +1,5 @@
 """The fleet worker's runs on a real Dask cluster: a scheduler and two workers, each a separate process on
-free loopback ports (``app.simulation.localcluster``). A small re-solve (Chengdu, sizes 2 and 4, 3 days,
+free loopback ports (``app.runs.localcluster``). A small re-solve (Chengdu, sizes 2 and 4, 3 days,
 4 ordinary taxis, 3 POI tasks, 10 requests an hour: 6 short runs) must equal the local executor's bit for
 bit -- also when a worker process is killed in the middle of the runs; a lost cluster keeps the last good
 recommendation."""
@@ -17,11 +17,11 @@ import pytest
 
 from app.adapters import MemoryStore
 from app.cities import CityRegistry
+from app.runs import Event, Executor, Progress, RunCache, RunJob, Runner, RunResult, Started
+from app.runs.dask_executor import DaskExecutor
+from app.runs.localcluster import LocalCluster, free_port
+from app.runs.workload import open_bundle
 from app.schemas.fleet import render_recommendation
-from app.simulation import Event, Executor, Progress, RunCache, RunJob, Runner, RunResult, Started
-from app.simulation.dask_executor import DaskExecutor
-from app.simulation.localcluster import LocalCluster, free_port
-from app.simulation.workload import open_bundle
 from app.usecases import SizingService
 from app.worker import main as worker_main
 from app.worker.service import WorkerMetrics

@@ -29,8 +29,8 @@ from playwright.sync_api import Browser, ConsoleMessage, Page, Response, expect,
 
 from app.adapters.redis_store import RedisStore
 from app.replay import HttpDispatcher
+from app.runs import RunCache, Runner
 from app.schemas.fleet import render_recommendation
-from app.simulation import RunCache, Runner
 from app.usecases import SizingService
 from app.worker.sizing import FleetSizing, SizingConfig
 from services.city import City

@@ -12,7 +12,7 @@ import pytest
 
 from app.cities import CityRegistry
 from app.replay_cli import replay_main
-from app.simulation import RunJob, RunResult, runner
+from app.runs import RunJob, RunResult, runner
 from research.cli import experiment_main, fleet_experiment_main, main
 from research.reference import ExperimentConfig, specs
 from services.fleet.dro import worst_case

@@ -22,9 +22,7 @@ from app.adapters import MemoryStore, RedisStore
 from app.cities import CityRegistry
 from app.main import create_app
 from app.ports import EpochCommit, SolveRequest, Store
-from app.schemas.fleet import render_recommendation
-from app.settings import Settings
-from app.simulation import (
+from app.runs import (
     ProcessExecutor,
     ProgressFn,
     RunBatch,
@@ -37,6 +35,8 @@ from app.simulation import (
     open_bundle,
     run_job,
 )
+from app.schemas.fleet import render_recommendation
+from app.settings import Settings
 from app.usecases import SizingService
 from app.worker import main as worker_main
 from app.worker.heartbeat import Heartbeat, WorkerStatus

@@ -11,7 +11,7 @@ from typing import Any, TypeVar
 
 import pytest
 
-from app.simulation import (
+from app.runs import (
     Event,
     ExecutorUnavailable,
     Finished,
@@ -26,8 +26,8 @@ from app.simulation import (
     make_executor,
     open_bundle,
 )
-from app.simulation.bundles import BundleFiles, install_shipped, shipped_copy
-from app.simulation.localcluster import free_port
+from app.runs.bundles import BundleFiles, install_shipped, shipped_copy
+from app.runs.localcluster import free_port
 from tests.api.fakes import CITY, build_bundle
 from tests.unit.pool_tasks import exit_on_2, square_unless_3
 from tests.unit.test_worker_parts import result

@@ -18,14 +18,7 @@ from pydantic import ValidationError
 from app.adapters import MemoryStore
 from app.cities import CityRegistry
 from app.ports import EpochCommit
-from app.schemas.fleet import render_recommendation
-from app.settings import (
-    SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR,
-    SUBSIDY_SWEEP_DEFAULT,
-    DivergenceName,
-    Settings,
-)
-from app.simulation import (
+from app.runs import (
     RunCache,
     RunJob,
     Runner,
@@ -35,7 +28,14 @@ from app.simulation import (
     open_bundle,
     tasks_for,
 )
-from app.simulation.workload import placed_tasks
+from app.runs.workload import placed_tasks
+from app.schemas.fleet import render_recommendation
+from app.settings import (
+    SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR,
+    SUBSIDY_SWEEP_DEFAULT,
+    DivergenceName,
+    Settings,
+)
 from app.usecases import SizingService
 from app.worker.cli import parser, settings_from_args
 from app.worker.recorded import RecordedDemandError, demand_from_records, recorded_days

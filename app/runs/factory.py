@@ -1,10 +1,10 @@
 """The executor a configuration names (``SD_WORKER_EXECUTOR``): this process or local processes
-(``app.simulation.executor``), or a Dask cluster (``app.simulation.dask_executor``, imported only when named:
+(``app.runs.executor``), or a Dask cluster (``app.runs.dask_executor``, imported only when named:
 ``distributed`` is an optional extra)."""
 
 from __future__ import annotations
 
-from app.simulation.executor import Executor, ExecutorName, InlineExecutor, ProcessExecutor
+from app.runs.executor import Executor, ExecutorName, InlineExecutor, ProcessExecutor
 
 __all__ = ["make_executor"]
 
@@ -25,7 +25,7 @@ def make_executor(
     if name == "dask":
         if not scheduler:
             raise ValueError("the dask executor needs the scheduler's address (SD_DASK_SCHEDULER)")
-        from app.simulation.dask_executor import DaskExecutor
+        from app.runs.dask_executor import DaskExecutor
 
         return DaskExecutor(scheduler, timeout_s=timeout_s)
     if name != "local":

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from app.simulation.result import RunResult
+from app.runs.result import RunResult
 from services.city import Horizon
 from services.fleet.sizing import DayOutcomes
 from services.sim.kpi import reachable_tasks_by_interval

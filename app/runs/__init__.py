@@ -3,11 +3,11 @@
 A run is a pure function of its ``RunJob`` (spec, city bundle, recorded demand); ``Runner`` answers a batch
 of jobs from its ``ResultCache`` (on disk, ``RunCache``, or in Redis, ``app.adapters.run_cache``) or by
 running the rest on an ``Executor`` (this process, local processes, or a Dask cluster:
-``app.simulation.dask_executor``), reporting ``Progress`` as runs start and finish.
+``app.runs.dask_executor``), reporting ``Progress`` as runs start and finish.
 """
 
-from app.simulation.cache import ResultCache, RunCache
-from app.simulation.executor import (
+from app.runs.cache import ResultCache, RunCache
+from app.runs.executor import (
     Event,
     Executor,
     ExecutorName,
@@ -17,11 +17,11 @@ from app.simulation.executor import (
     ProcessExecutor,
     Started,
 )
-from app.simulation.factory import make_executor
-from app.simulation.result import RouteRecord, RunResult
-from app.simulation.runner import Progress, ProgressFn, RunBatch, RunFn, Runner
-from app.simulation.spec import CACHE_FORMAT, RunJob, RunSpec, TaskTemplate, demand_digest, tasks_digest
-from app.simulation.workload import Bundle, demand_for, open_bundle, run_job, simulate_spec, tasks_for
+from app.runs.factory import make_executor
+from app.runs.result import RouteRecord, RunResult
+from app.runs.runner import Progress, ProgressFn, RunBatch, RunFn, Runner
+from app.runs.spec import CACHE_FORMAT, RunJob, RunSpec, TaskTemplate, demand_digest, tasks_digest
+from app.runs.workload import Bundle, demand_for, open_bundle, run_job, simulate_spec, tasks_for
 
 __all__ = [
     "CACHE_FORMAT",

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 from typing import Protocol
 
-from app.simulation.result import RunResult
+from app.runs.result import RunResult
 
 __all__ = ["ResultCache", "RunCache"]
 

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from app.simulation.bundles import shipped_copy
-from app.simulation.result import RouteRecord, RunResult
-from app.simulation.spec import RunJob, RunSpec, TaskTemplate
+from app.runs.bundles import shipped_copy
+from app.runs.result import RouteRecord, RunResult
+from app.runs.spec import RunJob, RunSpec, TaskTemplate
 from services.city import City
 from services.citydata import load_city, read_meta
 from services.dispatch import warm_up
@@ -75,7 +75,7 @@ class Bundle:
 
 
 def open_bundle(directory: Path) -> Bundle:
-    """The bundle in ``directory``, or its copy shipped to this process (``app.simulation.bundles``); kept
+    """The bundle in ``directory``, or its copy shipped to this process (``app.runs.bundles``); kept
     per process, the kernels warmed up on first load."""
     return _open(shipped_copy(Path(directory)))
 

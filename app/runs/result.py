@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from app.simulation.spec import RunSpec
+from app.runs.spec import RunSpec
 from services.sim.kpi import HourKpis, RunKpis, TaskOutcome
 
 __all__ = ["RunResult", "RouteRecord"]

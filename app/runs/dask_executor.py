@@ -23,8 +23,8 @@ from typing import Any, TypeVar
 from distributed import Client, Future, get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from app.simulation.bundles import BundleFiles, install_shipped
-from app.simulation.executor import Event, ExecutorUnavailable, Finished, Started, reason
+from app.runs.bundles import BundleFiles, install_shipped
+from app.runs.executor import Event, ExecutorUnavailable, Finished, Started, reason
 
 __all__ = ["DaskExecutor", "BundlePlugin", "TOPIC"]
 

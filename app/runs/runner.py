@@ -8,11 +8,11 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from app.simulation.cache import ResultCache
-from app.simulation.executor import Executor, InlineExecutor, Started
-from app.simulation.result import RunResult
-from app.simulation.spec import RunJob
-from app.simulation.workload import run_job
+from app.runs.cache import ResultCache
+from app.runs.executor import Executor, InlineExecutor, Started
+from app.runs.result import RunResult
+from app.runs.spec import RunJob
+from app.runs.workload import run_job
 
 __all__ = ["RunFn", "Progress", "ProgressFn", "RunBatch", "Runner"]
 
@@ -54,7 +54,7 @@ class RunBatch:
 class Runner:
     """Runs jobs on an executor, reading and filling a cache; a job is never run twice for one key.
 
-    ``run_fn`` (default ``app.simulation.workload.run_job``) must be a module-level function when the
+    ``run_fn`` (default ``app.runs.workload.run_job``) must be a module-level function when the
     executor sends work to other processes. A batch whose jobs are all cached never touches the executor.
     """
 

@@ -1,7 +1,7 @@
 """Where runs execute: the seam between the runner (cache, order, progress) and the machinery that runs them.
 ``InlineExecutor`` runs in this process, ``ProcessExecutor`` on local worker processes and ``DaskExecutor``
-(``app.simulation.dask_executor``) on a Dask distributed cluster reached by address; ``make_executor``
-(``app.simulation.factory``) picks one by name. Each reports when an item starts (``Started``, again when the
+(``app.runs.dask_executor``) on a Dask distributed cluster reached by address; ``make_executor``
+(``app.runs.factory``) picks one by name. Each reports when an item starts (``Started``, again when the
 engine reruns it elsewhere) and when it finishes (``Finished``)."""
 
 from __future__ import annotations
