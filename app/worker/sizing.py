@@ -1,11 +1,11 @@
-"""The fleet-sizing use case: solve the coming hour of a city and publish the recommendation (docs/FLEET.md).
+"""The fleet worker's solve: the coming hour of a city, solved and published (docs/FLEET.md).
 
 One solve: pick the demand history (the last M local days the service recorded demand on, or a seeded
 synthetic history when it has fewer), simulate every (size, day) as a whole day (cached), form the KPI
 samples of the platform's total cost per hour (DRO_RH conditioned on the hours the day has shown), call
 :func:`services.fleet.sizing.plan_fleet`, and publish the recommendation with the next version (the
 document is rendered by the injected ``render``, ``app.schemas.fleet.render_recommendation`` in the worker).
-Every
+What it reads and writes goes through ``app.usecases.SizingService``, under the hour's lock. Every
 failure -- a run that raised, bad samples, a lost version race -- keeps the current recommendation and is
 recorded in the history with its reason.
 """
