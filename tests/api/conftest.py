@@ -59,6 +59,7 @@ def make_client(registry: CityRegistry) -> Iterator[MakeClient]:
         store: Store | None = None,
         decide: DecideFn | None = None,
         raise_errors: bool = True,
+        clock: Callable[[], float] | None = None,
         **overrides: Any,
     ) -> TestClient:
         app = create_app(
@@ -66,6 +67,7 @@ def make_client(registry: CityRegistry) -> Iterator[MakeClient]:
             registry=registry,
             store=store or MemoryStore(),
             decide=decide or FakeDecide(),
+            clock=clock,
         )
         client = TestClient(app, raise_server_exceptions=raise_errors)
         clients.append(client)

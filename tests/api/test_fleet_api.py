@@ -96,9 +96,9 @@ def body_json(
     return render_recommendation(rec)
 
 
-def beat(age_s: float = 1.0, **kw: object) -> WorkerBeat:
-    """A worker's heartbeat written ``age_s`` seconds ago."""
-    now = time.time()
+def beat(age_s: float = 1.0, now: float | None = None, **kw: object) -> WorkerBeat:
+    """A worker's heartbeat written ``age_s`` seconds before ``now`` (default: the time of the call)."""
+    now = time.time() if now is None else now
     base: dict[str, object] = {
         "started_at_s": now - 600.0,
         "host": "box-1",
@@ -295,9 +295,10 @@ def test_an_unreadable_stored_document_is_a_500_with_the_error_shape(make_client
 def test_a_solve_request_with_no_worker_seen_is_503_no_worker_and_queues_nothing(
     make_client: MakeClient, any_store: Store, age_s: float | None
 ) -> None:
-    client = make_client(store=any_store, tokens=WITH_ADMIN)  # SD_WORKER_STALE_S: 30 s by default
+    now = time.time()  # the service's clock stands still: the beat is exactly age_s old
+    client = make_client(store=any_store, tokens=WITH_ADMIN, clock=lambda: now)  # SD_WORKER_STALE_S: 30 s
     if age_s is not None:
-        any_store.record_worker_beat(CITY, beat(age_s), 3600.0)
+        any_store.record_worker_beat(CITY, beat(age_s, now), 3600.0)
     r = client.post(f"{BASE}/solve", headers=auth(ADMIN))
     assert r.status_code == 503, r.text
     body = r.json()
