@@ -18,7 +18,7 @@ from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker, WorkerMetrics
 from app.worker.sizing import FleetSizing, SizingConfig
 
-__all__ = ["make_runner", "AssembledWorker", "assemble_worker"]
+__all__ = ["make_runner", "worker_cities", "AssembledWorker", "assemble_worker"]
 
 
 def make_runner(settings: Settings, *, in_process: bool = True) -> Runner:
@@ -43,6 +43,14 @@ def make_runner(settings: Settings, *, in_process: bool = True) -> Runner:
         in_process=in_process,
     )
     return Runner(cache, executor)
+
+
+def worker_cities(settings: Settings, registry: CityRegistry) -> tuple[list[str], list[str]]:
+    """The cities the worker sizes (``SD_WORKER_CITIES``, default every served city) and, sorted, those of
+    them the registry does not serve (a worker is not started with any)."""
+    known = registry.names()
+    cities = settings.worker_cities or known
+    return cities, sorted(set(cities) - set(known))
 
 
 @dataclass(frozen=True, slots=True)
