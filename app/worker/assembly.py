@@ -61,7 +61,6 @@ class AssembledWorker:
     heartbeat: Heartbeat
     runner: Runner
     metrics: WorkerMetrics
-    status: WorkerStatus
 
     def serve(self, stop: threading.Event) -> None:
         """Beat and run the loop until ``stop`` is set; then stop beating (the runner stays open)."""
@@ -105,4 +104,4 @@ def assemble_worker(
         status=status,
     )
     heartbeat = Heartbeat(service, status, cities, interval_s=settings.worker_heartbeat_s)
-    return AssembledWorker(worker, heartbeat, runner, metrics, status)
+    return AssembledWorker(worker, heartbeat, runner, metrics)

@@ -14,9 +14,9 @@ from pydantic import ValidationError
 
 from app.cities import CityRegistry
 from app.settings import DivergenceName, Settings
-from app.worker.assembly import assemble_worker, make_runner, worker_cities
+from app.worker.assembly import assemble_worker, worker_cities
 
-__all__ = ["main", "parser", "settings_from_args", "make_runner"]  # make_runner: app.worker.assembly
+__all__ = ["main", "parser", "settings_from_args"]
 
 log = logging.getLogger("app.worker")
 
