@@ -121,7 +121,7 @@ def screenshot(url: str) -> None:
     """The dashboard with the recommendation, in Debian's chromium."""
     from playwright.sync_api import sync_playwright
 
-    from tests.e2e.test_dashboard_browser import CHROMIUM, CHROMIUM_ARGS
+    from tests.e2e.browser import CHROMIUM, CHROMIUM_ARGS
 
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True)

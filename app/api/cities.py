@@ -15,7 +15,6 @@ from app.api.responses import READ_ERRORS
 from app.schemas.cities import CitiesOut, CityOut, GraphOut
 from app.schemas.coverage import CoverageOut
 from app.schemas.tasks import TaskOut, TasksOut
-from app.usecases import city_names
 from services.city import City
 from services.geojson import grid_geojson, network_geojson
 
@@ -27,7 +26,7 @@ router = APIRouter(prefix="/v1/cities", tags=["cities"], responses=READ_ERRORS)
 @router.get("", response_model=CitiesOut, summary="Served cities")
 def list_cities(_: ReadAccess, catalog: CitiesDep) -> CitiesOut:
     """Every served city with its network size, grid, horizon and parameters."""
-    return CitiesOut(cities=[CityOut.of(catalog.get(name)) for name in city_names(catalog)])
+    return CitiesOut(cities=[CityOut.of(catalog.get(name)) for name in catalog.names()])
 
 
 @router.get("/{city}", response_model=CityOut, summary="One city")

@@ -64,19 +64,14 @@ def list_recommendations(
     reason (a failed solve keeps the previous recommendation current)."""
     served, records = fleet.recommendation_history(city, limit)
     hz = served.horizon
-    entries = []
-    for record in records:
-        entries.append(
-            FleetHistoryEntryOut(
-                status=record.status,
-                computed_at=format_time(record.computed_at_s, hz.timezone),
-                interval=hz.label(record.interval),
-                version=record.version,
-                reason=record.reason,
-                request_id=record.request_id,
-                recommendation=_recommendation(record, hz.timezone) if record.status == "published" else None,
-            )
+    entries = [
+        FleetHistoryEntryOut.of(
+            record,
+            hz,
+            recommendation=_recommendation(record, hz.timezone) if record.status == "published" else None,
         )
+        for record in records
+    ]
     return FleetHistoryOut(city=city, entries=entries)
 
 

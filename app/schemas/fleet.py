@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import json
 import math
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal, Self
 
 from pydantic import Field
 
 from app.ports import FleetRecord
 from app.schemas.common import ResponseModel
+from services.city import Horizon
 from services.fleet.sizing import CandidateTable, Choice, RollingHour, SubsidyPoint
 from services.rfc3339 import format_time
 
@@ -35,6 +36,7 @@ __all__ = [
     "subsidy_note",
     "RecommendationBody",
     "FleetRecommendationOut",
+    "SolveEntryOut",
     "FleetHistoryEntryOut",
     "FleetHistoryOut",
     "SolveRequestOut",
@@ -404,8 +406,9 @@ class FleetRecommendationOut(RecommendationBody):
         return cls(**doc, version=record.version, computed_at=format_time(record.computed_at_s, timezone))
 
 
-class FleetHistoryEntryOut(ResponseModel):
-    """One solve: published (with its recommendation) or failed (with the reason)."""
+class SolveEntryOut(ResponseModel):
+    """A solve as the history keeps it (the fields ``FleetHistoryEntryOut`` and the status's last solve
+    share)."""
 
     status: Literal["published", "failed"]
     computed_at: str
@@ -413,6 +416,25 @@ class FleetHistoryEntryOut(ResponseModel):
     version: int | None
     reason: str | None
     request_id: str | None
+
+    @classmethod
+    def of(cls, record: FleetRecord, horizon: Horizon, **extra: Any) -> Self:
+        """From a record of the history, its times in the city's time zone; ``extra`` fills the subclass's
+        own fields."""
+        return cls(
+            status=record.status,
+            computed_at=format_time(record.computed_at_s, horizon.timezone),
+            interval=horizon.label(record.interval),
+            version=record.version,
+            reason=record.reason,
+            request_id=record.request_id,
+            **extra,
+        )
+
+
+class FleetHistoryEntryOut(SolveEntryOut):
+    """One solve: published (with its recommendation) or failed (with the reason)."""
+
     recommendation: FleetRecommendationOut | None
 
 

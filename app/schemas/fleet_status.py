@@ -10,6 +10,7 @@ from pydantic import Field
 
 from app.ports import WorkerBeat
 from app.schemas.common import ResponseModel
+from app.schemas.fleet import SolveEntryOut
 from app.usecases import FleetStatus
 from services.city import Horizon
 from services.rfc3339 import format_time
@@ -73,15 +74,8 @@ class PendingRequestOut(ResponseModel):
     requested_at: str
 
 
-class LastSolveOut(ResponseModel):
+class LastSolveOut(SolveEntryOut):
     """The newest entry of the history."""
-
-    status: Literal["published", "failed"]
-    computed_at: str
-    interval: str
-    version: int | None
-    reason: str | None
-    request_id: str | None
 
 
 class NextSolveOut(ResponseModel):
@@ -145,16 +139,7 @@ class FleetStatusOut(ResponseModel):
             else PendingRequestOut(
                 request_id=pending.request_id, requested_at=format_time(pending.requested_at_s, tz)
             ),
-            last_solve=None
-            if last is None
-            else LastSolveOut(
-                status=last.status,
-                computed_at=format_time(last.computed_at_s, tz),
-                interval=hz.label(last.interval),
-                version=last.version,
-                reason=last.reason,
-                request_id=last.request_id,
-            ),
+            last_solve=None if last is None else LastSolveOut.of(last, hz),
             next_scheduled=None
             if not scheduled or scheduled[0].next_interval is None or scheduled[0].next_due_at_s is None
             else NextSolveOut(

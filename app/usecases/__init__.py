@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from app.ports import Store
 from app.usecases.admin import AdminService, StreamChange
-from app.usecases.cities import CityCatalog, city_names
+from app.usecases.cities import CityCatalog
 from app.usecases.coverage import Coverage, CoverageService
 from app.usecases.epochs import (
     LOOKAHEAD_INTERVALS,
@@ -69,7 +69,6 @@ __all__ = [
     "StreamChange",
     "TaskService",
     "UseCases",
-    "city_names",
     "lock_name",
 ]
 

@@ -6,18 +6,15 @@ from typing import Protocol
 
 from services.city import City
 
-__all__ = ["CityCatalog", "city_names"]
+__all__ = ["CityCatalog"]
 
 
 class CityCatalog(Protocol):
     """The served cities (implemented by ``app.cities.CityRegistry``)."""
 
-    def names(self) -> list[str]: ...
+    def names(self) -> list[str]:
+        """The served cities' names, sorted."""
+        ...
 
     def get(self, name: str) -> City:
         """The city; raises ``app.errors.UnknownCityError`` (or a subclass) when not served."""
-
-
-def city_names(cities: CityCatalog) -> list[str]:
-    """The served cities' names, sorted."""
-    return sorted(cities.names())

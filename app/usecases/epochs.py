@@ -288,6 +288,7 @@ class EpochService:
         # the epoch's interval and the next two (paths run on), plus the day's horizon for Gamma
         intervals = {IntervalKey(k0 + i) for i in range(LOOKAHEAD_INTERVALS + 1)} | set(day)
         instrumented = [t.id for t in snapshot.taxis if t.instrumented]
+        demand = _demand_json(city, epoch)  # the riders as posted: the same for every attempt
         for attempt in range(1, self.commit_attempts + 1):
             state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
             started = time.perf_counter()
@@ -315,7 +316,7 @@ class EpochService:
                     task_updates=(*decision.task_updates, *expired),
                     response_json=response,
                     retention_s=self.retention_s,
-                    demand_json=_demand_json(city, epoch),
+                    demand_json=demand,
                     nonce=uuid.uuid4().hex,  # per attempt: a resent commit finds it, knows it was its own
                 ),
             )

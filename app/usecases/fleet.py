@@ -106,7 +106,7 @@ class FleetService:
         """Seconds since each served city's newest worker heartbeat (``None``: none kept)."""
         now = self.clock()
         out: dict[str, float | None] = {}
-        for name in sorted(self.cities.names()):
+        for name in self.cities.names():
             beats = self.store.worker_beats(name)
             out[name] = None if not beats else max(0.0, now - beats[0].seen_at_s)
         return out

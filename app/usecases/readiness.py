@@ -6,7 +6,7 @@ import threading
 
 from app.errors import Unavailable
 from app.ports import EpochStore
-from app.usecases.cities import CityCatalog, city_names
+from app.usecases.cities import CityCatalog
 
 __all__ = ["ReadinessService"]
 
@@ -29,7 +29,7 @@ class ReadinessService:
                 "install, under a second once they are cached); epochs posted now wait for it"
             )
         self.store.ping()
-        names = city_names(self.cities)
+        names = self.cities.names()
         if not names:
             raise Unavailable("no cities are installed")
         for name in names:

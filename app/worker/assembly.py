@@ -18,7 +18,7 @@ from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker, WorkerMetrics
 from app.worker.sizing import FleetSizing, SizingConfig
 
-__all__ = ["make_runner", "AssembledWorker", "assemble_worker"]
+__all__ = ["make_runner", "worker_cities", "AssembledWorker", "assemble_worker"]
 
 
 def make_runner(settings: Settings, *, in_process: bool = True) -> Runner:
@@ -45,6 +45,14 @@ def make_runner(settings: Settings, *, in_process: bool = True) -> Runner:
     return Runner(cache, executor)
 
 
+def worker_cities(settings: Settings, registry: CityRegistry) -> tuple[list[str], list[str]]:
+    """The cities the worker sizes (``SD_WORKER_CITIES``, default every served city) and, sorted, those of
+    them the registry does not serve (a worker is not started with any)."""
+    known = registry.names()
+    cities = settings.worker_cities or known
+    return cities, sorted(set(cities) - set(known))
+
+
 @dataclass(frozen=True, slots=True)
 class AssembledWorker:
     """A worker's parts: the loop, its heartbeat (not started), the runner to close, its metrics."""
@@ -53,7 +61,6 @@ class AssembledWorker:
     heartbeat: Heartbeat
     runner: Runner
     metrics: WorkerMetrics
-    status: WorkerStatus
 
     def serve(self, stop: threading.Event) -> None:
         """Beat and run the loop until ``stop`` is set; then stop beating (the runner stays open)."""
@@ -97,4 +104,4 @@ def assemble_worker(
         status=status,
     )
     heartbeat = Heartbeat(service, status, cities, interval_s=settings.worker_heartbeat_s)
-    return AssembledWorker(worker, heartbeat, runner, metrics, status)
+    return AssembledWorker(worker, heartbeat, runner, metrics)

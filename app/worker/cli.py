@@ -14,9 +14,9 @@ from pydantic import ValidationError
 
 from app.cities import CityRegistry
 from app.settings import DivergenceName, Settings
-from app.worker.assembly import assemble_worker, make_runner
+from app.worker.assembly import assemble_worker, worker_cities
 
-__all__ = ["main", "parser", "settings_from_args", "make_runner"]  # make_runner: app.worker.assembly
+__all__ = ["main", "parser", "settings_from_args"]
 
 log = logging.getLogger("app.worker")
 
@@ -121,11 +121,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     registry = CityRegistry.from_settings(settings)
-    known = registry.names()
-    cities = settings.worker_cities or known
-    unknown = sorted(set(cities) - set(known))
+    cities, unknown = worker_cities(settings, registry)
     if unknown:
-        print(f"python -m app worker: unknown cities {unknown}; served: {known}", file=sys.stderr)
+        print(f"python -m app worker: unknown cities {unknown}; served: {registry.names()}", file=sys.stderr)
         return 2
     kept_days = settings.retention_s // 86400
     if kept_days < settings.worker_days:

@@ -18,7 +18,7 @@ from app.cities import CityRegistry
 from app.ports import Store
 from app.settings import Settings
 from app.usecases import CityCatalog
-from app.worker.assembly import AssembledWorker, assemble_worker
+from app.worker.assembly import AssembledWorker, assemble_worker, worker_cities
 
 __all__ = ["EmbeddedWorker"]
 
@@ -51,12 +51,12 @@ class EmbeddedWorker:
     def start(self) -> None:
         """Start beating now and solving once the warm-up is over (an unknown city in SD_WORKER_CITIES is
         logged and no worker starts: the API then answers solve requests with 503 no_worker)."""
-        known = self.registry.names()
-        cities = self.settings.worker_cities or known
-        unknown = sorted(set(cities) - set(known))
+        cities, unknown = worker_cities(self.settings, self.registry)
         if unknown:
             log.error(
-                "fleet worker not started: unknown cities %s in SD_WORKER_CITIES; served: %s", unknown, known
+                "fleet worker not started: unknown cities %s in SD_WORKER_CITIES; served: %s",
+                unknown,
+                self.registry.names(),
             )
             return
         self.parts = assemble_worker(self.settings, self.store, self.registry, cities, embedded=True)

@@ -23,6 +23,7 @@ from app.worker.sizing import (
 )
 from services.fleet.sizing import CostModel, DayOutcomes, plan_fleet
 from services.model import IntervalKey
+from services.rfc3339 import format_time
 from tests.api.conftest import ALL, DISPATCH, READ, TOKENS, MakeClient, auth
 from tests.api.fakes import CITY, T0
 
@@ -354,7 +355,7 @@ def test_status_shows_the_worker_its_solve_the_request_the_last_and_the_next_sol
     assert st["pending_request"]["request_id"] == "req-8"
     assert st["last_solve"] == {
         "status": "failed",
-        "computed_at": st["last_solve"]["computed_at"],
+        "computed_at": format_time(now - 60.0, hz.timezone),
         "interval": hz.label(k),
         "version": None,
         "reason": "boom",

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import datetime as dt
 import uuid
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from io import BytesIO
 from pathlib import Path
 from typing import Any
@@ -23,9 +23,8 @@ from zoneinfo import ZoneInfo
 
 import httpx
 import numpy as np
-import pytest
 from PIL import Image
-from playwright.sync_api import Browser, ConsoleMessage, Page, Response, expect, sync_playwright
+from playwright.sync_api import Browser, ConsoleMessage, Page, Response, expect
 
 from app.adapters.redis_store import RedisStore
 from app.replay import HttpDispatcher
@@ -38,17 +37,6 @@ from services.citydata import load_city
 from services.model import Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
 from tests.e2e.service import ROOT, running_service
 
-CHROMIUM = Path("/usr/bin/chromium")
-# as root, without a GPU, on a machine whose only network is loopback and the package registries
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 CITY = "chengdu"
 SHANGHAI = ZoneInfo("Asia/Shanghai")
 READ, WRITE, ADMIN = "dash-read-token-0001", "dash-write-token-001", "dash-admin-token-001"
@@ -56,19 +44,6 @@ T0 = dt.datetime(2026, 11, 23, 8, 40, tzinfo=SHANGHAI)
 HEAT = ["#ffffb2", "#fed976", "#feb24c", "#fd8d3c", "#fc4e2a", "#e31a1c", "#b10026"]  # the page's scale
 MAP_BACKGROUND = (0xFB, 0xFB, 0xF8)
 CELL_OPACITY = 0.75
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    if not CHROMIUM.exists():
-        pytest.fail(
-            f"{CHROMIUM} is missing: the dashboard is tested in Debian's chromium, never skipped; "
-            "run `bash scripts/install_browser.sh` (apt-get install chromium, as root)"
-        )
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True)
-        yield b
-        b.close()
 
 
 def _scenario(city: City) -> tuple[list[Task], list[Snapshot]]:

@@ -12,18 +12,15 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
 from io import BytesIO
 from pathlib import Path
 from typing import Any
 
 import httpx
-import pytest
 from PIL import Image
-from playwright.sync_api import Browser, Page, expect, sync_playwright
+from playwright.sync_api import Browser, Page, expect
 
 from tests.e2e.service import ROOT, start_process, stop, wait_ready
-from tests.e2e.test_dashboard_browser import CHROMIUM, CHROMIUM_ARGS
 
 CITY = "chengdu"
 READ, ADMIN = "fleet-read-token-01", "fleet-admin-token-1"
@@ -39,19 +36,6 @@ SMALL_WORKER = {
 }
 WORST_CASE = (0xD6, 0x60, 0x4D)  # the KPI chart's worst-case line
 DRO_STEP = (0xB2, 0x18, 0x2B)  # the sweep chart's DRO line
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    if not CHROMIUM.exists():
-        pytest.fail(
-            f"{CHROMIUM} is missing: the dashboard is tested in Debian's chromium, never skipped; "
-            "run `bash scripts/install_browser.sh` (apt-get install chromium, as root)"
-        )
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True)
-        yield b
-        b.close()
 
 
 def _pixels_near(page: Page, selector: str, colour: tuple[int, int, int], tol: int = 40) -> int:
