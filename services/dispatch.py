@@ -231,7 +231,7 @@ def _algorithm2(ep: Epoch, free: Sequence[Taxi], counted_free: Counted, s3: Step
 
 class _Facts:
     """The G-routes and timed G-routes of every planned path (riders' paths, then routes), in one compiled
-    call; ``cells(q)`` and ``visits(q, taxi)`` read path ``q``'s."""
+    call; ``cells_of(q)`` and ``visits_of(q, taxi)`` read path ``q``'s."""
 
     def __init__(self, ep: Epoch, paths: Sequence[NDArray[np.int64]]) -> None:
         city = ep.city

@@ -119,11 +119,10 @@ class Lazy(NamedTuple):
     """Algorithm 1's cost of one taxi, ``c_e = t_e (1 - kappa u_e / umax)`` (``kappa_cost``), computed as a
     search relaxes each super-edge instead of for every edge beforehand: ``u_e`` is the sum of ``term``
     over the cells edge ``e`` enters (all its cells but the first) that ``zmask`` leaves open, in the order
-    the edge enters them (the sum ``gains.entered_utility`` makes). A super-edge none of whose edges enters
-    a cell costs its travel time under every such metric (``fixed``: that cost, -1 for the others). A
-    search given one writes the costs of the super-edges a path may end or start inside (the source's and
-    the targets'), and of their edges, into its ``Costs`` arrays beforehand, so ``search.resolve`` finds
-    them there.
+    the edge enters them (``lazy_edge``). A super-edge none of whose edges enters a cell costs its travel
+    time under every such metric (``fixed``: that cost, -1 for the others). A search given one writes the
+    costs of the super-edges a path may end or start inside (the source's and the targets'), and of their
+    edges, into its ``Costs`` arrays beforehand, so ``search.resolve`` finds them there.
     ``on`` False: the ``Costs`` arrays hold the metric already."""
 
     on: bool

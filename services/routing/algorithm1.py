@@ -209,8 +209,9 @@ def _base_kappa(kt: Kit, gn: Gains, kappas: NDArray[np.float64], in_trees: bool)
 
 @compiled
 def _umax_scan(kt: Kit, gn: Gains, zmask: NDArray[np.bool_]) -> float:
-    """The largest entered utility of the taxi whose zero mask is ``zmask`` (the sums
-    ``gains.entered_utility`` makes, over the edges that enter a cell)."""
+    """The largest entered utility of the taxi whose zero mask is ``zmask``: over the edges that enter a
+    cell, the first slot's terms of the cells the edge enters that the mask leaves open (``u_e`` of
+    ``graph.Lazy``)."""
     ed = kt.ed
     top = 0.0
     for e in kt.crossing:

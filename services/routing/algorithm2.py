@@ -54,9 +54,7 @@ def improve_routes(
     kappas = city.params.kappas
     visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
     pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
-    total: Counter[tuple[int, int]] = Counter()
-    for ps in pairs:
-        total.update(ps)
+    total = pair_counts(pairs)
     slots_cells = functools.partial(_slots_cells, k0=k0, n_slots=n_slots)
     dense = [slots_cells(ps) for ps in pairs]
     total_n = np.zeros((n_slots, city.grid.n_cells), dtype=np.int64)

@@ -15,7 +15,6 @@ from services.sensing.gains import (
     counted_csr,
     counted_rows,
     distinct_cells,
-    entered_utility,
     eval_pairs,
     eval_path,
     eval_tree,
@@ -71,7 +70,6 @@ __all__ = [
     "pair_gains_q",
     "distinct_cells",
     "path_facts",
-    "entered_utility",
     "timed_pairs",
     "fixed_point_unit",
 ]

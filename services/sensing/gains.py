@@ -45,7 +45,6 @@ __all__ = [
     "pair_gains_q",
     "distinct_cells",
     "path_facts",
-    "entered_utility",
     "timed_pairs",
     "fixed_point_unit",
 ]
@@ -540,25 +539,6 @@ def distinct_cells(ed: Edges, edges: NDArray[np.int64], n_cells: int) -> NDArray
                 out[n] = c
                 n += 1
     return out[:n]
-
-
-@compiled
-def entered_utility(ed: Edges, gn: Gains, zmask: NDArray[np.bool_], out: NDArray[np.float64]) -> float:
-    """Per edge, the first slot's terms summed over the cells the edge *enters* (all but its first cell),
-    zero where the taxi is counted: u_e of Algorithm 1 before normalization, into ``out``; returns the
-    largest."""
-    m = ed.ec_ptr.shape[0] - 1
-    top = 0.0
-    for e in range(m):
-        s = 0.0
-        for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
-            c = ed.ec_cell[j]
-            if not zmask[0, c]:
-                s += gn.term[0, c]
-        out[e] = s
-        if s > top:
-            top = s
-    return top
 
 
 @compiled
