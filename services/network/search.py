@@ -1290,7 +1290,7 @@ def crossing_us(graph: RoadGraph) -> int:
     """How long, at least, the network takes to cross: the longest fastest path to or from a landmark (each
     picked farthest from the ones before, so one of them lies near the end of a longest path), in whole
     microseconds. A lower bound on the diameter, the same every time for a network; found once per graph
-    (a scan of the landmark table, 9 ms at 260,000 nodes, which every epoch reads)."""
+    (one scan of the whole landmark table) and kept, since every epoch's Step 3 reads it."""
     with _landmarks_lock:
         known = _crossing.get(graph)
     if known is not None:
