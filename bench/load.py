@@ -3,8 +3,8 @@
 A :class:`Platform` keeps a fleet and its riders between epochs the way a ride-hailing platform does:
 
 * taxis continue from where their committed paths took them: a matched taxi drives its pickup and trip
-  path, a Step 3 taxi its monitoring route, at the network's speed, and is vacant again at the end;
-  a vacant taxi with no job stays where it is;
+  path, a Step 3 taxi its monitoring route, at the network's speed, and is vacant again at the end (the
+  simulator's ``services.sim.engine.Job``); a vacant taxi with no job stays where it is;
 * riders wait until they are matched or their patience runs out (the service names the expired ones);
   new requests fill the waiting list up to the scenario's rider count each epoch;
 * new monitoring tasks are registered every epoch and stay open until a taxi serves them (the service
@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 
 from services.city import City
 from services.model import Rider, RiderId, RiderMatch, Snapshot, Task, TaskAssignment, TaskId, Taxi, TaxiId
+from services.sim.engine import Job
 
 __all__ = ["Load", "Demand", "RecordedDemand", "CentresDemand", "Centres", "Platform"]
 
@@ -146,14 +147,6 @@ class Centres:
         return cls(city, lo + at * (hi - lo), np.array([0.4, 0.2, 0.2, 0.2]), spread_m)
 
 
-@dataclass(slots=True)
-class _Job:
-    """A taxi's committed path: its nodes and the time it is at each."""
-
-    nodes: NDArray[np.int64]
-    times: NDArray[np.float64]
-
-
 class Platform:
     """A fleet and its riders over consecutive epochs (module docstring). ``next_epoch`` gives the epoch's
     snapshot and the tasks to register before it; ``apply`` takes what the service decided."""
@@ -172,7 +165,7 @@ class Platform:
         ]
         self._instrumented = [k < load.n_instrumented for k in range(n)]
         self._node = [int(v) for v in starts]
-        self._job: list[_Job | None] = [None] * n
+        self._job: list[Job | None] = [None] * n
         self._row = {t: k for k, t in enumerate(self._ids)}
         self._waiting: dict[RiderId, Rider] = {}
         self._epoch = 0
@@ -190,9 +183,8 @@ class Platform:
         for k, job in enumerate(self._job):
             if job is None:
                 continue
-            i = int(np.searchsorted(job.times, now, side="right")) - 1
-            self._node[k] = int(job.nodes[max(i, 0)])
-            if job.times[-1] <= now:
+            self._node[k] = job.node_at(now)
+            if job.done_by(now):
                 self._job[k] = None
         new = max(0, self.load.riders - len(self._waiting))
         origins, dests = self.demand.trips(self._rng, new)
@@ -220,15 +212,9 @@ class Platform:
         """Start the jobs the service decided at the epoch just posted; drop served and expired riders."""
         now = self._t0 + (self._epoch - 1) * self.city.horizon.epoch_s
         for m in matches:
-            self._job[self._row[m.taxi_id]] = self._job_of(m.path, now)
+            self._job[self._row[m.taxi_id]] = Job.along(self.city, m.path, now)
             self._waiting.pop(m.rider_id, None)
         for a in assignments:
-            self._job[self._row[a.taxi_id]] = self._job_of(a.path, now)
+            self._job[self._row[a.taxi_id]] = Job.along(self.city, a.path, now)
         for r in expired:
             self._waiting.pop(r, None)
-
-    def _job_of(self, path: Sequence[int], depart_s: float) -> _Job:
-        nodes = np.asarray(path, dtype=np.int64)
-        net = self.city.network
-        times = depart_s + np.concatenate(([0.0], np.cumsum(net.edge_time_s[net.edge_ids(nodes)])))
-        return _Job(nodes, times)

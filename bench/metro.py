@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from bench.load import Centres
 from services.city import City
 from services.citydata import EARTH_RADIUS_M, CityMeta, city_from_network, haversine_m
 from services.network.network import build_network, largest_strongly_connected
@@ -883,7 +884,8 @@ def near_centres(
 
     Each draw picks a centre with probability proportional to its weight times its radius squared (the
     main centre about 43 %), moves from it by a normal offset of standard deviation ``spread_m`` on each
-    axis, and snaps to the nearest node (a cKDTree on the projected coordinates).
+    axis, and snaps to the nearest node: :class:`bench.load.Centres` on :func:`centre_layout`, which the
+    epoch benchmark keeps to draw from many times.
 
     Parameters
     ----------
@@ -900,11 +902,7 @@ def near_centres(
     int64 (n,)
     """
     pos, weight = centre_layout(city)
-    net = city.network
-    pick = rng.choice(pos.shape[0], size=n, p=weight)
-    pts = pos[pick] + rng.normal(0.0, spread_m, (n, 2))
-    _, idx = cKDTree(np.column_stack([net.x_m, net.y_m])).query(pts)
-    return np.asarray(idx, dtype=np.int64).reshape(n)
+    return Centres(city, pos, weight, spread_m)(rng, n)
 
 
 def describe(city: City) -> dict[str, float]:

@@ -58,7 +58,6 @@ EARTH_RADIUS_M = 6_371_009.0
 """Mean Earth radius used for haversine lengths (the value OSMnx uses)."""
 
 _CITY_NAME = re.compile(r"[a-z0-9_-]{1,40}")
-_INT64_MAX = 2**63 - 1
 
 
 class CityDataError(ValueError):

@@ -43,6 +43,7 @@ __all__ = [
     "RiderRecord",
     "EpochRecord",
     "RunTrace",
+    "Job",
     "poi_tasks",
     "simulate",
 ]
@@ -141,11 +142,28 @@ class RunTrace:
 
 
 @dataclass(slots=True)
-class _Job:
-    """A taxi's committed path: nodes and the time it is at each."""
+class Job:
+    """A taxi's committed path: nodes and the time it is at each (the network's travel times from
+    ``depart_s``); the taxi is at the path's last node, vacant again, once that time has come."""
 
     nodes: NDArray[np.int64]
     times: NDArray[np.float64]
+
+    @classmethod
+    def along(cls, city: City, path: Sequence[int], depart_s: float) -> Job:
+        """The job of driving ``path`` from ``depart_s``."""
+        nodes = np.asarray(path, dtype=np.int64)
+        edges = city.network.edge_ids(nodes)
+        return cls(nodes, depart_s + np.concatenate(([0.0], np.cumsum(city.network.edge_time_s[edges]))))
+
+    def node_at(self, now: float) -> int:
+        """The last node of the path reached by ``now`` (the first before departure)."""
+        i = int(np.searchsorted(self.times, now, side="right")) - 1
+        return int(self.nodes[max(i, 0)])
+
+    def done_by(self, now: float) -> bool:
+        """Whether the path's last node is reached by ``now``."""
+        return bool(self.times[-1] <= now)
 
 
 @dataclass(slots=True)
@@ -153,7 +171,7 @@ class _TaxiState:
     id: TaxiId
     instrumented: bool
     node: int
-    job: _Job | None = None
+    job: Job | None = None
     target: int = -1  # drift hub row, -1 none
     at_target: bool = False
 
@@ -175,13 +193,6 @@ def poi_tasks(
     when = np.sort(np.floor(start_s + rng.random(n) * length_s))
     pairs = enumerate(zip(chosen.tolist(), when.tolist(), strict=True))
     return [Task(TaskId(f"{prefix}poi{i:02d}"), int(v), float(w)) for i, (v, w) in pairs]
-
-
-def _job(city: City, path: Sequence[int], depart_s: float) -> _Job:
-    nodes = np.asarray(path, dtype=np.int64)
-    edges = city.network.edge_ids(nodes)
-    times = depart_s + np.concatenate(([0.0], np.cumsum(city.network.edge_time_s[edges])))
-    return _Job(nodes, times)
 
 
 def simulate(
@@ -309,9 +320,8 @@ def _move(taxis: Sequence[_TaxiState], now: float) -> None:
     """Every taxi with a job where its job has it at ``now``; a finished job leaves its taxi vacant."""
     for t in taxis:
         if t.job is not None:
-            i = int(np.searchsorted(t.job.times, now, side="right")) - 1
-            t.node = int(t.job.nodes[max(i, 0)])
-            if t.job.times[-1] <= now:
+            t.node = t.job.node_at(now)
+            if t.job.done_by(now):
                 t.job = None
 
 
@@ -337,10 +347,10 @@ def _apply(city: City, books: _Books, by_id: Mapping[TaxiId, _TaxiState], out: O
         rec.matched_at_s, rec.step, rec.taxi_id, rec.pickup_s = now, m.step, m.taxi_id, m.wait_s
         books.waiting.pop(m.rider_id)
         t = by_id[m.taxi_id]
-        t.job, t.target, t.at_target = _job(city, m.path, now), -1, False
+        t.job, t.target, t.at_target = Job.along(city, m.path, now), -1, False
     for a in out.task_assignments:
         t = by_id[a.taxi_id]
-        t.job, t.target, t.at_target = _job(city, a.path, now), -1, False
+        t.job, t.target, t.at_target = Job.along(city, a.path, now), -1, False
         books.assignments.append((now, a))
     for rid in out.expired_rider_ids:
         if rid in books.waiting:
