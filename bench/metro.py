@@ -28,15 +28,14 @@ sphere by a sinusoidal projection about its middle. Every random draw comes from
   2-4 km (none within 800 m of the river or 1.5 km of an interchange) join both carriageways to the nearest
   arterial node by one-way ramps at 40 km/h; interchanges join the radials to the ring.
 
-The city is the largest strongly connected part of that (489 nodes left out). As built with ``SEED`` at
-scale 1 (measured): 259,720 nodes and 710,122 directed edges (2.73 a node); 70.7 x 70.4 km in UTM 48N
-(lon 103.69-104.43, lat 30.35-30.97); edges 1,452 motorway, 396 ramp, 86,590 arterial, 31,032 country road
-and 590,652 local (83 %); 44,820 one-way edges (13.6 % of the local streets one-way); 16,341 dead ends
-(6.3 % of the nodes); nodes with 2, 3 and 4+ distinct neighbours 32.3, 25.9 and 35.5 %; 95 motorway
-junctions; the river crossed at 8 places (6 bridges and the ring twice). Nodes per km2: 162 within 3 km of
-the main centre, 52 on average, 14 in the rural south-west 10 x 10 km. ``metro_city()`` takes 1.2-2.3 s on
-the 2-core machine (more while other work runs) with a peak resident memory of 390 MB; at ``scale`` 0.18,
-7,983 nodes and 20,963 edges in 0.05 s.
+The city is the largest strongly connected part of that. As built with ``SEED`` at scale 1 (``python -m
+bench.metro`` prints these): 259,720 nodes and 710,122 directed edges (2.73 a node); 70.7 x 70.4 km in UTM
+48N (lon 103.69-104.43, lat 30.35-30.97), 52 nodes per km2; edges 1,452 motorway, 396 ramp, 86,590
+arterial, 31,032 country road and 590,652 local (83 %); 44,820 one-way edges (13.6 % of the local streets
+one-way); 16,341 dead ends (6.3 % of the nodes); nodes with 2, 3 and 4+ distinct neighbours 32.3, 25.9 and
+35.5 %; the river crossed at 8 places (6 bridges and the ring twice). ``metro_city()`` takes about 2 s on the
+2-core machine (more while other work runs), the command's peak resident memory about 440 MB; at ``scale``
+0.18, 7,983 nodes and 20,963 edges in 0.05 s.
 
     python -m bench.metro [--seed N] [--scale S]     # build it, print these counts and the build time
 """
@@ -44,6 +43,7 @@ the 2-core machine (more while other work runs) with a peak resident memory of 3
 from __future__ import annotations
 
 import argparse
+import resource
 import sys
 import time
 from dataclasses import dataclass, field
@@ -907,7 +907,8 @@ def near_centres(
 
 def describe(city: City) -> dict[str, float]:
     """Counts of a city's network: nodes, edges, extent, edges per road class (by speed), one-way edges
-    (no reverse edge), dead ends (one neighbour), and the nodes with exactly two neighbours."""
+    (no reverse edge) and the share of local streets that are one-way, dead ends (one neighbour), the
+    nodes with two, three and four or more neighbours, and nodes per km2 of the extent."""
     net = city.network
     n = net.n_nodes
     kmh = np.round(net.edge_length_m / net.edge_time_s * 3.6)
@@ -932,7 +933,13 @@ def describe(city: City) -> dict[str, float]:
     }
     for name, cls in (("motorway", MOTORWAY), ("ramp", RAMP), ("country", COUNTRY), ("arterial", ARTERIAL)):
         out[f"{name}_edges"] = int((kmh == SPEED_KMH[cls]).sum())
-    out["local_edges"] = int((kmh == SPEED_KMH[LOCAL]).sum())
+    local = kmh == SPEED_KMH[LOCAL]
+    out["local_edges"] = int(local.sum())
+    local_one_way = int((local & ~has_rev).sum())  # a two-way street is two edges, a one-way street one
+    out["local_one_way_share"] = local_one_way / max(
+        1, local_one_way + (int(local.sum()) - local_one_way) // 2
+    )
+    out["nodes_per_km2"] = n / max(out["width_km"] * out["height_km"], 1e-9)
     return out
 
 
@@ -949,6 +956,7 @@ def main(argv: list[str] | None = None) -> int:
     stats["bridges"] = len(river_crossings(city, args.seed, args.scale))
     stats["centres"] = len(centres(city))
     stats["build_s"] = took
+    stats["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     for k, val in stats.items():
         print(f"{k:>18}: {val:,.3f}" if isinstance(val, float) else f"{k:>18}: {val:,}")
     return 0
