@@ -356,17 +356,20 @@ class FleetSizing:
                 keep=cfg.rolling_days,
                 target=cfg.completion_target,
             )
-            sweep = subsidy_sweep(
+            hour = city.horizon.position(target)
+            zeta = cfg.subsidy_cny_per_vehicle_hour
+            others = subsidy_sweep(  # the configured subsidy's point is the plan's own
                 outcomes,
                 volumes,
-                (*cfg.subsidy_sweep, cfg.subsidy_cny_per_vehicle_hour),
-                hour=city.horizon.position(target),
+                [z for z in cfg.subsidy_sweep if z != zeta],
+                hour=hour,
                 ambiguity=cfg.ambiguity,
                 interval_hours=tau,
                 observed=observed.requests_per_hour,
                 keep=cfg.rolling_days,
                 target=cfg.completion_target,
             )
+            sweep = tuple(sorted((*others, plan.point(hour)), key=lambda p: p.subsidy_cny_per_vehicle_hour))
         except ValueError as exc:
             raise SolveFailed(f"fleet sizing rejected the samples: {exc}") from exc
         requests = tuple(r.n_requests for r in runs[cfg.sizes[0]])

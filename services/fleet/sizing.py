@@ -306,6 +306,12 @@ class FleetPlan:
         """DRO_RH's size for every hour."""
         return tuple(r.choice.size for r in self.rolling)
 
+    def point(self, hour: int) -> SubsidyPoint:
+        """This plan's point on the subsidy trade-off curve for interval ``hour``: what
+        :func:`subsidy_sweep` decides at ``costs``' subsidy from the same inputs."""
+        rh = self.rolling[hour].choice
+        return SubsidyPoint(self.costs.subsidy_cny_per_vehicle_hour, self.deterministic, self.dro, rh)
+
 
 # ---------------------------------------------------------------------------------------------- inputs
 

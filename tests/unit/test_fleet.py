@@ -206,6 +206,7 @@ def test_each_point_of_the_sweep_is_the_plan_at_that_subsidy() -> None:
         plan = plan_fleet(o, volumes, costs=CostModel(z, 0.5), observed=observed, keep=5)
         assert p.deterministic == plan.deterministic and p.dro == plan.dro
         assert p.dro_rh == plan.rolling[3].choice
+        assert plan.point(3) == p
         sizes.append(p.dro.size)
     assert sizes == sorted(sizes, reverse=True)  # a dearer vehicle-hour never buys a larger fleet
 
