@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service openapi dashboard
 
 install: $(STAMP)
 
@@ -55,7 +55,7 @@ fleet-experiment: $(STAMP)
 
 # Every benchmark; each writes its own section of docs/PERFORMANCE.md (the Redis one needs a redis-server at
 # REDIS_URL, default the local one).
-bench: bench-epoch bench-epoch-redis bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service
+bench: bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service
 
 bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
@@ -63,6 +63,10 @@ bench-epoch: $(STAMP)
 # The HTTP path with the service on Redis (REDIS_URL, default the local server): its own section.
 bench-epoch-redis: $(STAMP)
 	$(PY) -m bench.bench_epoch --redis-url $${REDIS_URL:-redis://127.0.0.1:6379/0}
+
+# One search of an epoch, and the search structures' memory, on the generated metropolitan city (a few minutes).
+bench-search: $(STAMP)
+	$(PY) -m bench.bench_search
 
 bench-sim: $(STAMP)
 	$(PY) -m bench.bench_sim

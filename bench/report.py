@@ -20,6 +20,7 @@ PERFORMANCE = ROOT / "docs" / "PERFORMANCE.md"
 ORDER = (
     "epoch",
     "epoch-redis",
+    "search",
     "sim",
     "experiment",
     "dro",

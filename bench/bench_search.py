@@ -1,0 +1,425 @@
+"""Searches and memory at metropolitan scale: what one search of an epoch costs on the generated 260,000-node
+city (``bench.metro.metro_city``), and what the city's search structures and a dispatch thread's scratch
+hold.
+
+Every search runs on the project's own code paths, as an epoch runs them: ``road_graph``'s contracted forward
+graph, a workspace of the city's pads (``pads_for(graph).take()``), ``search.run`` under the travel time
+prepared for the graph, and a taxi's kappa tree with its costs computed as the search goes (``graph.Lazy``,
+built as ``algorithm1._own_metric`` builds it, from the kit of the city's kappa family). Measured:
+
+1. the network's nodes and edges, the kept nodes (searched after contraction) and super-edges;
+2. forward trees under the travel time from the sources, bounded by Step 3's reach (900 s) and unbounded:
+   nodes settled and time;
+3. the share of super-edges that enter no cell (``Lazy.fixed >= 0``) and of edges that enter one
+   (``RoadGraph.crossing``);
+4. a taxi's kappa tree (kappa 0.6, a taxi counted in no cell) over the ball of the reach, its costs computed
+   as the search goes, against a tree over the same ball under the same metric prepared beforehand (for the
+   whole network, as ``algorithm1._base_kappa`` prepares the in-trees' base metrics): the time to prepare it,
+   its size, and the two trees' times (their labels are checked equal);
+5. memory (numpy ``nbytes``): the city's network and grid crossings, the two search graphs, the landmark
+   table, and one pad (a forward and a reverse workspace and Algorithm 1's scratch);
+6. one scipy reverse tree over the whole network, as the epoch benchmark's floor grows one per new task;
+7. the ``limits`` scenario's Step 1 candidate pairs: its first epoch decided once (seeded: exact).
+
+Sources: ``SOURCES`` nodes drawn around the city's centres (``bench.metro.near_centres``, 2.5 km spread, seed
+``SEED``), where the epoch benchmark's taxis are; each of the service's searches timed as the best of ``REPEATS``
+(each scipy tree once, on the first ``FLOOR_TREES`` sources), after one untimed search of each kind; the
+prepared metric's build timed ``REPEATS + 2`` times. The gains are an epoch's with no counts yet.
+
+    python -m bench.bench_search              # measures, writes docs/PERFORMANCE.md and docs/perf_search.json
+    python -m bench.bench_search --no-write   # prints only
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as dt
+import json
+import time
+from collections.abc import Callable, Iterator
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.csgraph as cg
+from numpy.typing import NDArray
+
+from bench import bench_epoch, metro
+from bench.report import PERFORMANCE, ROOT, stamp, write_section
+from services.city import City
+from services.dispatch import INITIAL_SLOTS, decide
+from services.kernel.parallel import default_workers
+from services.ledger import Ledger, ledger_view
+from services.model import IntervalKey
+from services.network import search
+from services.network.graph import INF, US_PER_S, Costs, Lazy, RoadGraph, road_graph
+from services.network.pads import Pad, pads_for
+from services.routing import algorithm1
+from services.routing.algorithm1 import Kit, kit
+from services.sensing.gains import Gains, gain_table
+
+SEED = 20261123
+SOURCES = 30
+REPEATS = 3
+FLOOR_TREES = 10
+KAPPA = 0.6
+SPREAD_M = 2_500.0
+MB = 1e6
+
+
+def summary(xs: list[float] | NDArray[Any]) -> dict[str, float]:
+    """Median, min, max, quartiles and count of ``xs``."""
+    a = np.asarray(xs, dtype=np.float64)
+    return {
+        "n": int(a.size),
+        "median": float(np.median(a)),
+        "min": float(a.min()),
+        "max": float(a.max()),
+        "q1": float(np.percentile(a, 25)),
+        "q3": float(np.percentile(a, 75)),
+    }
+
+
+def best_of(fn: Callable[[], object], repeats: int) -> float:
+    """The least wall time of ``repeats`` calls of ``fn``, in ms."""
+    best = float("inf")
+    for _ in range(repeats):
+        started = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - started)
+    return best * 1000.0
+
+
+def _arrays(obj: object) -> Iterator[NDArray[Any]]:
+    """Every numpy array held by ``obj`` (named tuples, dataclasses, dicts and lists, recursively)."""
+    if isinstance(obj, np.ndarray):
+        yield obj
+    elif isinstance(obj, tuple | list):
+        for x in obj:
+            yield from _arrays(x)
+    elif isinstance(obj, dict):
+        for x in obj.values():
+            yield from _arrays(x)
+    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        for f in dataclasses.fields(obj):
+            yield from _arrays(getattr(obj, f.name))
+
+
+def nbytes(*objs: object) -> int:
+    """The bytes of the numpy arrays ``objs`` hold, each buffer counted once."""
+    seen: set[tuple[int, int]] = set()
+    total = 0
+    for obj in objs:
+        for a in _arrays(obj):
+            key = (int(a.__array_interface__["data"][0]), a.nbytes)
+            if key not in seen:
+                seen.add(key)
+                total += a.nbytes
+    return total
+
+
+def sources(city: City, n: int, seed: int, spread_m: float) -> NDArray[np.int64]:
+    """``n`` nodes around the city's centres (``bench.metro.near_centres``), seeded."""
+    return metro.near_centres(city, np.random.default_rng(seed), n, spread_m)
+
+
+def gains(city: City) -> Gains:
+    """An epoch's gain table with no counts yet (every cell's first visit still to gain): ``INITIAL_SLOTS``
+    intervals from a minute into the first interval of the horizon on 2026-11-23 (as ``warm_up`` builds its
+    epochs' times)."""
+    hz = city.horizon
+    k0 = IntervalKey((dt.date(2026, 11, 23) - dt.date(1970, 1, 1)).days * hz.per_day)
+    return gain_table(city, {}, k0, INITIAL_SLOTS, hz.interval_start_s(k0) + 60.0)
+
+
+def sizes(graph: RoadGraph, kt: Kit) -> dict[str, float]:
+    """Items 1 and 3: the network's and the search graph's sizes, the shares of super-edges that enter no
+    cell and of edges that enter one."""
+    fg = graph.forward
+    return {
+        "nodes": graph.n_nodes,
+        "edges": graph.n_edges,
+        "kept": int(fg.kept.shape[0]),
+        "super_edges": int(fg.se_tail.shape[0]),
+        "crossing_edges": int(graph.crossing.shape[0]),
+        "super_edges_no_cell_share": float(np.mean(kt.fixed >= 0)),
+        "edges_entering_a_cell_share": float(graph.crossing.shape[0] / graph.n_edges),
+    }
+
+
+def _settled(ws: search.Workspace) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The kept nodes the last search in ``ws`` settled (sorted) and their costs."""
+    touched = ws.touched[: int(ws.info[2])]
+    done = np.sort(touched[ws.state[touched] == -2])
+    return done, ws.cost[done].copy()
+
+
+def time_trees(
+    graph: RoadGraph, pad: Pad, src: NDArray[np.int64], reach_us: int, repeats: int
+) -> dict[str, Any]:
+    """Item 2: per source, the forward tree under the travel time bounded by ``reach_us`` and the whole
+    tree: nodes settled and the best time of ``repeats``."""
+    fg, ed, costs, ws = graph.forward, graph.edges, graph.time_forward, pad.forward
+    none = np.zeros(0, dtype=np.int64)
+    out: dict[str, list[float]] = {
+        "bounded_ms": [],
+        "bounded_settled": [],
+        "whole_ms": [],
+        "whole_settled": [],
+    }
+    for limit, name in ((reach_us, "bounded"), (INF, "whole")):
+        search.run(fg, ed, costs, int(src[0]), limit, none, ws)  # untimed: workspace and kernel warm
+        for v in src.tolist():
+            out[f"{name}_ms"].append(best_of(partial(search.run, fg, ed, costs, v, limit, none, ws), repeats))
+            out[f"{name}_settled"].append(float(_settled(ws)[0].shape[0]))
+    return {k: summary(v) for k, v in out.items()} | {"raw": out}
+
+
+def precomputed_metric(kt: Kit, gn: Gains, kappa: float) -> Costs:
+    """Taxi's kappa metric (a taxi counted in no cell: the base one) prepared for the whole forward graph
+    beforehand, as ``algorithm1._base_kappa`` prepares the in-trees' base metrics for the reverse one."""
+    base = algorithm1._base_kappa(kt._replace(rg=kt.fg), gn, np.array([kappa]), True)
+    return Costs(base.edge[0], base.se[0], int(base.width[0]), int(base.span[0]))
+
+
+def lazy_metric(kt: Kit, pad: Pad, gn: Gains, q: int, kappa: float) -> tuple[Costs, Lazy]:
+    """Taxi's kappa ``kappas[q]`` metric computed as the search goes, as ``algorithm1._own_metric`` builds
+    it in an epoch (a taxi counted in no cell: its zero mask clear)."""
+    sc = algorithm1.tools(pad, gn).sc
+    umax = float(algorithm1._umax_scan(kt, gn, sc.zmask))
+    costs = Costs(sc.edge_cost, sc.se_cost, int(kt.floor_width[q]), int(kt.floor_span[q]))
+    return costs, Lazy(True, kappa, umax, gn.term[0], sc.zmask[0], kt.fixed)
+
+
+def kappa_trees(
+    kt: Kit,
+    kappas: tuple[float, ...],
+    pad: Pad,
+    gn: Gains,
+    src: NDArray[np.int64],
+    limit: int,
+    repeats: int,
+) -> dict[str, Any]:
+    """Item 4: per source, the lazily costed kappa tree over the ball of ``limit`` against the tree under the
+    same metric prepared beforehand (same nodes settled, same labels: checked); the preparation's time and
+    size."""
+    q = kappas.index(KAPPA)
+    pre = precomputed_metric(kt, gn, KAPPA)  # untimed: kernel loaded
+    build_ms = [best_of(partial(precomputed_metric, kt, gn, KAPPA), 1) for _ in range(repeats + 2)]
+    costs, lazy = lazy_metric(kt, pad, gn, q, KAPPA)
+    fg, ed, ws = kt.fg, kt.ed, pad.forward
+    none = np.zeros(0, dtype=np.int64)
+    out: dict[str, list[float]] = {"lazy_ms": [], "precomputed_ms": [], "ratio": [], "settled": []}
+    search.grow(fg, ed, costs, int(src[0]), limit, none, ws, lazy)  # untimed: kernels warm
+    search.run(fg, ed, pre, int(src[0]), limit, none, ws)
+    for v in src.tolist():
+        t_lazy = best_of(partial(search.grow, fg, ed, costs, v, limit, none, ws, lazy), repeats)
+        got = _settled(ws)
+        t_pre = best_of(partial(search.run, fg, ed, pre, v, limit, none, ws), repeats)
+        want = _settled(ws)
+        if not (np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])):
+            raise AssertionError(f"source {v}: the lazy and the prepared kappa trees differ")
+        out["lazy_ms"].append(t_lazy)
+        out["precomputed_ms"].append(t_pre)
+        out["ratio"].append(t_lazy / t_pre)
+        out["settled"].append(float(got[0].shape[0]))
+    res: dict[str, Any] = {k: summary(v) for k, v in out.items()}
+    res["build_ms"] = summary(build_ms)
+    res["metric_mb"] = nbytes(pre.edge, pre.se) / MB
+    nonzero = sum(1 for k in kappas if k != 0.0)
+    res["family_mb"] = nonzero * res["metric_mb"]  # one such metric per kappa > 0 of the family
+    res["family_kappas"] = list(kappas)
+    res["kappa"] = KAPPA
+    res["raw"] = out
+    return res
+
+
+def memory(city: City, graph: RoadGraph, kt: Kit, pad: Pad, gn: Gains) -> dict[str, float]:
+    """Item 5, in MB: the city's network and grid crossings, the search graphs (edges, forward and reverse,
+    the travel time prepared for each), Algorithm 1's kit, the landmark table, and one pad."""
+    sc = algorithm1.scratch(pad, gn)
+    out = {
+        "network": nbytes(city.network) / MB,
+        "grid_crossings": nbytes(city.edge_cells, city.cell_weight, city.interval_weight) / MB,
+        "search_graphs": nbytes(graph) / MB,
+        "kit": nbytes(kt.fixed, kt.floor_width, kt.floor_span) / MB,
+        "landmarks": nbytes(search.landmarks(graph)) / MB,
+        "forward_workspace": nbytes(pad.forward) / MB,
+        "reverse_workspace": nbytes(pad.reverse) / MB,
+        "algorithm1_scratch": nbytes(sc) / MB,
+        "gain_slots": float(gn.term.shape[0]),
+        "cells": float(gn.term.shape[1]),
+    }
+    out["city_and_graphs"] = out["network"] + out["grid_crossings"] + out["search_graphs"] + out["kit"]
+    out["pad"] = out["forward_workspace"] + out["reverse_workspace"] + out["algorithm1_scratch"]
+    return out
+
+
+def floor_trees(city: City, src: NDArray[np.int64]) -> dict[str, Any]:
+    """Item 6: one scipy reverse tree over the whole network per source, as ``bench_epoch.floor_once`` grows
+    one per new task's POI (the reversed travel-time matrix built once, untimed)."""
+    net = city.network
+    reverse = sp.csr_matrix((net.edge_time_s, (net.edge_v, net.edge_u)), shape=(net.n_nodes, net.n_nodes))
+    cg.dijkstra(reverse, indices=src[:1])
+    ms = [best_of(partial(cg.dijkstra, reverse, indices=src[i : i + 1]), 1) for i in range(len(src))]
+    return summary(ms) | {"raw": ms}
+
+
+def limits_candidates(city: City, sc: bench_epoch.Scenario) -> dict[str, int]:
+    """Item 7: the scenario's first epoch (``bench_epoch.limits_epochs``) decided once; its Step 1 candidate
+    pairs (instrumented taxi, rider) as ``decide``'s stats count them."""
+    snap, tasks = next(bench_epoch.limits_epochs(city, sc, 1))
+    view = ledger_view(Ledger(), (t.id for t in snap.taxis if t.instrumented), city.grid.n_cells)
+    d = decide(city, view, snap, tasks, workers=default_workers())
+    return {
+        "step1_candidates": int(d.stats["step1_candidates"]),
+        "riders": len(snap.riders),
+        "instrumented": sum(1 for t in snap.taxis if t.instrumented),
+        "taxis": len(snap.taxis),
+    }
+
+
+def measure(
+    city: City,
+    *,
+    n_sources: int = SOURCES,
+    seed: int = SEED,
+    spread_m: float = SPREAD_M,
+    reach_s: float = 900.0,
+    repeats: int = REPEATS,
+    floor_n: int = FLOOR_TREES,
+) -> dict[str, Any]:
+    """Items 1-6 on ``city`` (see the module docstring)."""
+    started = time.perf_counter()
+    graph = road_graph(city)
+    search.landmarks(graph)
+    print(f"graph and landmarks: {time.perf_counter() - started:.1f} s", flush=True)
+    kappas = tuple(float(k) for k in city.params.kappas)
+    kt = kit(graph, kappas)  # Algorithm 1's kit for the city's kappa family, as an epoch gets it
+    gn = gains(city)
+    src = sources(city, n_sources, seed, spread_m)
+    reach_us = int(round(reach_s * US_PER_S))
+    with pads_for(graph).take() as pad:
+        res: dict[str, Any] = {
+            "inputs": {
+                "city": city.name,
+                "sources": n_sources,
+                "seed": seed,
+                "spread_m": spread_m,
+                "reach_s": reach_s,
+                "repeats": repeats,
+                "source_nodes": src.tolist(),
+            },
+            "sizes": sizes(graph, kt),
+        }
+        res["travel_time"] = time_trees(graph, pad, src, reach_us, repeats)
+        print("travel-time trees done", flush=True)
+        res["kappa"] = kappa_trees(kt, kappas, pad, gn, src, reach_us, repeats)
+        print("kappa trees done", flush=True)
+        res["memory"] = memory(city, graph, kt, pad, gn)
+    res["floor"] = floor_trees(city, src[:floor_n])
+    print("floor trees done", flush=True)
+    return res
+
+
+def _range(s: dict[str, float], fmt: str = ".1f") -> str:
+    return f"{s['median']:{fmt}} ({s['min']:{fmt}}-{s['max']:{fmt}})"
+
+
+def write_report(res: dict[str, Any], doc: Path = PERFORMANCE) -> Path:
+    """The section ``search`` of the performance document ``doc`` from the results ``res``."""
+    inp, sz, tt, kp, mem, fl = (
+        res[k] for k in ("inputs", "sizes", "travel_time", "kappa", "memory", "floor")
+    )
+    lim = res.get("limits")
+    lines = [
+        "## Searches and memory at metropolitan scale",
+        "",
+        stamp("python -m bench.bench_search"),
+        "",
+        "One search of an epoch on the generated metropolitan city (`bench/metro.py`, `metro.metro_city()`), run",
+        "as an epoch runs it: `road_graph`'s contracted forward graph, a workspace of the city's pads,",
+        f"`search.run` under the travel time. Sources: {inp['sources']} nodes drawn around the city's centres",
+        f"(`metro.near_centres`, {inp['spread_m']:,.0f} m spread, seed {inp['seed']}), where the epoch benchmark's",
+        f"taxis are; each of the service's searches timed as the best of {inp['repeats']} after an untimed one,",
+        f"median (min-max) over the sources. The bound is Step 3's reach ({inp['reach_s']:.0f} s). The gains",
+        "are an epoch's with no counts yet.",
+        "",
+        f"- Network: {sz['nodes']:,} nodes, {sz['edges']:,} edges; searched after contraction: {sz['kept']:,} kept",
+        f"  nodes, {sz['super_edges']:,} super-edges.",
+        f"- Forward tree under the travel time bounded by the reach: {_range(tt['bounded_settled'], ',.0f')} nodes",
+        f"  settled, {_range(tt['bounded_ms'], '.2f')} ms. The whole network: {_range(tt['whole_settled'], ',.0f')}",
+        f"  settled, {_range(tt['whole_ms'], '.1f')} ms.",
+        f"- Super-edges that enter no cell (`Lazy.fixed` >= 0): {sz['super_edges_no_cell_share'] * 100:.1f} %; edges",
+        f"  that enter a cell (`RoadGraph.crossing`): {sz['crossing_edges']:,}, {sz['edges_entering_a_cell_share'] * 100:.1f} %.",
+        f"- A taxi's kappa {kp['kappa']} tree (counted in no cell, gains of an epoch with no counts yet, {mem['gain_slots']:.0f}",
+        "  intervals) over the ball of the reach under that metric, its costs computed as the search goes",
+        "  (`graph.Lazy`, as `algorithm1._own_metric` builds it): "
+        f"{_range(kp['lazy_ms'], '.2f')} ms, {_range(kp['settled'], ',.0f')} nodes",
+        f"  settled; the same tree under the metric prepared beforehand for every edge: {_range(kp['precomputed_ms'], '.2f')} ms",
+        f"  (the same labels, checked); lazy / prepared per source: {_range(kp['ratio'], '.2f')}. Preparing the",
+        f"  metric (a pass over all {sz['edges']:,} edges and the super-edge sums, `algorithm1._base_kappa`):",
+        f"  {_range(kp['build_ms'], '.1f')} ms; it holds {kp['metric_mb']:.1f} MB, {kp['family_mb']:.1f} MB for the",
+        f"  family's {sum(1 for k in kp['family_kappas'] if k)} kappas above 0.",
+        "- One scipy reverse tree over the whole network (the floor's, `cg.dijkstra` on the reversed matrix, one",
+        f"  source, each timed once; the first {fl['n']} sources): {_range(fl, '.1f')} ms.",
+    ]
+    if lim is not None:
+        lines += [
+            f"- The `limits` scenario's first epoch ({lim['riders']:,} riders, {lim['taxis']:,} taxis of which",
+            f"  {lim['instrumented']:,} instrumented; seeded): {lim['step1_candidates']:,} Step 1 candidate pairs",
+            '  (`decide`\'s `stats["step1_candidates"]`).',
+        ]
+    lines += [
+        "",
+        "Memory (numpy `nbytes`, MB):",
+        "",
+        "| what | holds | MB |",
+        "|---|---|---|",
+        f"| network | node ids, lon/lat, x/y, edge ends, lengths, times, CSR | {mem['network']:.1f} |",
+        f"| grid crossings | cells each edge enters (CSR), cell and interval weights | {mem['grid_crossings']:.1f} |",
+        f"| search graphs | `RoadGraph`: per-edge arrays, forward and reverse contracted graphs, the travel time prepared for each | {mem['search_graphs']:.1f} |",
+        f"| Algorithm 1's kit | `Lazy.fixed` and the kappa family's bucket bounds | {mem['kit']:.1f} |",
+        f"| **city and search graphs** | the four above | **{mem['city_and_graphs']:.1f}** |",
+        f"| landmark table | travel times to and from 8 landmarks per node | {mem['landmarks']:.1f} |",
+        f"| forward workspace | labels, queue, touched list, predecessor edges | {mem['forward_workspace']:.1f} |",
+        f"| reverse workspace | the same for in-trees | {mem['reverse_workspace']:.1f} |",
+        f"| Algorithm 1's scratch | zero mask and stamps over {mem['gain_slots']:.0f} x {mem['cells']:,.0f} cells, a lazy metric's edge and super-edge costs, tree evaluation | {mem['algorithm1_scratch']:.1f} |",
+        f"| **one pad (per dispatch thread)** | the three above | **{mem['pad']:.1f}** |",
+        "",
+        "The raw numbers of the last run are in `docs/perf_search.json`.",
+    ]
+    return write_section("search", "\n".join(lines), doc)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--no-limits", action="store_true", help="skip the limits scenario's epoch")
+    ap.add_argument(
+        "--report-only", action="store_true", help="rewrite the section from docs/perf_search.json"
+    )
+    args = ap.parse_args(argv)
+    path = ROOT / "docs" / "perf_search.json"
+    if args.report_only:
+        write_report(json.loads(path.read_text()))
+        return 0
+    started = time.perf_counter()
+    res = measure(metro.metro_city())
+    if not args.no_limits:
+        sc = bench_epoch.SCENARIOS["limits"]
+        res["limits"] = limits_candidates(bench_epoch.load_city(sc), sc)
+        print(f"limits: {res['limits']}", flush=True)
+    res["wall_s"] = time.perf_counter() - started
+    print(json.dumps({k: v for k, v in res.items() if k != "inputs"}, indent=1, default=str), flush=True)
+    if not args.no_write:
+        path.write_text(json.dumps(res, indent=1) + "\n")
+        print(f"wrote {write_report(res)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
