@@ -198,6 +198,12 @@ class DriftMap:
                 self._evicted += 1
             return tree
 
+    def warm_up(self) -> None:
+        """Compile the kernels (or load them from numba's cache) and allocate the search's scratch: the
+        first hub's tree, grown and walked (it stays cached: the same tree a run would grow)."""
+        if self.cells.size:
+            self.walk(0, int(self._hubs[0]), 0.0)
+
     def stats(self) -> DriftStats:
         """Counts of the work done and the memory held."""
         with self._lock:
