@@ -374,6 +374,11 @@ def test_cache_round_trip_and_unreadable_files(tmp_path: Path, caplog: pytest.Lo
     assert back is not None and math.isnan(back.kpis.completion_rate) and math.isnan(back.kpis.mean_delay_s)
     assert back.to_json() == r.to_json() and back.kpis.hours == r.kpis.hours
     assert back.kpis.tasks == r.kpis.tasks and back.spec == r.spec and back.n_requests == 140
+    assert back.cpu_s is None
+    timed = dataclasses.replace(r, key="t", cpu_s=0.125)
+    cache.put(timed)
+    back = cache.get("t")
+    assert back is not None and back.cpu_s == 0.125 and back.to_json() == timed.to_json()
     (tmp_path / "runs" / "bad.json").write_text("{truncated")
     with caplog.at_level(logging.WARNING):
         assert cache.get("bad") is None
