@@ -27,7 +27,7 @@ from app.metrics import Metrics
 from app.ports import Store
 from app.schemas.dispatch import read_epoch, render_epoch
 from app.settings import Settings
-from app.usecases import CityCatalog, DecideFn, EpochLimits, UseCases
+from app.usecases import CityCatalog, DecideFn, EpochLimits, SizingConfig, UseCases
 
 __all__ = ["create_app", "make_store", "API_VERSION"]
 
@@ -90,6 +90,7 @@ def _use_cases(
         read_epoch=read_epoch,
         limits=limits,
         worker_stale_s=settings.worker_stale_s,
+        sizing=SizingConfig.from_settings(settings),
         **({} if clock is None else {"clock": clock}),
     )
 

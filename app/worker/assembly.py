@@ -13,10 +13,10 @@ from app.ports import Store
 from app.runs import Progress, ResultCache, RunCache, Runner, make_executor
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
-from app.usecases.sizing import SizingService
+from app.usecases.fleet_history import SizingConfig
+from app.usecases.fleet_solve import FleetSolver
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker, WorkerMetrics
-from app.worker.sizing import FleetSizing, SizingConfig
 
 __all__ = ["make_runner", "worker_cities", "AssembledWorker", "assemble_worker"]
 
@@ -84,16 +84,15 @@ def assemble_worker(
         metrics.progress(p)
         status.progress(p)
 
-    service = SizingService(
-        store, history_limit=settings.worker_history, lock_ttl_s=float(settings.worker_lock_ttl_s)
-    )
-    sizing = FleetSizing(
-        service,
+    sizing = FleetSolver(
+        store,
         runner,
         SizingConfig.from_settings(settings),
         render=render_recommendation,
         cities=registry,
         progress=progress,
+        history_limit=settings.worker_history,
+        lock_ttl_s=float(settings.worker_lock_ttl_s),
     )
     worker = FleetWorker(
         sizing,
@@ -103,5 +102,5 @@ def assemble_worker(
         metrics=metrics,
         status=status,
     )
-    heartbeat = Heartbeat(service, status, cities, interval_s=settings.worker_heartbeat_s)
+    heartbeat = Heartbeat(sizing, status, cities, interval_s=settings.worker_heartbeat_s)
     return AssembledWorker(worker, heartbeat, runner, metrics)
