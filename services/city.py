@@ -141,6 +141,16 @@ class Horizon:
         """Length of the operating horizon (``n_intervals * interval_s``)."""
         return self.n_intervals * self.interval_s
 
+    def coming_interval(self, now_s: float) -> IntervalKey:
+        """The first interval of the operating horizon that starts after ``now_s`` (today's next hour of
+        the horizon, or the first hour of the next day's): the hour a fleet solve at ``now_s`` is for."""
+        k = int(self.interval_of(now_s)) + 1
+        for _ in range(self.per_day):
+            if self.in_horizon(k):
+                return IntervalKey(k)
+            k += 1
+        raise AssertionError("a day always holds a horizon interval")
+
     def day_intervals(self, k: int) -> list[IntervalKey]:
         """The horizon intervals of the day that interval ``k`` belongs to."""
         first = k - (k % self.per_day)

@@ -70,8 +70,10 @@ class FleetService:
         self.clock = clock
 
     def history_state(self, city: City) -> HistoryState:
-        """How many of the M days a solve today needs the city has recorded."""
-        return self.history.state(city, self.history.today(city, self.clock()))
+        """How many of the M days a solve now needs the city has recorded (the days before the date of the
+        hour it would be for: the coming hour of the horizon)."""
+        hz = city.horizon
+        return self.history.state(city, hz.local_start(hz.coming_interval(self.clock())).date())
 
     def recommendation(self, name: str) -> tuple[City, FleetRecord]:
         """The city and its current fleet recommendation (``NoData``, a 404, before the first solve)."""

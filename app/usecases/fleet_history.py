@@ -99,11 +99,11 @@ class RecordedDay:
 
 @dataclass(frozen=True, slots=True)
 class HistoryState:
-    """How much history a city has for a solve on local day ``today``: ``days`` of the ``needed`` (M) in
-    the ``lookback_days`` before it. With every later day recorded too, a first solve is possible on
-    ``first_solve_on``."""
+    """How much history a city has for a solve of an hour of local day ``day``: ``days`` of the ``needed``
+    (M) in the ``lookback_days`` before it. With every later day recorded too, a first solve is possible
+    on ``first_solve_on``."""
 
-    today: dt.date
+    day: dt.date
     days: int
     needed: int
     lookback_days: int
@@ -115,17 +115,17 @@ class HistoryState:
 
     @property
     def first_solve_on(self) -> dt.date:
-        """The first local day whose solve has M recorded days before it, if the platform posts epochs on
-        every day from today on (today when it has them already)."""
-        return self.today + dt.timedelta(days=max(0, self.needed - self.days))
+        """The first local day whose solves have M recorded days before them, if the platform posts epochs
+        on every day from ``day`` on (``day`` when it has them already)."""
+        return self.day + dt.timedelta(days=max(0, self.needed - self.days))
 
     def describe(self) -> str:
         """``collecting history: k of M days ...`` (or that the history is complete)."""
         if self.enough:
-            return f"history complete: the last {self.needed} days with epochs before {self.today}"
+            return f"history complete: the last {self.needed} days with epochs before {self.day}"
         return (
             f"collecting history: {self.days} of {self.needed} days (local days with epochs in the "
-            f"{self.lookback_days} days before {self.today}); a first solve is possible on "
+            f"{self.lookback_days} days before {self.day}); a first solve is possible on "
             f"{self.first_solve_on} if epochs are posted every day until then"
         )
 
@@ -268,13 +268,13 @@ def recorded_days(
 
 
 def history_state(
-    source: DemandLog, city: City, today: dt.date, needed: int, lookback_days: int
+    source: DemandLog, city: City, day: dt.date, needed: int, lookback_days: int
 ) -> HistoryState:
-    """How many of the M days a solve on ``today`` needs the city has (one store round trip, no record
-    read)."""
-    days = [today - dt.timedelta(days=back) for back in range(1, lookback_days + 1)]
+    """How many of the M days a solve for local day ``day`` needs the city has (one store round trip, no
+    record read)."""
+    days = [day - dt.timedelta(days=back) for back in range(1, lookback_days + 1)]
     have = sum(1 for n in source.recorded_epoch_counts(city, days) if n > 0)
-    return HistoryState(today, min(have, needed), needed, lookback_days)
+    return HistoryState(day, min(have, needed), needed, lookback_days)
 
 
 def posted_fleet(days: Sequence[RecordedDay]) -> tuple[int, int] | None:
@@ -415,11 +415,7 @@ class FleetHistory:
         """The worker's settings with the city's own values on top."""
         return self.defaults.for_city(city.fleet)
 
-    def state(self, city: City, today: dt.date) -> HistoryState:
-        """How many of the M days a solve on local day ``today`` needs the city has recorded."""
+    def state(self, city: City, day: dt.date) -> HistoryState:
+        """How many of the M days a solve for local day ``day`` needs the city has recorded."""
         cfg = self.config(city)
-        return history_state(self, city, today, cfg.days, cfg.lookback_days)
-
-    def today(self, city: City, now_s: float) -> dt.date:
-        """The city's local date at ``now_s``."""
-        return dt.datetime.fromtimestamp(now_s, tz=ZoneInfo(city.horizon.timezone)).date()
+        return history_state(self, city, day, cfg.days, cfg.lookback_days)

@@ -33,6 +33,7 @@ from app.usecases.fleet_solve import (
     SolveStats,
     TaskSet,
 )
+from services.city import Horizon
 from services.fleet.sizing import CostModel, DayOutcomes, plan_fleet
 from services.model import IntervalKey
 from services.rfc3339 import format_time
@@ -110,14 +111,19 @@ def body_json(
     return render_recommendation(rec)
 
 
+def solve_day() -> dt.date:
+    """The local date of the hour a solve now is for (the tiny city's coming hour)."""
+    hz = Horizon()  # the tiny city's: Asia/Shanghai, 08:00-12:00
+    return hz.local_start(hz.coming_interval(time.time())).date()
+
+
 def record_history(store: Store, days: int = 2) -> None:
     """An epoch on each of the ``days`` local days before today: the history a solve with M = ``days``
     needs (the clients below set ``worker_days=2``)."""
     tz = ZoneInfo("Asia/Shanghai")
-    today = dt.datetime.now(tz).date()
     version = store.load_state(CITY, [], []).version
     for back in range(days, 0, -1):
-        t = dt.datetime.combine(today - dt.timedelta(days=back), dt.time(9), tzinfo=tz).timestamp()
+        t = dt.datetime.combine(solve_day() - dt.timedelta(days=back), dt.time(9), tzinfo=tz).timestamp()
         doc = json.dumps({"epoch_id": f"h{back}", "time_s": t, "riders": []})
         commit = EpochCommit(
             f"h{back}", "h", t, version, (), (), "{}", demand_json=doc, demand_day=local_day(t, tz.key)
@@ -362,8 +368,7 @@ def test_before_its_history_a_solve_is_409_and_the_status_counts_the_days(
     r = client.post(f"{BASE}/solve", headers=auth(ADMIN))
     assert r.status_code == 409, r.text
     body = r.json()
-    today = dt.datetime.now(ZoneInfo("Asia/Shanghai")).date()
-    first = (today + dt.timedelta(days=1)).isoformat()
+    first = (solve_day() + dt.timedelta(days=1)).isoformat()
     assert body["error"] == "insufficient_history" and body["fields"] == []
     assert body["history"] == {"days": 2, "needed": 3, "first_solve_on": first}
     assert "collecting history: 2 of 3 days" in body["detail"]
