@@ -17,6 +17,7 @@ from zoneinfo import ZoneInfo
 
 import httpx
 import pytest
+from playwright.sync_api import Browser, expect
 
 from app.usecases.fleet_history import spread_sizes
 from services.city import Horizon
@@ -83,7 +84,7 @@ def epoch(day: dt.date, e: int) -> dict[str, Any]:
     return {"epoch_id": f"{day}-{e:02d}", "time": when.isoformat(), "riders": riders, "taxis": taxis}
 
 
-def test_an_imported_city_is_sized_on_the_days_and_fleet_it_posted(tmp_path: Path) -> None:
+def test_an_imported_city_is_sized_on_the_days_and_fleet_it_posted(browser: Browser, tmp_path: Path) -> None:
     nodes, edges = write_network(tmp_path)
     cities = tmp_path / "cities"
     imported = subprocess.run(
@@ -119,6 +120,13 @@ def test_an_imported_city_is_sized_on_the_days_and_fleet_it_posted(tmp_path: Pat
         st = api.get(f"{base}/fleet/status").json()
         assert st["history"]["text"].startswith(f"collecting history: 0 of {M} days"), st
         assert st["history"]["until_then"] == "none" and st["solving"] is None
+        page = browser.new_page()
+        page.goto(f"{url}/dashboard?poll=2")
+        page.fill("#token", ADMIN)
+        page.click("#connect")
+        page.select_option("#city", CITY)
+        expect(page.locator("#fleet-history")).to_contain_text(f"collecting history: 0 of {M} days")
+        expect(page.locator("#fleet-history")).to_contain_text(f"a first solve is possible on {first}")
 
         # the platform's tasks of the day sized for, then its operating days
         start = dt.datetime.combine(solve_day, dt.time(8), tzinfo=ZoneInfo(TZ))
@@ -139,6 +147,9 @@ def test_an_imported_city_is_sized_on_the_days_and_fleet_it_posted(tmp_path: Pat
         assert r.status_code == 202, r.text
         request_id = r.json()["request_id"]
         rec = _wait_for(api, f"{base}/fleet/recommendation", request_id)
+        expect(page.locator("#fleet-window")).to_contain_text("history: recorded", timeout=30_000)
+        expect(page.locator("#fleet-history")).to_be_hidden()
+        page.close()
     finally:
         stop(proc)
     window, sim = rec["data_window"], rec["simulation"]
