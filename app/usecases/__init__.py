@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
 from app.ports import Store
@@ -105,10 +106,12 @@ class UseCases:
         worker_stale_s: float = 30.0,
         sizing: SizingConfig = _DEFAULT_SIZING,
         clock: Callable[[], float] = time.time,
+        foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
     ) -> UseCases:
         """Every use case of the API over ``store``; ``clock`` (POSIX seconds) is the epoch time window's
         and the worker heartbeats' (``worker_stale_s``: a worker not seen for longer is gone); ``sizing`` is
-        the fleet worker's settings (M and the look-back of the fleet status)."""
+        the fleet worker's settings (M and the look-back of the fleet status); ``foreground`` is held
+        around every epoch's solve (the embedded fleet worker pauses its runs meanwhile)."""
         return cls(
             cities=cities,
             epochs=EpochService(
@@ -119,6 +122,7 @@ class UseCases:
                 read_epoch=read_epoch,
                 limits=limits,
                 clock=clock,
+                foreground=foreground,
             ),
             tasks=TaskService(cities, store),
             admin=AdminService(cities, store),

@@ -14,6 +14,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 from zoneinfo import ZoneInfo
@@ -203,7 +204,9 @@ class EpochService:
         read_epoch: EpochReader,
         limits: EpochLimits = EpochLimits(),
         clock: Callable[[], float] = time.time,
+        foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
     ) -> None:
+        """``foreground`` is held around every epoch's solve (the embedded fleet worker pauses its runs)."""
         self.cities = cities
         self.store = store
         self.decide = decide
@@ -215,6 +218,7 @@ class EpochService:
         self._solve_slots = threading.BoundedSemaphore(limits.max_solves)
         self.max_ahead_s = limits.max_ahead_s
         self.clock = clock
+        self.foreground = foreground
 
     def _replay(self, stored: StoredEpoch, digest: str) -> EpochOutcome:
         if stored.body_hash != digest:
@@ -279,7 +283,8 @@ class EpochService:
                 "once; retry later"
             )
         try:
-            return self._solve_and_commit(name, city, epoch)
+            with self.foreground():
+                return self._solve_and_commit(name, city, epoch)
         finally:
             self._solve_slots.release()
 

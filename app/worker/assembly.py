@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 from app.cities import CityRegistry
 from app.ports import Store
-from app.runs import Progress, ResultCache, RunCache, Runner, make_executor
+from app.runs import ProcessExecutor, Progress, ResultCache, RunCache, Runner, make_executor
+from app.runs.executor import Foreground
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
 from app.usecases.fleet_history import SizingConfig
@@ -72,11 +73,20 @@ class AssembledWorker:
 
 
 def assemble_worker(
-    settings: Settings, store: Store, registry: CityRegistry, cities: Sequence[str], *, embedded: bool
+    settings: Settings,
+    store: Store,
+    registry: CityRegistry,
+    cities: Sequence[str],
+    *,
+    embedded: bool,
+    foreground: Foreground | None = None,
 ) -> AssembledWorker:
     """The worker of ``cities`` on ``store``, as the settings configure it (``embedded``: inside the API
-    process, its runs on local processes whatever ``SD_WORKER_JOBS`` says)."""
+    process, its runs on local processes whatever ``SD_WORKER_JOBS`` says, paused by ``foreground`` while
+    the API solves an epoch)."""
     runner = make_runner(settings, in_process=not embedded)
+    if foreground is not None and isinstance(runner.executor, ProcessExecutor):
+        foreground.add(runner.executor)
     metrics = WorkerMetrics()
     status = WorkerStatus(embedded=embedded, poll_s=settings.worker_poll_s)
 
