@@ -19,7 +19,7 @@ from pydantic import ValidationError
 
 from app.adapters import MemoryStore
 from app.cities import CityRegistry
-from app.ports import EpochCommit, local_day
+from app.ports import EpochCommit, SolveRequest, local_day
 from app.runs import (
     RunCache,
     RunJob,
@@ -627,3 +627,51 @@ def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> No
         parser().parse_args(["--sizes", "two"])
     with pytest.raises(ValidationError):
         settings_from_args(parser().parse_args(["--alpha", "2"]))
+
+
+class _NoRuns:
+    """A runner that must not be asked for anything."""
+
+    workers = 2
+
+    def run(self, jobs: Any, progress: Any = None) -> Any:
+        raise AssertionError(f"{len(jobs)} runs started for a city that cannot be sized")
+
+
+def test_a_city_without_its_history_starts_no_run_and_is_reported_once(
+    tiny_cities: CityRegistry, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The worker's scheduled solves of an imported city with too little history: no run (no process, no
+    network loaded), the reason in the heartbeat and the log once, nothing in the history; an admin
+    request gets one failed entry with its reason."""
+    from app.worker.heartbeat import WorkerStatus
+    from app.worker.service import FleetWorker
+
+    store = MemoryStore()
+    clock = {"t": at(23, 7, 0)}
+    sizing = FleetSolver(
+        store,
+        _NoRuns(),
+        SizingConfig(days=3),
+        render=render_recommendation,
+        cities=tiny_cities,
+        clock=lambda: clock["t"],
+    )
+    status = WorkerStatus(embedded=True, poll_s=1.0, clock=lambda: clock["t"])
+    worker = FleetWorker(sizing, [CITY], clock=lambda: clock["t"], status=status)
+    with caplog.at_level(logging.WARNING):
+        outcomes = [*worker.tick(), *worker.tick()]  # 07:00: the 08:00 solve is due; tried once
+        clock["t"] = at(23, 8, 0)
+        outcomes += worker.tick()  # 08:00: the 09:00 solve, the same reason
+    assert [(o.status, o.waiting_for) for o in outcomes] == [("waiting", "insufficient_history")] * 2
+    assert outcomes[0].reason is not None and outcomes[0].reason.startswith("collecting history: 0 of 3 days")
+    assert caplog.text.count("not sized, no run started") == 1
+    beat = status.beat(CITY)
+    assert beat.waiting is not None and beat.waiting.kind == "insufficient_history"
+    assert beat.waiting.since_s == at(23, 7, 0)
+    assert store.recommendation_history(CITY, 10) == []
+    store.enqueue_solve_request(CITY, SolveRequest("req-1", clock["t"], "admin"))
+    (asked,) = worker.tick()
+    assert asked.status == "waiting" and asked.request_id == "req-1"
+    (entry,) = store.recommendation_history(CITY, 10)
+    assert entry.status == "failed" and entry.request_id == "req-1" and entry.reason == asked.reason
