@@ -138,9 +138,11 @@ def simulate_spec(
     bundle: Bundle,
     demand: DemandSet | None = None,
     tasks: Sequence[TaskTemplate] | None = None,
+    start_nodes: Sequence[int] | None = None,
 ) -> tuple[City, RunTrace]:
-    """Simulate one spec in-process (on ``demand`` instead of the spec's own, e.g. recorded requests, and
-    on the platform's ``tasks`` instead of the spec's seeded draw)."""
+    """Simulate one spec in-process (on ``demand`` instead of the spec's own, e.g. recorded requests, on
+    the platform's ``tasks`` instead of the spec's seeded draw, from ``start_nodes`` instead of seeded
+    random nodes)."""
     city = bundle.city_for(spec.active)
     if demand is None:
         demand = demand_for(spec, bundle)
@@ -154,7 +156,7 @@ def simulate_spec(
     day_tasks = (
         tasks_for(spec, bundle, demand.date) if tasks is None else placed_tasks(tasks, bundle, demand.date)
     )
-    trace = simulate(city, demand, day_tasks, config, LocalDispatcher(city))
+    trace = simulate(city, demand, day_tasks, config, LocalDispatcher(city), start_nodes=start_nodes)
     return city, trace
 
 
@@ -162,7 +164,7 @@ def run_job(job: RunJob) -> RunResult:
     """Simulate one job in this process (top level, so an executor can send it to other processes)."""
     bundle = open_bundle(job.bundle)  # once per process: not part of the run's time
     started, cpu = time.perf_counter(), time.process_time()
-    city, trace = simulate_spec(job.spec, bundle, job.demand, job.tasks)
+    city, trace = simulate_spec(job.spec, bundle, job.demand, job.tasks, job.start_nodes)
     routes = None
     if job.spec.keep_routes:
         routes = tuple(
