@@ -12,7 +12,9 @@ instrumented and 3,500 ordinary taxis; about 6,000 requests an hour (a Poisson c
 over the horizon), origins around the city's five centres and trip lengths log-normal around 5 km
 (``bench.load.CentresDemand`` on ``bench.metro.centre_layout``, 2.5 km spread, as the epoch benchmark draws
 them), a seeded set per day; 400 registered POI tasks at distinct nodes around the centres, scheduled
-uniformly over the horizon, the same every day; the city's horizon (08:00-12:00, 72 epochs of 200 s).
+uniformly over the horizon, the same every day; the taxis start where the platform's stood at 08:00 (drawn
+around the centres, seeded per day), as the fleet worker starts a simulated fleet from a recorded day
+(``app.usecases.fleet_history.start_nodes``); the city's horizon (08:00-12:00, 72 epochs of 200 s).
 
 * **A day in one engine process.** A freshly spawned process (as a Dask worker or a local pool's process
   starts) opens the bundle (read, search structures, kernels: ``app.runs.open_bundle``, timed apart), then
@@ -22,8 +24,8 @@ uniformly over the horizon, the same every day; the city's horizon (08:00-12:00,
 * **The map the bounded drift replaces**, measured in the same run: a few whole-network reverse trees timed
   with scipy, times the cells, and the bytes of its three dense (cells x nodes) arrays.
 * **A re-solve.** Its runs are the candidate sizes (a quarter to twice the instrumented fleet: 375, 750,
-  1,500, 2,250, 3,000) x M = 10 days with the ordinary fleet (3,500), as the fleet worker derives them from
-  the fleet a platform posts (docs/FLEET.md). Measured: every size on ``cluster_days`` day(s), on a Dask
+  1,125, 1,500, 2,250, 3,000: ``app.usecases.fleet_history.spread_sizes``) x M = 10 days with the ordinary
+  fleet (3,500), as the fleet worker derives them from the fleet a platform posts (docs/FLEET.md). Measured: every size on ``cluster_days`` day(s), on a Dask
   cluster of ``workers`` single-threaded engine processes (``app.runs.localcluster``) through the runner and
   the Dask executor, from an empty run cache, each process having opened the bundle first (timed). Scaled
   honestly: every one of the M days of a size is taken to cost the mean measured run of that size; the
@@ -37,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime as dt
 import json
 import math
 import multiprocessing
@@ -58,6 +61,7 @@ from app.runs import RunCache, RunJob, Runner, RunSpec, TaskTemplate, open_bundl
 from app.runs.dask_executor import DaskExecutor
 from app.runs.localcluster import LocalCluster
 from app.runs.workload import Bundle, placed_tasks
+from app.usecases.fleet_history import RecordedFleet, SizingConfig, spread_sizes, start_nodes
 from bench import metro
 from bench.load import Centres, CentresDemand
 from bench.report import ROOT, stamp, write_section
@@ -96,8 +100,24 @@ class Setup:
     seed: int = 20261123
 
 
-FULL = Setup(1.0, 2_500.0, 1500, 3500, 6000.0, 400, 3, (375, 750, 1500, 2250, 3000), 10, 1, 2, 8)
-SMOKE = Setup(0.1, 300.0, 4, 8, 60.0, 5, 2, (2, 4), 10, 1, 1, 2)
+FULL = Setup(1.0, 2_500.0, 1500, 3500, 6000.0, 400, 3, spread_sizes(1500), SizingConfig().days, 1, 2, 8)
+SMOKE = Setup(0.1, 300.0, 4, 8, 60.0, 5, 2, spread_sizes(4), SizingConfig().days, 1, 1, 2)
+
+
+@dataclass(frozen=True)
+class PlatformDay:
+    """A day of the platform's history: its requests and its fleet (where its taxis stood at 08:00)."""
+
+    demand: DemandSet
+    fleet: RecordedFleet
+
+    def starts(self, n1: int, setup: Setup) -> tuple[int, ...]:
+        """Where a simulated fleet of ``n1`` instrumented taxis (and the ordinary fleet) starts that day, as
+        the fleet worker starts it (``app.usecases.fleet_history.start_nodes``)."""
+        date = dt.date.fromisoformat(self.demand.date)
+        nodes = start_nodes(self.fleet, date, n1, setup.n0, setup.seed)
+        assert nodes is not None  # the fleet has positions
+        return tuple(int(v) for v in nodes)
 
 
 # ---------------------------------------------------------------------------------------------- the inputs
@@ -116,8 +136,8 @@ def centres(city: City, setup: Setup) -> Centres:
     return Centres(city, pos, weight, setup.spread_m)
 
 
-def platform_day(city: City, near: Centres, setup: Setup, day: int, date: str) -> DemandSet:
-    """One day of requests (module docstring), seeded by (seed, day)."""
+def platform_day(city: City, near: Centres, setup: Setup, day: int, date: str) -> PlatformDay:
+    """One day of requests and the fleet's positions at 08:00 (module docstring), seeded by (seed, day)."""
     rng = np.random.default_rng([setup.seed, 1, day])
     hz = city.horizon
     start = hz.start_s(date)
@@ -131,7 +151,9 @@ def platform_day(city: City, near: Centres, setup: Setup, day: int, date: str) -
         if o != d
     ]
     reqs.sort(key=lambda r: (r.time_s, r.id))
-    return DemandSet(CITY, date, tuple(reqs), "bench-centres", seed=setup.seed, params={"day": day})
+    demand = DemandSet(CITY, date, tuple(reqs), "bench-centres", seed=setup.seed, params={"day": day})
+    at = np.random.default_rng([setup.seed, 3, day])
+    return PlatformDay(demand, RecordedFleet(setup.n1, setup.n0, near(at, setup.n1), near(at, setup.n0)))
 
 
 def platform_tasks(city: City, near: Centres, setup: Setup) -> tuple[TaskTemplate, ...]:
@@ -228,9 +250,10 @@ class _TimedDrift:
 
 
 def simulate_day(
-    bundle: Bundle, demand: DemandSet, tasks: tuple[TaskTemplate, ...], setup: Setup
+    bundle: Bundle, day: PlatformDay, tasks: tuple[TaskTemplate, ...], setup: Setup
 ) -> dict[str, Any]:
     """One day as ``run_job`` simulates it (the core in-process, then the KPIs), timed by part."""
+    demand = day.demand
     city = bundle.city_for(True)
     config = SimConfig(setup.n1, setup.n0, len(tasks), seed=setup.seed)
     dm = drift_map(city, config.drift_radius_m)
@@ -239,7 +262,7 @@ def simulate_day(
     started, cpu = time.perf_counter(), time.process_time()
     trace = simulate(
         city, demand, placed_tasks(tasks, bundle, demand.date), config,
-        _TimedDispatcher(city, clock), drift=_TimedDrift(dm, clock),
+        _TimedDispatcher(city, clock), start_nodes=day.starts(setup.n1, setup), drift=_TimedDrift(dm, clock),
     )  # fmt: skip
     simulated = time.perf_counter()
     kpis = run_kpis(city, trace)
@@ -255,7 +278,7 @@ def simulate_day(
 
 
 def engine_days(
-    bundle_dir: Path, days: list[DemandSet], tasks: tuple[TaskTemplate, ...], setup: Setup
+    bundle_dir: Path, days: list[PlatformDay], tasks: tuple[TaskTemplate, ...], setup: Setup
 ) -> dict[str, Any]:
     """In a fresh process: open the bundle, then simulate the days one after another."""
     t, cpu = time.perf_counter(), time.process_time()
@@ -266,11 +289,11 @@ def engine_days(
         "open_peak_mb": peak_mb(),
     }
     out = []
-    for demand in days:
-        out.append(simulate_day(bundle, demand, tasks, setup))
+    for day in days:
+        out.append(simulate_day(bundle, day, tasks, setup))
         d = out[-1]
         print(
-            f"  day {demand.date}: {d['wall_s']:.1f} s ({d['cpu_s']:.1f} s CPU), peak {d['peak_mb']:.0f} MB",
+            f"  day {day.demand.date}: {d['wall_s']:.1f} s ({d['cpu_s']:.1f} s CPU), peak {d['peak_mb']:.0f} MB",
             flush=True,
         )
     stats = drift_map(bundle.city_for(True), SimConfig().drift_radius_m).stats()
@@ -278,7 +301,7 @@ def engine_days(
 
 
 def in_fresh_process(
-    bundle_dir: Path, days: list[DemandSet], tasks: tuple[TaskTemplate, ...], setup: Setup
+    bundle_dir: Path, days: list[PlatformDay], tasks: tuple[TaskTemplate, ...], setup: Setup
 ) -> dict[str, Any]:
     """``engine_days`` in a newly spawned process (nothing of this one's memory or caches)."""
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
@@ -308,13 +331,18 @@ def dense_map(city: City, n_trees: int) -> dict[str, Any]:
 
 
 def resolve_jobs(
-    bundle_dir: Path, days: list[DemandSet], tasks: tuple[TaskTemplate, ...], setup: Setup
+    bundle_dir: Path, days: list[PlatformDay], tasks: tuple[TaskTemplate, ...], setup: Setup
 ) -> list[RunJob]:
-    """The re-solve's runs over ``days``: one whole-day job per (size, day), as the fleet worker makes them."""
+    """The re-solve's runs over ``days``: one whole-day job per (size, day), as the fleet worker makes them
+    (the day's requests, the registered tasks, the fleet starting where the day's taxis stood)."""
     return [
         RunJob(
-            RunSpec(CITY, n1=x, n0=setup.n0, seed=setup.seed, day=i, n_tasks=len(tasks)), bundle_dir, d, tasks
-        )
+            RunSpec(CITY, n1=x, n0=setup.n0, seed=setup.seed, day=i, n_tasks=len(tasks)),
+            bundle_dir,
+            d.demand,
+            tasks,
+            start_nodes=d.starts(x, setup),
+        )  # fmt: skip
         for x in setup.sizes
         for i, d in enumerate(days)
     ]
@@ -421,7 +449,7 @@ def measure(setup: Setup, tmp: Path) -> dict[str, Any]:
     ]
     prepared_s = time.perf_counter() - t
     print(
-        f"{city.network.n_nodes:,} nodes, {len(days[0].requests):,} requests a day; prepared in {prepared_s:.0f} s",
+        f"{city.network.n_nodes:,} nodes, {len(days[0].demand.requests):,} requests a day; prepared in {prepared_s:.0f} s",
         flush=True,
     )
     loads = {"engine": [os.getloadavg()[0]]}
@@ -436,7 +464,7 @@ def measure(setup: Setup, tmp: Path) -> dict[str, Any]:
     cluster = on_cluster(bundle_dir, jobs, setup, tmp)
     return {
         "setup": dataclasses.asdict(setup), "nodes": city.network.n_nodes, "edges": city.network.n_edges,
-        "requests_per_day": [len(d.requests) for d in days], "engine": engine, "dense": dense,
+        "requests_per_day": [len(d.demand.requests) for d in days], "engine": engine, "dense": dense,
         "cluster": cluster, "load": loads, "cpus": os.cpu_count(),
         "resolve": {"cpu": project(cluster, setup, "cpu_s"), "wall": project(cluster, setup, "elapsed_s")},
     }  # fmt: skip

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.city import City
-from services.kernel.jit import compiled
+from services.kernel.jit import compiled, compiled_inline
 
 __all__ = ["Drift", "DriftMap", "DriftStats", "HubTree", "drift_map", "hubs_of_cells", "TREE_CACHE_BYTES"]
 
@@ -270,6 +270,47 @@ def _scratch(n_nodes: int, n_edges: int) -> _Scratch:
     )
 
 
+@compiled_inline
+def _before(t1: float, v1: int, t2: float, v2: int) -> bool:
+    """The heap's order: by time, then by node index."""
+    return t1 < t2 or (t1 == t2 and v1 < v2)
+
+
+@compiled_inline
+def _push(heap_t: NDArray[np.float64], heap_v: NDArray[np.int64], size: int, t: float, v: int) -> int:
+    """Add (t, v) to the binary heap of ``size`` entries; the new size."""
+    i = size
+    while i > 0:
+        p = (i - 1) // 2
+        if not _before(t, v, heap_t[p], heap_v[p]):
+            break
+        heap_t[i], heap_v[i] = heap_t[p], heap_v[p]
+        i = p
+    heap_t[i], heap_v[i] = t, v
+    return size + 1
+
+
+@compiled_inline
+def _pop(heap_t: NDArray[np.float64], heap_v: NDArray[np.int64], size: int) -> int:
+    """Remove the root of the binary heap of ``size`` entries (read it before); the new size."""
+    size -= 1
+    t, v = heap_t[size], heap_v[size]  # the last entry sifts down from the root
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= size:
+            break
+        if c + 1 < size and _before(heap_t[c + 1], heap_v[c + 1], heap_t[c], heap_v[c]):
+            c += 1
+        if not _before(heap_t[c], heap_v[c], t, v):
+            break
+        heap_t[i], heap_v[i] = heap_t[c], heap_v[c]
+        i = c
+    if size > 0:
+        heap_t[i], heap_v[i] = t, v
+    return size
+
+
 @compiled
 def _grow_tree(g: _Reverse, s: _Scratch, hub: int, n_need: int) -> int:
     """Dijkstra from ``hub`` over the reversed network until the ``n_need`` nodes flagged in ``s.need`` are
@@ -283,35 +324,12 @@ def _grow_tree(g: _Reverse, s: _Scratch, hub: int, n_need: int) -> int:
     state[hub] = 1
     touched[0] = 1
     touched[1] = hub
-    heap_t[0] = 0.0
-    heap_v[0] = hub
-    size = 1
+    size = _push(heap_t, heap_v, 0, 0.0, hub)
     left = n_need
     k = 0
     while size > 0:
-        d = heap_t[0]
-        v = heap_v[0]
-        size -= 1
-        if size > 0:  # the last entry sifts down from the root
-            lt = heap_t[size]
-            lv = heap_v[size]
-            i = 0
-            while True:
-                c = 2 * i + 1
-                if c >= size:
-                    break
-                if c + 1 < size and (
-                    heap_t[c + 1] < heap_t[c] or (heap_t[c + 1] == heap_t[c] and heap_v[c + 1] < heap_v[c])
-                ):
-                    c += 1
-                if heap_t[c] < lt or (heap_t[c] == lt and heap_v[c] < lv):
-                    heap_t[i] = heap_t[c]
-                    heap_v[i] = heap_v[c]
-                    i = c
-                else:
-                    break
-            heap_t[i] = lt
-            heap_v[i] = lv
+        d, v = heap_t[0], heap_v[0]
+        size = _pop(heap_t, heap_v, size)
         if state[v] == 2 or d > time[v]:
             continue
         state[v] = 2
@@ -333,18 +351,7 @@ def _grow_tree(g: _Reverse, s: _Scratch, hub: int, n_need: int) -> int:
                     touched[touched[0]] = u
                 time[u] = nd
                 pred[u] = v
-                i = size
-                size += 1
-                while i > 0:
-                    p = (i - 1) // 2
-                    if nd < heap_t[p] or (nd == heap_t[p] and u < heap_v[p]):
-                        heap_t[i] = heap_t[p]
-                        heap_v[i] = heap_v[p]
-                        i = p
-                    else:
-                        break
-                heap_t[i] = nd
-                heap_v[i] = u
+                size = _push(heap_t, heap_v, size, nd, u)
     return k
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bench import bench_fleet_metro as bfm
@@ -32,13 +33,22 @@ def test_the_platform_day_is_seeded_and_lies_on_the_horizon() -> None:
     city = metro.metro_city(scale=setup.scale)
     near = bfm.centres(city, setup)
     one = bfm.platform_day(city, near, setup, 0, "2026-11-02")
-    assert one == bfm.platform_day(city, near, setup, 0, "2026-11-02")
-    assert one.requests != bfm.platform_day(city, near, setup, 1, "2026-11-02").requests
+    again = bfm.platform_day(city, near, setup, 0, "2026-11-02")
+    inst, ordinary = one.fleet.instrumented_nodes, one.fleet.ordinary_nodes
+    assert inst is not None and ordinary is not None
+    assert one.demand == again.demand
+    assert np.array_equal(inst, np.asarray(again.fleet.instrumented_nodes))
+    assert one.demand.requests != bfm.platform_day(city, near, setup, 1, "2026-11-02").demand.requests
+    reqs = one.demand.requests
     start = city.horizon.start_s("2026-11-02")
-    assert all(
-        start <= r.time_s < start + city.horizon.length_s and r.origin != r.destination for r in one.requests
-    )
-    assert [(r.time_s, r.id) for r in one.requests] == sorted((r.time_s, r.id) for r in one.requests)
+    assert all(start <= r.time_s < start + city.horizon.length_s and r.origin != r.destination for r in reqs)
+    assert [(r.time_s, r.id) for r in reqs] == sorted((r.time_s, r.id) for r in reqs)
+    # the posted fleet starts where it stood; any other size takes those positions too (instrumented first)
+    posted = one.starts(setup.n1, setup)
+    assert sorted(posted[: setup.n1]) == sorted(inst.tolist())
+    assert sorted(posted[setup.n1 :]) == sorted(ordinary.tolist())
+    for x in setup.sizes:
+        assert len(one.starts(x, setup)) == x + setup.n0
     tasks = bfm.platform_tasks(city, near, setup)
     assert len({t.node for t in tasks}) == len(tasks) == setup.n_tasks
     assert all(0.0 <= t.offset_s < city.horizon.length_s for t in tasks)
