@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service openapi dashboard
 
 install: $(STAMP)
 
@@ -55,7 +55,7 @@ fleet-experiment: $(STAMP)
 
 # Every benchmark; each writes its own section of docs/PERFORMANCE.md (the Redis one needs a redis-server at
 # REDIS_URL, default the local one).
-bench: bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-hardening bench-fleet-service
+bench: bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service
 
 bench-epoch: $(STAMP)
 	$(PY) -m bench.bench_epoch
@@ -77,6 +77,11 @@ bench-dro: $(STAMP)
 # The re-solve on 2 local processes vs a Dask cluster of 1 and 2 workers (small by default; ARGS=--full).
 bench-cluster: $(STAMP)
 	$(PY) -m bench.bench_cluster $(ARGS)
+
+# A simulated day of a 5,000-taxi platform on the generated metropolitan city in one engine process, the runs of
+# a re-solve on a local Dask cluster, the engine processes a re-solve needs within 45 minutes (about 15 minutes).
+bench-fleet-metro: $(STAMP)
+	$(PY) -m bench.bench_fleet_metro $(ARGS)
 
 # The whole service as `make run` starts it: a solve request to the recommendation, epochs while it solves;
 # also the README's dashboard screenshot.

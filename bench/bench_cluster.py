@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import tempfile
 import time
@@ -41,13 +40,6 @@ SMALL = SizingConfig(sizes=(10, 30, 60), days=4)
 FULL = SizingConfig()  # the worker's defaults: sizes 10..60, M = 10 days
 WARM = SizingConfig(sizes=(2, 4), days=2, n0=4, n_tasks=3, rate_per_hour=10.0, seed=99)
 NOOP_RUNS = 200
-
-
-def metro_epoch_s() -> float:
-    """A metropolitan epoch as one simulation run computes it: metro250k's in-process median on one thread in
-    the epoch benchmark's last run (``docs/perf_epoch.json``); a day is 72 epochs."""
-    doc = json.loads((ROOT / "docs" / "perf_epoch.json").read_text())
-    return float(doc["metro250k"]["inprocess_1thread"]["p50_ms"]) / 1000.0
 
 
 def noop(x: int) -> int:
@@ -141,20 +133,9 @@ def measure(config: SizingConfig, reps: int, tmp: Path) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def metro(results: dict[str, Any], epoch_s: float) -> dict[str, Any]:
-    """The cluster an hourly metropolitan re-solve needs, on paper: 60 runs of 72 epochs each."""
-    runs, epochs = 60, 72
-    cpu_s = runs * epochs * epoch_s
-    w = results["wall_s"]
-    efficiency = w["dask1"]["median"] / w["dask2"]["median"] / 2  # measured 2-worker scaling on this machine
-    workers = math.ceil(cpu_s / 3600.0 / min(1.0, efficiency))
-    return {"epoch_s": epoch_s, "run_s": epochs * epoch_s, "cpu_h": cpu_s / 3600.0, "efficiency": efficiency,
-            "workers": workers}  # fmt: skip
-
-
 def write(results: dict[str, Any]) -> None:
     w, c = results["wall_s"], results["config"]
-    o, m, ld = results["noop_per_run_ms"], results["metro"], results["load"]
+    o, ld = results["noop_per_run_ms"], results["load"]
     rows = [("local", "2 local processes"), ("dask1", "Dask, 1 worker"), ("dask2", "Dask, 2 workers")]
     lines = [
         "## Cluster: the re-solve on Dask distributed",
@@ -191,14 +172,9 @@ def write(results: dict[str, Any]) -> None:
         f"(min-max {o['dask2']['min']:.2f}-{o['dask2']['max']:.2f}): the engine adds about "
         f"{o['dask2']['median'] - o['local']['median']:.1f} ms to a run that takes seconds.",
         "",
-        f"**Metropolitan scale, on paper.** A re-solve is 60 runs (6 sizes x M = 10 days) of 72 epochs; at "
-        f"{m['epoch_s']:.2f} s an epoch (metro250k's in-process median on one thread, `Epoch latency` above; a run "
-        f"is one single-threaded process) a run takes {m['run_s'] / 60:.0f} min "
-        f"and a re-solve {m['cpu_h']:.1f} CPU-hours. To finish within the hour it needs at least "
-        f"**{math.ceil(m['cpu_h'])} single-threaded engine workers per city** (one core each, perfect scaling; a run "
-        f"is never split, and one run fits well within the hour), about {m['workers']} at the 2-worker efficiency "
-        f"measured here ({m['efficiency']:.0%}, on a machine whose 2 cores were already busy with other work); N "
-        f"cities need N times that.",
+        '**Metropolitan scale** is measured with its own runs: `make bench-fleet-metro`, "Fleet sizing at '
+        "metropolitan scale\" below (a simulated metro250k day, a re-solve's runs on a local cluster, the engine "
+        "processes a re-solve needs).",
     ]
     write_section("cluster", "\n".join(lines))
 
@@ -207,7 +183,6 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--full", action="store_true", help="the worker's default re-solve (60 runs)")
     ap.add_argument("--reps", type=int, default=2)
-    ap.add_argument("--metro-epoch-s", type=float, default=None, help="default: from docs/perf_epoch.json")
     ap.add_argument("--report-only", type=Path, metavar="JSON")
     args = ap.parse_args(argv)
     path = ROOT / "docs" / "perf_cluster.json"
@@ -216,7 +191,6 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         results = measure(FULL if args.full else SMALL, args.reps, Path(tmp))
-    results["metro"] = metro(results, args.metro_epoch_s or metro_epoch_s())
     path.write_text(json.dumps(results, indent=1) + "\n")
     write(results)
     print(json.dumps(results, indent=1))

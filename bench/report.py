@@ -27,6 +27,7 @@ ORDER = (
     "worker",
     "fleet-service",
     "cluster",
+    "fleet-metro",
     "hardening",
 )  # section order in the document
 _HEAD = "# Performance\n\nEach section below is written by one benchmark (`make bench` runs them all).\n"

@@ -15,12 +15,16 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
+from typing import Any, TypeVar
 
 from distributed import Client
 
 __all__ = ["LocalCluster", "free_port"]
+
+R = TypeVar("R")
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository: workers import app.* (and tests.*) from it
 
@@ -146,6 +150,11 @@ class LocalCluster:
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"the local Dask cluster did not start: {exc}\n{self.logs()}") from exc
                 time.sleep(0.2)
+
+    def run(self, fn: Callable[..., R], *args: Any) -> dict[str, R]:
+        """``fn(*args)`` on every worker process now (``fn`` importable there); results by worker address."""
+        with Client(self.address, timeout=self.start_timeout_s, set_as_default=False) as client:
+            return dict(client.run(fn, *args))
 
     def _check_alive(self) -> None:
         if self.scheduler is not None and self.scheduler.poll() is not None:

@@ -36,8 +36,9 @@ class RunResult:
     demand: dict[str, Any]  # the demand set's manifest (generator, version, seed, date, ...)
     kpis: RunKpis
     n_unposted: int  # requests after the last epoch (not part of the run)
-    elapsed_s: float
+    elapsed_s: float  # the run's wall time (the bundle's opening, once per process, not included)
     routes: tuple[RouteRecord, ...] | None = None  # with ``spec.keep_routes``
+    cpu_s: float | None = None  # the run's processor time in its process (None: not measured)
 
     @property
     def date(self) -> str:
@@ -59,6 +60,7 @@ class RunResult:
             "n_unposted": self.n_unposted,
             "elapsed_s": self.elapsed_s,
             "routes": None if self.routes is None else [dataclasses.asdict(r) for r in self.routes],
+            "cpu_s": self.cpu_s,
         }
         return json.dumps(doc, separators=(",", ":"), allow_nan=False)
 
@@ -70,6 +72,7 @@ class RunResult:
         hours = tuple(_typed(HourKpis, h) for h in k.pop("hours"))
         tasks = tuple(_typed(TaskOutcome, t) for t in k.pop("tasks"))
         routes = d.get("routes")
+        cpu = d.get("cpu_s")
         return cls(
             key=str(d["key"]),
             spec=RunSpec(**d["spec"]),
@@ -82,6 +85,7 @@ class RunResult:
             else tuple(
                 RouteRecord(float(r["time_s"]), r["taxi_id"], r["task_id"], tuple(r["path"])) for r in routes
             ),
+            cpu_s=None if cpu is None else float(cpu),
         )
 
 

@@ -33,7 +33,7 @@ from services.model import (
     TaxiId,
 )
 from services.sim.demand import DemandSet, Request
-from services.sim.drift import DriftMap, choose_target, drift_map, drift_walk
+from services.sim.drift import Drift, drift_map
 from services.sim.local import Outcome
 
 __all__ = [
@@ -205,6 +205,7 @@ def simulate(
     on_epoch: Callable[[int, int], None] | None = None,
     start_nodes: Sequence[int] | None = None,
     n_epochs: int | None = None,
+    drift: Drift | None = None,
 ) -> RunTrace:
     """Run one operating horizon of ``demand`` (docs/METHOD.md section 10).
 
@@ -219,6 +220,7 @@ def simulate(
     start_nodes : the taxis' start nodes (instrumented first), instead of seeded random nodes.
     n_epochs : run only the horizon's first ``n_epochs`` epochs (a short demo); the run then ends when the
         next epoch would start, and it is the first ``n_epochs`` epochs of the whole horizon's run.
+    drift : the idle drift's map (default: ``drift_map(city, config.drift_radius_m)``, kept per process).
     """
     hz = city.horizon
     start_s = hz.start_s(demand.date)
@@ -227,7 +229,9 @@ def simulate(
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x51D]))
     taxis = _fleet(config, city.network.n_nodes, rng, start_nodes)
     by_id = {t.id: t for t in taxis}
-    dm: DriftMap | None = drift_map(city) if config.drift else None
+    dm: Drift | None = None
+    if config.drift:
+        dm = drift if drift is not None else drift_map(city, config.drift_radius_m)
 
     dispatcher.add_tasks(list(tasks))
     requests = sorted(demand.requests, key=lambda r: (r.time_s, r.id))
@@ -325,9 +329,7 @@ def _move(taxis: Sequence[_TaxiState], now: float) -> None:
                 t.job = None
 
 
-def _post(
-    books: _Books, posted: Sequence[Request], nxt: int, now: float, pfx: str, dm: DriftMap | None
-) -> int:
+def _post(books: _Books, posted: Sequence[Request], nxt: int, now: float, pfx: str, dm: Drift | None) -> int:
     """The requests from ``posted[nxt]`` on made by ``now`` start waiting; the index of the next one."""
     while nxt < len(posted) and posted[nxt].time_s <= now:
         r = posted[nxt]
@@ -374,7 +376,7 @@ def _epoch_record(now: float, snapshot: Snapshot, out: Outcome) -> EpochRecord:
 
 
 def _drift(
-    dm: DriftMap,
+    dm: Drift,
     taxis: Sequence[_TaxiState],
     recent: deque[tuple[float, int]],
     now: float,
@@ -386,19 +388,19 @@ def _drift(
     cutoff = now - config.drift_window_s
     while recent and recent[0][0] < cutoff:
         recent.popleft()
-    density = np.zeros(int(dm.node_cell.max()) + 1 if dm.node_cell.size else 0)
-    for _, c in recent:
-        density[c] += 1.0
+    cells = np.fromiter((c for _, c in recent), dtype=np.int64, count=len(recent))
+    n_cells = int(dm.node_cell.max()) + 1 if dm.node_cell.size else 0
+    density = np.bincount(cells, minlength=n_cells).astype(np.float64)  # requests per cell: exact counts
     rethink = epoch_s / config.drift_rethink_s
     for t in taxis:
         if t.job is not None:
             continue
         if t.target < 0 or (t.at_target and rng.random() < rethink):
-            t.target, t.at_target = choose_target(dm, t.node, density, config.drift_radius_m, rng), False
+            t.target, t.at_target = dm.choose_target(t.node, density, rng), False
             if t.target < 0:
                 continue
         if t.at_target:
             continue
-        t.node, _ = drift_walk(dm, t.target, t.node, float(epoch_s))
+        t.node, _ = dm.walk(t.target, t.node, float(epoch_s))
         if t.node == int(dm.hubs[t.target]):
             t.at_target = True

@@ -32,7 +32,7 @@ from tests.e2e.test_worker import CITY, TINY, Clock, local
 T = TypeVar("T")
 R = TypeVar("R")
 
-CLOCK_FIELDS = ("elapsed_s", "solve_ms_median")  # clock readings: the only fields that may differ
+CLOCK_FIELDS = ("elapsed_s", "cpu_s", "solve_ms_median")  # clock readings: the only fields that may differ
 
 
 def sizing(
@@ -71,7 +71,7 @@ def body_of(store: MemoryStore) -> dict[str, Any]:
 
 def without_clocks(run: RunResult) -> dict[str, Any]:
     doc: dict[str, Any] = json.loads(run.to_json())
-    del doc["elapsed_s"]
+    del doc["elapsed_s"], doc["cpu_s"]
     del doc["kpis"]["solve_ms_median"]
     return doc
 
@@ -200,6 +200,7 @@ def test_two_fleet_workers_on_one_cluster_simulate_each_run_once(
     assert len(batches[0].results) == len(batches[1].results) == 6
     for key, run in batches[0].results.items():
         assert batches[1].results[key].elapsed_s == run.elapsed_s, key
+        assert batches[1].results[key].cpu_s == run.cpu_s, key
 
 
 def test_a_worker_killed_mid_run_is_retried_and_the_recommendation_is_the_same(

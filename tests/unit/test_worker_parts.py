@@ -28,6 +28,7 @@ from app.runs import (
     RunSpec,
     TaskTemplate,
     open_bundle,
+    simulate_spec,
     tasks_for,
 )
 from app.runs.workload import placed_tasks
@@ -65,8 +66,11 @@ from app.worker.schedule import coming_interval, due_interval
 from services.city import City, FleetParams, Horizon
 from services.fleet.dro import DIVERGENCE_NAMES
 from services.model import Task, TaskId
+from services.network.graph import road_graph
 from services.sim.demand import DemandSet, Request
+from services.sim.engine import SimConfig, simulate
 from services.sim.kpi import HourKpis, RunKpis, TaskOutcome
+from services.sim.local import LocalDispatcher
 from tests.api.fakes import CITY, build_bundle, node_id
 
 SHANGHAI = ZoneInfo("Asia/Shanghai")
@@ -459,6 +463,31 @@ def test_tasks_day_fixes_the_task_draw_across_days(tiny_cities: CityRegistry) ->
     assert placed == [Task(TaskId("a"), 3, start("2026-11-24") + 60.0)]
 
 
+def test_runs_of_a_process_share_the_city_and_its_search_structures(tiny_cities: CityRegistry) -> None:
+    """Runs with Step 3 off simulate one city object per process (its graph, landmarks and drift trees are
+    kept per city object), and a passive run equals the same run on a freshly made passive city."""
+    bundle = open_bundle(tiny_cities.bundle_dir(CITY))
+    passive = bundle.city_for(False)
+    assert passive is bundle.city_for(False) and bundle.city_for(True) is bundle.city
+    assert passive.params.active_sensing is False and passive.network is bundle.city.network
+    n = bundle.city.network.n_nodes
+    start = bundle.city.horizon.start_s("2026-11-23")
+    reqs = tuple(Request(f"r{i}", start + 300.0 * i, (7 * i) % n, (7 * i + 5) % n) for i in range(30))
+    demand = DemandSet(CITY, "2026-11-23", reqs, "hand")
+    spec = RunSpec(city=CITY, n1=3, n0=3, n_tasks=4, active=False)
+    city_a, one = simulate_spec(spec, bundle, demand)
+    graphs = road_graph.cache_info().currsize
+    city_b, _ = simulate_spec(dataclasses.replace(spec, seed=1), bundle, demand)
+    assert city_a is city_b is passive and road_graph.cache_info().currsize == graphs
+    fresh = dataclasses.replace(
+        bundle.city, params=dataclasses.replace(bundle.city.params, active_sensing=False)
+    )
+    tasks = tasks_for(spec, bundle, demand.date)
+    again = simulate(fresh, demand, tasks, SimConfig(3, 3, 4, seed=0), LocalDispatcher(fresh))
+    assert again.riders == one.riders and again.assignments == one.assignments == ()
+    assert sum(r.matched_at_s is not None for r in one.riders) > 0
+
+
 # -------------------------------------------------------------------------------------------- runs, cache
 
 
@@ -488,6 +517,11 @@ def test_cache_round_trip_and_unreadable_files(tmp_path: Path, caplog: pytest.Lo
     assert back is not None and math.isnan(back.kpis.completion_rate) and math.isnan(back.kpis.mean_delay_s)
     assert back.to_json() == r.to_json() and back.kpis.hours == r.kpis.hours
     assert back.kpis.tasks == r.kpis.tasks and back.spec == r.spec and back.n_requests == 140
+    assert back.cpu_s is None
+    timed = dataclasses.replace(r, key="t", cpu_s=0.125)
+    cache.put(timed)
+    back = cache.get("t")
+    assert back is not None and back.cpu_s == 0.125 and back.to_json() == timed.to_json()
     (tmp_path / "runs" / "bad.json").write_text("{truncated")
     with caplog.at_level(logging.WARNING):
         assert cache.get("bad") is None

@@ -11,7 +11,7 @@ import pytest
 from services.city import DispatchParams, Horizon
 from services.model import IntervalKey, Snapshot, Task, TaskId
 from services.sim.demand import DemandSet, Request, demand_on_date
-from services.sim.drift import choose_target, drift_map, drift_walk
+from services.sim.drift import DriftMap
 from services.sim.engine import SimConfig, poi_tasks, simulate
 from services.sim.kpi import design_kpi, price_of_sensing, run_kpis
 from services.sim.local import LocalDispatcher, Outcome
@@ -244,19 +244,20 @@ def test_design_kpi_formula() -> None:
 
 def test_drift_walks_the_fastest_path_toward_the_hub_within_the_budget() -> None:
     city = line_city(n=30, spacing_m=100.0)  # 2.9 km: cells 0, 1, 2 along x
-    dm = drift_map(city)
+    dm = DriftMap(city, 3000.0)
     assert list(dm.cells) == [0, 1, 2]
     hub2 = dm.hub_of_cell[2]
     assert int(dm.hubs[hub2]) == 25  # the node nearest the centre of cell 2 (x = 2500 m)
-    node, used = drift_walk(dm, hub2, 0, 95.0)  # 9 edges of 10 s fit in 95 s
+    node, used = dm.walk(hub2, 0, 95.0)  # 9 edges of 10 s fit in 95 s
     assert (node, used) == (9, pytest.approx(90.0))
-    node, used = drift_walk(dm, hub2, 0, 10_000.0)
+    node, used = dm.walk(hub2, 0, 10_000.0)
     assert (node, used) == (25, pytest.approx(250.0))
     density = np.zeros(3)
-    assert choose_target(dm, 0, density, 3000.0, np.random.default_rng(0)) == -1
+    assert dm.choose_target(0, density, np.random.default_rng(0)) == -1
     density[2] = 5.0
-    assert choose_target(dm, 0, density, 3000.0, np.random.default_rng(0)) == hub2
-    assert choose_target(dm, 0, density, 1500.0, np.random.default_rng(0)) == -1  # cell 2 is 2 km away
+    assert dm.choose_target(0, density, np.random.default_rng(0)) == hub2
+    # cell 2 is 2 km away
+    assert DriftMap(city, 1500.0).choose_target(0, density, np.random.default_rng(0)) == -1
 
 
 def test_idle_taxi_drifts_toward_recent_demand() -> None:
