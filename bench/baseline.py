@@ -64,7 +64,7 @@ def _serve(inp: IO[bytes], out: IO[bytes]) -> None:
     import services
     from services.dispatch import decide, warm_up
 
-    city = None
+    city: Any = None
     while True:
         try:
             message = pickle.load(inp)
