@@ -44,7 +44,7 @@ from services.model import (
     TaxiId,
     Visit,
 )
-from services.network import search
+from services.network import hierarchy
 from services.network.graph import RoadGraph, road_graph
 from services.network.pads import pads_for
 from services.routing.algorithm1 import Route
@@ -175,9 +175,9 @@ def _rider_paths(
     pair_keys = pk.rider * len(taxis) + pk.taxi  # ascending: the pairs are ordered by rider, then taxi
     at = np.searchsorted(pair_keys, np.array([j * len(taxis) + i for i, j, _ in both], dtype=np.int64))
     with ep.pads.take() as pad:
-        legs_in = search.fastest_paths(
+        legs_in = hierarchy.fastest_paths(
             ep.graph,
-            pad.forward,
+            pad,
             np.array([taxis[i].node for i, _, _ in both], dtype=np.int64),
             np.array([riders[j].origin for _, j, _ in both], dtype=np.int64),
         )
