@@ -18,10 +18,18 @@ Epoch 0 is solved and committed untimed on every path, epochs 1..n are timed. Pe
   and the HTTP runs does not move.
 
 ``limits`` is not a platform's load but the API's largest epoch: 2,000 riders and 5,000 taxis (half
-instrumented) within 1 km of Chengdu's centre, drawn afresh every epoch, no tasks.
+instrumented) within 1 km of Chengdu's centre, drawn afresh every epoch, no tasks. The ``-heavy`` scenarios
+are the heaviest load a platform posts: every taxi vacant every epoch, where its last path took it, and
+riders' origins and destinations, POIs and taxis' first nodes drawn uniformly over the whole network
+(``bench.load.SpreadDemand``), on the metropolitan city and on a street grid that takes 53 minutes to
+cross, under ``step3_reach_above_s``, so that no reach applies there.
+
+With ``--baseline DIR`` every timed epoch is also decided by the checkout at DIR (the previous code), in a
+process of its own on the same inputs (``bench.baseline``), its decision checked equal: the same-run ratio.
 
     python -m bench.bench_epoch                           # every scenario, writes docs/PERFORMANCE.md
     python -m bench.bench_epoch --scenario paper --epochs 20 --no-http --no-write   # a quick look
+    python -m bench.bench_epoch --baseline ../base      # beside the previous code (git worktree add ../base main)
 """
 
 from __future__ import annotations
@@ -670,12 +678,16 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "first solved untimed on every path. paper and city: Chengdu's synthetic requests and OSM POIs, Manhattan's",
         "real requests; metro100 and metro300: a generated 150 x 150 street grid (22,500 nodes, 120 m blocks,",
         "35 km/h) with demand around four centres; metro250k: the generated metropolitan network of `bench/metro.py`",
-        "(road hierarchy, one-way streets, a river crossed at 8 places; demand around its five centres). limits:",
+        "(road hierarchy, one-way streets, a river crossed at 8 places; demand around its five centres). The",
+        "heaviest load (`-heavy`): every taxi vacant every epoch where its last path took it, riders' origins and",
+        "destinations, POIs and taxis spread uniformly over the whole network; on metro250k, and on grid53, a",
+        "150 x 150 grid of 104 m blocks that takes 53 minutes to cross, so no Step 3 reach applies. limits:",
         "the API's largest epoch (module docstring). In-process = `services.dispatch.decide` with the default",
-        "threads and with one (decisions checked equal); HTTP = a real `python -m app run` (uvicorn, in-memory",
-        "store) posting the same epochs (decisions checked equal to the in-process ones); floor = with scipy, one",
-        "reverse search per rider bounded by the pickup radius, one full reverse tree per new task's POI, and the",
-        "two assignments over the pickup times, on the same epochs.",
+        "threads and with one (decisions checked equal); previous code = the same epochs decided by the checkout",
+        "the run was given (`--baseline`), in its own process, decisions checked equal; HTTP = a real",
+        "`python -m app run` (uvicorn, in-memory store) posting the same epochs (decisions checked equal to the",
+        "in-process ones); floor = with scipy, one reverse search per rider bounded by the pickup radius, one full",
+        "reverse tree per new task's POI, and the two assignments over the pickup times, on the same epochs.",
         "",
         "| scale | nodes | taxis (instr.) | riders | new tasks | open tasks (median) | Step 3 taxis (median) | epochs | path | p50 ms | p99 ms | min-max ms | IQR ms |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",

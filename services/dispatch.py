@@ -481,7 +481,8 @@ def decide(
 def warm_up(city: City) -> None:
     """Solve a few tiny seeded epochs on ``city`` so that every compiled kernel a real epoch calls is compiled
     (or loaded from numba's on-disk cache), and the city's search structures (``road_graph``,
-    ``search.landmarks``) built, before the first real request: a kernel first met in a real epoch would
+    ``search.landmarks``, the contraction hierarchy of ``services.network.hierarchy``) built, before the first
+    real request: a kernel first met in a real epoch would
     otherwise be compiled inside it (seconds on a fresh install). The epochs cover riders matched in Steps 1
     and 2, Step 3 from the POIs' side (fewer than half as many POIs as taxis) with taxis counted in cells
     (their own costs, goal-directed searches) and from the taxis' side, and Algorithm 2's re-plans, on one
