@@ -183,8 +183,17 @@ class _Witness(NamedTuple):
 
 
 @compiled_inline
-def _sift_up(ws: _Witness, i: int, v: int) -> None:
-    c, a, b, pos, heap = ws.c, ws.a, ws.b, ws.pos, ws.heap
+def _sift_up(
+    c: NDArray[np.int64],
+    a: NDArray[np.int64],
+    b: NDArray[np.int64],
+    pos: NDArray[np.int64],
+    heap: NDArray[np.int64],
+    i: int,
+    v: int,
+) -> None:
+    """Put node ``v`` at heap place ``i`` (free, or its own with a label no larger than before) and sift it
+    up; nodes are ordered by their labels ``(c, a, b)``."""
     while i > 0:
         parent = (i - 1) >> 1
         w = heap[parent]
@@ -198,9 +207,15 @@ def _sift_up(ws: _Witness, i: int, v: int) -> None:
 
 
 @compiled_inline
-def _pop(ws: _Witness, size: int) -> int:
+def _pop(
+    c: NDArray[np.int64],
+    a: NDArray[np.int64],
+    b: NDArray[np.int64],
+    pos: NDArray[np.int64],
+    heap: NDArray[np.int64],
+    size: int,
+) -> int:
     """Take the heap's root out; returns the new size (the root is ``heap[0]`` before the call)."""
-    c, a, b, pos, heap = ws.c, ws.a, ws.b, ws.pos, ws.heap
     size -= 1
     if size == 0:
         return 0
@@ -242,7 +257,7 @@ def _witness(p: _Pool, done: NDArray[np.bool_], ws: _Witness, u: int, v: int, li
     settled = 0
     while size > 0 and settled < settle:
         x = ws.heap[0]
-        size = _pop(ws, size)
+        size = _pop(ws.c, ws.a, ws.b, ws.pos, ws.heap, size)
         ws.pos[x] = -2
         settled += 1
         cx, ax, bx = ws.c[x], ws.a[x], ws.b[x]
@@ -266,7 +281,7 @@ def _witness(p: _Pool, done: NDArray[np.bool_], ws: _Witness, u: int, v: int, li
                         if ws.pos[h] < 0:
                             ws.pos[h] = size
                             size += 1
-                        _sift_up(ws, ws.pos[h], h)
+                        _sift_up(ws.c, ws.a, ws.b, ws.pos, ws.heap, ws.pos[h], h)
             y = p.nout[y]
     return n_t
 
@@ -544,49 +559,6 @@ def hierarchy(graph: RoadGraph) -> Hierarchy | None:
 
 
 @compiled_inline
-def _lane_up(ln: Lanes, d: int, i: int, v: int) -> None:
-    cost, tie1, tie2, pos, heap = ln.cost[d], ln.tie1[d], ln.tie2[d], ln.pos[d], ln.heap[d]
-    while i > 0:
-        parent = (i - 1) >> 1
-        w = heap[parent]
-        if not _less(cost[v], tie1[v], tie2[v], cost[w], tie1[w], tie2[w]):
-            break
-        heap[i] = w
-        pos[w] = i
-        i = parent
-    heap[i] = v
-    pos[v] = i
-
-
-@compiled_inline
-def _lane_pop(ln: Lanes, d: int, size: int) -> int:
-    cost, tie1, tie2, pos, heap = ln.cost[d], ln.tie1[d], ln.tie2[d], ln.pos[d], ln.heap[d]
-    size -= 1
-    if size == 0:
-        return 0
-    v = heap[size]
-    i = 0
-    while True:
-        child = 2 * i + 1
-        if child >= size:
-            break
-        x = heap[child]
-        if child + 1 < size:
-            y = heap[child + 1]
-            if _less(cost[y], tie1[y], tie2[y], cost[x], tie1[x], tie2[x]):
-                child += 1
-                x = y
-        if not _less(cost[x], tie1[x], tie2[x], cost[v], tie1[v], tie2[v]):
-            break
-        heap[i] = x
-        pos[x] = i
-        i = child
-    heap[i] = v
-    pos[v] = i
-    return size
-
-
-@compiled_inline
 def _lane_reset(ln: Lanes) -> None:
     for d in range(2):
         for i in range(ln.n_touched[d]):
@@ -651,7 +623,7 @@ def _meet(h: Hierarchy, ln: Lanes, s: int, t: int) -> int:
         if not _less(cv, av, bv, best_c, best_a, best_b):
             size[d] = 0  # nothing left in this direction can improve the best
             continue
-        size[d] = _lane_pop(ln, d, size[d])
+        size[d] = _pop(ln.cost[d], ln.tie1[d], ln.tie2[d], ln.pos[d], ln.heap[d], size[d])
         ln.pos[d, v] = -2
         o = 1 - d
         if ln.cost[o, v] < INF:
@@ -678,7 +650,7 @@ def _meet(h: Hierarchy, ln: Lanes, s: int, t: int) -> int:
                 if ln.pos[d, w] < 0:
                     ln.pos[d, w] = size[d]
                     size[d] += 1
-                _lane_up(ln, d, ln.pos[d, w], w)
+                _sift_up(ln.cost[d], ln.tie1[d], ln.tie2[d], ln.pos[d], ln.heap[d], ln.pos[d, w], w)
     return best
 
 
@@ -742,13 +714,7 @@ def ch_paths(
         if m < 0:
             ptr[i + 1] = -1
             return ptr, flat[:used]
-        edges = _path(h, ln, sources[i], targets[i], m)
-        if used + edges.shape[0] > flat.shape[0]:
-            bigger = np.empty(2 * (used + edges.shape[0]), dtype=np.int64)
-            bigger[:used] = flat[:used]
-            flat = bigger
-        flat[used : used + edges.shape[0]] = edges
-        used += edges.shape[0]
+        flat, used = search.append_path(flat, used, _path(h, ln, sources[i], targets[i], m))
         ptr[i + 1] = used
     return ptr, flat[:used]
 
@@ -773,8 +739,4 @@ def fastest_paths(
     src = np.asarray(sources, dtype=np.int64)
     tgt = np.asarray(targets, dtype=np.int64)
     ptr, flat = ch_paths(h, ln, src, tgt)
-    bad = np.flatnonzero(ptr[1:] < 0)
-    if bad.size:
-        i = int(bad[0])
-        raise ValueError(f"node {int(tgt[i])} cannot be reached from node {int(src[i])}")
-    return [flat[ptr[i] : ptr[i + 1]] for i in range(len(src))]
+    return search.split_paths(ptr, flat, src, tgt)
