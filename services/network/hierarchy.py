@@ -350,44 +350,6 @@ def _witness_scratch(n: int) -> _Witness:
 
 
 @compiled_inline
-def _prio_up(key: NDArray[np.int64], heap: NDArray[np.int64], pos: NDArray[np.int64], i: int, v: int) -> None:
-    while i > 0:
-        parent = (i - 1) >> 1
-        w = heap[parent]
-        if key[w] < key[v] or (key[w] == key[v] and w < v):
-            break
-        heap[i] = w
-        pos[w] = i
-        i = parent
-    heap[i] = v
-    pos[v] = i
-
-
-@compiled_inline
-def _prio_down(
-    key: NDArray[np.int64], heap: NDArray[np.int64], pos: NDArray[np.int64], i: int, size: int
-) -> None:
-    v = heap[i]
-    while True:
-        child = 2 * i + 1
-        if child >= size:
-            break
-        x = heap[child]
-        if child + 1 < size:
-            y = heap[child + 1]
-            if key[y] < key[x] or (key[y] == key[x] and y < x):
-                child += 1
-                x = y
-        if key[v] < key[x] or (key[v] == key[x] and v < x):
-            break
-        heap[i] = x
-        pos[x] = i
-        i = child
-    heap[i] = v
-    pos[v] = i
-
-
-@compiled_inline
 def _priority(need: int, removed: int, deleted: int, level: int) -> int:
     """The order's key: twice the edge difference, the neighbours contracted and the level (the
     hierarchy's depth below the node), the usual mix for road networks; only speed depends on it."""
@@ -404,13 +366,16 @@ def contraction_order(p: _Pool, n: int) -> NDArray[np.int64]:
     ws = _witness_scratch(n)
     deleted = np.zeros(n, dtype=np.int64)
     level = np.zeros(n, dtype=np.int64)
+    # the queue is the labels' heap on (key, node, 0): least key first, ties to the smaller node
     key = np.zeros(n, dtype=np.int64)
+    node = np.arange(n, dtype=np.int64)
+    zero = np.zeros(n, dtype=np.int64)
     heap = np.zeros(n, dtype=np.int64)
     pos = np.full(n, -1, dtype=np.int64)
     for v in range(n):
         need, removed = _contract(p, done, ws, v, False, ESTIMATE_SETTLED)
         key[v] = _priority(need, removed, 0, 0)
-        _prio_up(key, heap, pos, v, v)
+        _sift_up(key, node, zero, pos, heap, v, v)
     size = n
     order = np.zeros(n, dtype=np.int64)
     for r in range(n):
@@ -420,13 +385,11 @@ def contraction_order(p: _Pool, n: int) -> NDArray[np.int64]:
             k = _priority(need, removed, deleted[v], level[v])
             if k <= key[v] or size == 1:
                 break
+            size = _pop(key, node, zero, pos, heap, size)
             key[v] = k
-            _prio_down(key, heap, pos, 0, size)
-        size -= 1
-        if size > 0:
-            heap[0] = heap[size]
-            pos[heap[0]] = 0
-            _prio_down(key, heap, pos, 0, size)
+            _sift_up(key, node, zero, pos, heap, size, v)
+            size += 1
+        size = _pop(key, node, zero, pos, heap, size)
         pos[v] = -2
         _contract(p, done, ws, v, True, WITNESS_SETTLED)
         if p.size[0] < 0:
