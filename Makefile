@@ -57,8 +57,10 @@ fleet-experiment: $(STAMP)
 # REDIS_URL, default the local one).
 bench: bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service
 
+# BASELINE=DIR (a checkout of the previous code, e.g. `git worktree add ../base main`) also times its decide on
+# the same epochs: the same-run ratio to the previous code.
 bench-epoch: $(STAMP)
-	$(PY) -m bench.bench_epoch
+	$(PY) -m bench.bench_epoch $(if $(BASELINE),--baseline $(BASELINE))
 
 # The HTTP path with the service on Redis (REDIS_URL, default the local server): its own section.
 bench-epoch-redis: $(STAMP)

@@ -18,10 +18,18 @@ Epoch 0 is solved and committed untimed on every path, epochs 1..n are timed. Pe
   and the HTTP runs does not move.
 
 ``limits`` is not a platform's load but the API's largest epoch: 2,000 riders and 5,000 taxis (half
-instrumented) within 1 km of Chengdu's centre, drawn afresh every epoch, no tasks.
+instrumented) within 1 km of Chengdu's centre, drawn afresh every epoch, no tasks. The ``-heavy`` scenarios
+are the heaviest load a platform posts: every taxi vacant every epoch, where its last path took it, and
+riders' origins and destinations, POIs and taxis' first nodes drawn uniformly over the whole network
+(``bench.load.SpreadDemand``), on the metropolitan city and on a street grid that takes 53 minutes to
+cross, under ``step3_reach_above_s``, so that no reach applies there.
+
+With ``--baseline DIR`` every timed epoch is also decided by the checkout at DIR (the previous code), in a
+process of its own on the same inputs (``bench.baseline``), its decision checked equal: the same-run ratio.
 
     python -m bench.bench_epoch                           # every scenario, writes docs/PERFORMANCE.md
     python -m bench.bench_epoch --scenario paper --epochs 20 --no-http --no-write   # a quick look
+    python -m bench.bench_epoch --baseline ../base      # beside the previous code (git worktree add ../base main)
 """
 
 from __future__ import annotations
@@ -50,14 +58,15 @@ import scipy.sparse.csgraph as cg
 from scipy.optimize import linear_sum_assignment
 
 from bench import metro
-from bench.load import Centres, CentresDemand, Demand, Load, Platform, RecordedDemand
+from bench.baseline import Baseline
+from bench.load import Centres, CentresDemand, Demand, Load, Platform, RecordedDemand, SpreadDemand
 from bench.report import ROOT, stamp, write_section
 from services.city import City
 from services.citydata import CityMeta, city_from_network, haversine_m, save_bundle
 from services.dispatch import decide, warm_up
 from services.kernel.parallel import default_workers
 from services.ledger import Ledger, apply_decision, ledger_view
-from services.model import Decision, Rider, RiderId, Snapshot, Task, Taxi, TaxiId
+from services.model import CountsView, Decision, Rider, RiderId, Snapshot, Task, Taxi, TaxiId
 from services.network.network import build_network
 
 PHASES = ("pickups", "trips", "step1", "step2", "step3", "algorithm2", "tasks")
@@ -66,10 +75,11 @@ PHASES = ("pickups", "trips", "step1", "step2", "step3", "algorithm2", "tasks")
 @dataclass(frozen=True)
 class Scenario:
     name: str
-    city: str  # a bundled city, "grid" (the generated street grid) or "metro" (bench.metro's city)
+    city: str  # a bundled city, "grid" / "grid53" (generated street grids) or "metro" (bench.metro's city)
     load: Load
     epochs: int
     limits: bool = False  # the API's largest epoch, drawn afresh every epoch (no platform load)
+    spread: bool = False  # demand, POIs and taxis spread over the whole network (else around centres)
 
 
 SCENARIOS = {
@@ -78,16 +88,23 @@ SCENARIOS = {
     "metro100": Scenario("metro100", "grid", Load(1500, 3500, 800, 100), 10),
     "metro300": Scenario("metro300", "grid", Load(1500, 3500, 800, 300), 10),
     "metro250k": Scenario("metro250k", "metro", Load(1500, 3500, 800, 100), 10),
+    "metro250k-heavy": Scenario(
+        "metro250k-heavy", "metro", Load(1500, 3500, 800, 100, all_vacant=True), 10, spread=True
+    ),
+    "grid53-heavy": Scenario(
+        "grid53-heavy", "grid53", Load(1500, 3500, 800, 100, all_vacant=True), 10, spread=True
+    ),
     "limits": Scenario("limits", "chengdu", Load(2500, 2500, 2000, 0), 4, limits=True),
 }
-GENERATED = {"grid": "metrogrid", "metro": "metro250k"}  # cities made here, not bundled: their names
+GENERATED = {"grid": "metrogrid", "grid53": "metrogrid53", "metro": "metro250k"}  # made here: their names
 
 GRID_SIDE = 150
 GRID_BLOCK_M = 120.0
+GRID53_BLOCK_M = 104.0  # 53 minutes across at 35 km/h: under step3_reach_above_s, so no reach applies
 GRID_ORIGIN = (104.0, 30.55)  # lon, lat of the south-west corner
 
 
-def grid_city(side: int = GRID_SIDE, block_m: float = GRID_BLOCK_M) -> City:
+def grid_city(side: int = GRID_SIDE, block_m: float = GRID_BLOCK_M, name: str = GENERATED["grid"]) -> City:
     """A square street grid: ``side`` x ``side`` nodes ``block_m`` apart, two-way streets, default speed."""
     lon0, lat0 = GRID_ORIGIN
     ids = np.arange(side * side, dtype=np.int64)
@@ -100,14 +117,14 @@ def grid_city(side: int = GRID_SIDE, block_m: float = GRID_BLOCK_M) -> City:
     v = np.concatenate([right + 1, right, up + side, up])
     length = haversine_m(lon[u], lat[u], lon[v], lat[v])
     network = build_network(ids, lon, lat, u, v, length, None, 35.0)
-    return city_from_network(
-        network, CityMeta(name=GENERATED["grid"], timezone="Asia/Shanghai", source="generated")
-    )
+    return city_from_network(network, CityMeta(name=name, timezone="Asia/Shanghai", source="generated"))
 
 
 def load_city(sc: Scenario) -> City:
     if sc.city == "grid":
         return grid_city()
+    if sc.city == "grid53":
+        return grid_city(block_m=GRID53_BLOCK_M, name=GENERATED["grid53"])
     if sc.city == "metro":
         return metro.metro_city()
     from app.runs.workload import open_bundle
@@ -117,6 +134,8 @@ def load_city(sc: Scenario) -> City:
 
 def demand(sc: Scenario, city: City) -> Demand:
     """Where the scenario's trips, POIs and taxis are (module docstring)."""
+    if sc.spread:
+        return SpreadDemand(city)
     if sc.city == "metro":
         xy, weight = metro.centre_layout(city)
         return CentresDemand(city, Centres(city, xy, weight, 2_500.0))
@@ -207,12 +226,31 @@ def _lap(marks: list[tuple[str, float]], name: str) -> None:
     marks.append((name, time.perf_counter()))
 
 
-def run_inprocess(sc: Scenario, n: int) -> dict[str, Any]:
+def _timed(
+    city: City, view: CountsView, snap: Snapshot, tasks: list[Task], workers: int
+) -> tuple[float, Decision, dict[str, float]]:
+    """One ``decide``: its time, the decision and the milliseconds of each phase."""
+    marks: list[tuple[str, float]] = []
+    started = time.perf_counter()
+    d = decide(city, view, snap, tasks, workers=workers, phase=functools.partial(_lap, marks))
+    took = time.perf_counter() - started
+    split: dict[str, float] = {}
+    last = started
+    for p, at in marks:
+        split[p] = split.get(p, 0.0) + (at - last) * 1000.0
+        last = at
+    return took, d, split
+
+
+def run_inprocess(sc: Scenario, n: int, baseline: Path | None = None) -> dict[str, Any]:
+    """The scenario's epochs in-process, on the default threads and on one, beside the floor (and the
+    ``baseline`` checkout's ``decide``, on the default threads, in a process of its own)."""
     city = load_city(sc)
     workers = default_workers()
     ledger = Ledger()  # what the store would hold: the committed counts and tasks
     epochs = Epochs(sc, city)
-    lat, lat1, flo, phases, open_n, free_n, digests = [], [], [], [], [], [], []
+    lat, lat1, lat_b, flo, phases, open_n, free_n, digests = [], [], [], [], [], [], [], []
+    base = Baseline(baseline, city) if baseline is not None else None
     warm_up(city)  # every kernel compiled (or loaded from the cache) outside timing, as the server does
     for e in range(n + 1):
         snap, tasks = epochs.next()
@@ -222,18 +260,9 @@ def run_inprocess(sc: Scenario, n: int) -> dict[str, Any]:
         if e == 0:  # untimed, as over HTTP, where the server's first epoch may still compile kernels
             d = decide(city, view, snap, task_list, workers=workers)
         else:
-            out: dict[int, tuple[float, Decision, dict[str, float]]] = {}
-            for w in (workers, 1) if e % 2 == 0 else (1, workers):
-                marks: list[tuple[str, float]] = []
-                started = time.perf_counter()
-                d = decide(city, view, snap, task_list, workers=w, phase=functools.partial(_lap, marks))
-                took = time.perf_counter() - started
-                split: dict[str, float] = {}
-                last = started
-                for p, at in marks:
-                    split[p] = split.get(p, 0.0) + (at - last) * 1000.0
-                    last = at
-                out[w] = (took, d, split)
+            out = {
+                w: _timed(city, view, snap, task_list, w) for w in ((workers, 1) if e % 2 else (1, workers))
+            }
             if out[workers][1] != out[1][1]:
                 raise AssertionError(f"epoch {e}: the decision depends on the number of threads")
             d = out[workers][1]
@@ -243,17 +272,28 @@ def run_inprocess(sc: Scenario, n: int) -> dict[str, Any]:
             open_n.append(int(d.stats["open_tasks"]))
             free_n.append(int(d.stats["vacant_instrumented"]) - int(d.stats["step1_matches"]))
             flo.append(floor_once(city, snap, [t.node for t in tasks]))
+            was = ""
+            if base is not None:
+                took_b, d_b = base.decide(view, snap, task_list, workers)
+                if digest(d_b) != digest(d):
+                    raise AssertionError(f"epoch {e}: the baseline decided otherwise")
+                lat_b.append(took_b)
+                was = f", baseline {took_b * 1000:.0f} ms"
             print(
                 f"  [{sc.name}] epoch {e}: {lat[-1] * 1000:.0f} ms ({lat1[-1] * 1000:.0f} on one thread), "
-                f"floor {flo[-1] * 1000:.0f} ms, {open_n[-1]} open tasks, {free_n[-1]} taxis for Step 3",
+                f"floor {flo[-1] * 1000:.0f} ms{was}, {open_n[-1]} open tasks, {free_n[-1]} taxis for Step 3",
                 flush=True,
             )
         digests.append(digest(d))
         apply_decision(ledger, d.visits, d.task_updates)
         epochs.apply(d)
+    if base is not None:
+        base.close()
     return {
         "latency": lat,
         "latency_1thread": lat1,
+        "latency_baseline": lat_b,
+        "baseline": base.origin if base is not None else None,
         "floor": flo,
         "phases_ms": {p: float(np.median([x.get(p, 0.0) for x in phases])) for p in PHASES},
         "open_tasks_median": float(np.median(open_n)),
@@ -458,11 +498,11 @@ def summary(xs: list[float]) -> dict[str, float]:
     }
 
 
-def measure(sc: Scenario, n: int, http: bool) -> dict[str, Any]:
-    """One scenario in-process (and over HTTP): the figures the report reads."""
+def measure(sc: Scenario, n: int, http: bool, baseline: Path | None = None) -> dict[str, Any]:
+    """One scenario in-process (and over HTTP, and beside ``baseline``): the figures the report reads."""
     print(f"[{sc.name}] in-process, {n} epochs ...", flush=True)
     load_before = os.getloadavg()
-    r = run_inprocess(sc, n)
+    r = run_inprocess(sc, n, baseline)
     res: dict[str, Any] = {
         "scenario": asdict(sc),
         "city_size": r["city_size"],
@@ -475,6 +515,10 @@ def measure(sc: Scenario, n: int, http: bool) -> dict[str, Any]:
         "step3_taxis_median": r["step3_taxis_median"],
         "bench_peak_rss_mb": r["peak_rss_mb"],
     }
+    if r["latency_baseline"]:
+        res["baseline"] = summary(r["latency_baseline"])
+        res["baseline_origin"] = r["baseline"]
+        res["over_baseline"] = float(np.median(np.array(r["latency"]) / np.array(r["latency_baseline"])))
     if http:
         print(f"[{sc.name}] over HTTP, {n} epochs ...", flush=True)
         h = run_http(sc, n)
@@ -496,6 +540,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-write", action="store_true")
     ap.add_argument("--report-only", type=Path, metavar="JSON", help="rewrite the report from saved results")
     ap.add_argument(
+        "--baseline",
+        type=Path,
+        metavar="DIR",
+        help="also time the decide of the checkout at DIR (the previous code) on the same epochs, in-process",
+    )
+    ap.add_argument(
         "--redis-url",
         metavar="URL",
         help="instead: the HTTP path only, with the service on Redis at URL (its own section of the report)",
@@ -511,7 +561,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, dict[str, Any]] = {}
     for name in args.scenario or list(SCENARIOS):
         sc = SCENARIOS[name]
-        results[name] = measure(sc, args.epochs or sc.epochs, not args.no_http)
+        results[name] = measure(sc, args.epochs or sc.epochs, not args.no_http, args.baseline)
         print(json.dumps(results[name], indent=1), flush=True)
         (ROOT / "bench" / "out").mkdir(exist_ok=True)
         (ROOT / "bench" / "out" / "last_epoch_results.json").write_text(json.dumps(results, indent=1))
@@ -562,7 +612,9 @@ TARGETS: dict[str, dict[str, float]] = {  # p99 in ms; the HTTP p99 as a multipl
     "city": {"inprocess_ms": 300.0},
     "metro100": {"http_ms": 1000.0, "rss_mb": 1024.0},
     "metro300": {"http_ms": 1000.0, "rss_mb": 1024.0},
-    "metro250k": {"http_ms": 3000.0, "http_floor_ratio": 2.0, "rss_mb": 1024.0, "ready_s": 30.0},
+    "metro250k": {"http_ms": 1000.0, "http_floor_ratio": 2.0, "rss_mb": 1024.0, "ready_s": 30.0},
+    "metro250k-heavy": {"inprocess_ms": 1500.0, "http_ms": 2000.0, "rss_mb": 1024.0},
+    "grid53-heavy": {"http_floor_ratio": 2.0},
 }
 
 
@@ -575,6 +627,10 @@ def _facts(name: str, r: dict[str, Any]) -> str:
     t = TARGETS.get(name, {})
     facts = []
     ip = r["inprocess"]["p99_ms"]
+    if "over_baseline" in r:
+        facts.append(
+            f"in-process {r['over_baseline']:.2f}x the previous code's time (median of per-epoch ratios)"
+        )
     if "inprocess_ms" in t:
         facts.append(
             f"in-process p99 {ip:.0f} ms (target <= {t['inprocess_ms']:.0f}: {_verdict(ip <= t['inprocess_ms'])})"
@@ -622,12 +678,16 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "first solved untimed on every path. paper and city: Chengdu's synthetic requests and OSM POIs, Manhattan's",
         "real requests; metro100 and metro300: a generated 150 x 150 street grid (22,500 nodes, 120 m blocks,",
         "35 km/h) with demand around four centres; metro250k: the generated metropolitan network of `bench/metro.py`",
-        "(road hierarchy, one-way streets, a river crossed at 8 places; demand around its five centres). limits:",
+        "(road hierarchy, one-way streets, a river crossed at 8 places; demand around its five centres). The",
+        "heaviest load (`-heavy`): every taxi vacant every epoch where its last path took it, riders' origins and",
+        "destinations, POIs and taxis spread uniformly over the whole network; on metro250k, and on grid53, a",
+        "150 x 150 grid of 104 m blocks that takes 53 minutes to cross, so no Step 3 reach applies. limits:",
         "the API's largest epoch (module docstring). In-process = `services.dispatch.decide` with the default",
-        "threads and with one (decisions checked equal); HTTP = a real `python -m app run` (uvicorn, in-memory",
-        "store) posting the same epochs (decisions checked equal to the in-process ones); floor = with scipy, one",
-        "reverse search per rider bounded by the pickup radius, one full reverse tree per new task's POI, and the",
-        "two assignments over the pickup times, on the same epochs.",
+        "threads and with one (decisions checked equal); previous code = the same epochs decided by the checkout",
+        "the run was given (`--baseline`), in its own process, decisions checked equal; HTTP = a real",
+        "`python -m app run` (uvicorn, in-memory store) posting the same epochs (decisions checked equal to the",
+        "in-process ones); floor = with scipy, one reverse search per rider bounded by the pickup radius, one full",
+        "reverse tree per new task's POI, and the two assignments over the pickup times, on the same epochs.",
         "",
         "| scale | nodes | taxis (instr.) | riders | new tasks | open tasks (median) | Step 3 taxis (median) | epochs | path | p50 ms | p99 ms | min-max ms | IQR ms |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -635,6 +695,7 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
     labels = {
         "inprocess": None,
         "inprocess_1thread": "in-process, 1 thread",
+        "baseline": "in-process, previous code",
         "http": "HTTP",
         "floor": "floor",
     }

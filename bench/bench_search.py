@@ -19,7 +19,11 @@ built as ``algorithm1._own_metric`` builds it, from the kit of the city's kappa 
 5. memory (numpy ``nbytes``): the city's network and grid crossings, the two search graphs, the landmark
    table, and one pad (a forward and a reverse workspace and Algorithm 1's scratch);
 6. one scipy reverse tree over the whole network, as the epoch benchmark's floor grows one per new task;
-7. the ``limits`` scenario's Step 1 candidate pairs: its first epoch decided once (seeded: exact).
+7. the ``limits`` scenario's Step 1 candidate pairs: its first epoch decided once (seeded: exact);
+8. the contraction hierarchy under the travel time (``services.network.hierarchy``): its build time (once),
+   arcs and memory, and ``TRIPS`` trips between nodes drawn uniformly over the whole network (a heavy
+   epoch's riders, seed ``SEED``) found through it and goal-directed by the landmarks
+   (``search.fastest_paths``), each way once on one thread after an untimed pair, the paths checked equal.
 
 Sources: ``SOURCES`` nodes drawn around the city's centres (``bench.metro.near_centres``, 2.5 km spread, seed
 ``SEED``), where the epoch benchmark's taxis are; each of the service's searches timed as the best of ``REPEATS``
@@ -54,7 +58,7 @@ from services.dispatch import INITIAL_SLOTS, decide
 from services.kernel.parallel import default_workers
 from services.ledger import Ledger, ledger_view
 from services.model import IntervalKey
-from services.network import search
+from services.network import hierarchy, search
 from services.network.graph import INF, US_PER_S, Costs, Lazy, RoadGraph, road_graph
 from services.network.pads import Pad, pads_for
 from services.routing import algorithm1
@@ -65,6 +69,7 @@ SEED = 20261123
 SOURCES = 30
 REPEATS = 3
 FLOOR_TREES = 10
+TRIPS = 800
 KAPPA = 0.6
 SPREAD_M = 2_500.0
 MB = 1e6
@@ -268,6 +273,39 @@ def floor_trees(city: City, src: NDArray[np.int64]) -> dict[str, Any]:
     return summary(ms) | {"raw": ms}
 
 
+def trips(graph: RoadGraph, pad: Pad, n: int, seed: int) -> dict[str, Any]:
+    """Item 8: the hierarchy's build, size and memory, and ``n`` trips through it and goal-directed (the
+    same paths, checked)."""
+    started = time.perf_counter()
+    h = hierarchy.hierarchy(graph)
+    build_s = time.perf_counter() - started
+    if h is None:
+        return {"build_s": build_s, "arcs": None}
+    rng = np.random.default_rng(seed)
+    src, dst = rng.integers(graph.n_nodes, size=n), rng.integers(graph.n_nodes, size=n)
+    hierarchy.fastest_paths(graph, pad, src[:1], dst[:1])
+    search.fastest_paths(graph, pad.forward, src[:1], dst[:1])
+    started = time.perf_counter()
+    through = hierarchy.fastest_paths(graph, pad, src, dst)
+    ch_s = time.perf_counter() - started
+    started = time.perf_counter()
+    guided = search.fastest_paths(graph, pad.forward, src, dst)
+    alt_s = time.perf_counter() - started
+    if any(not np.array_equal(a, b) for a, b in zip(through, guided, strict=True)):
+        raise AssertionError("the hierarchy's paths differ from the search's")
+    return {
+        "build_s": build_s,
+        "arcs": int(h.arc_tail.shape[0]),
+        "arcs_per_edge": h.arc_tail.shape[0] / graph.n_edges,
+        "hierarchy_mb": nbytes(h) / MB,
+        "lanes_mb": nbytes(pad.extra[hierarchy.Lanes]) / MB,
+        "trips": n,
+        "through_s": ch_s,
+        "guided_s": alt_s,
+        "edges": int(sum(len(p) for p in through)),
+    }
+
+
 def limits_candidates(city: City, sc: bench_epoch.Scenario) -> dict[str, int]:
     """Item 7: the scenario's first epoch (``bench_epoch.limits_epochs``) decided once; its Step 1 candidate
     pairs (instrumented taxi, rider) as ``decide``'s stats count them."""
@@ -320,6 +358,8 @@ def measure(
         res["kappa"] = kappa_trees(kt, kappas, pad, gn, src, reach_us, repeats)
         print("kappa trees done", flush=True)
         res["memory"] = memory(city, graph, kt, pad, gn)
+        res["hierarchy"] = trips(graph, pad, TRIPS, seed)
+        print("hierarchy done", flush=True)
     res["floor"] = floor_trees(city, src[:floor_n])
     print("floor trees done", flush=True)
     return res
@@ -367,6 +407,15 @@ def write_report(res: dict[str, Any], doc: Path = PERFORMANCE) -> Path:
         "- One scipy reverse tree over the whole network (the floor's, `cg.dijkstra` on the reversed matrix, one",
         f"  source, each timed once; the first {fl['n']} sources): {_range(fl, '.1f')} ms.",
     ]
+    hy = res.get("hierarchy")
+    if hy is not None and hy.get("arcs") is not None:
+        lines += [
+            f"- The contraction hierarchy under the travel time (`hierarchy.hierarchy`): built in {hy['build_s']:.1f} s,",
+            f"  {hy['arcs']:,} arcs ({hy['arcs_per_edge']:.2f} per edge), {hy['hierarchy_mb']:.1f} MB, a thread's query scratch",
+            f"  {hy['lanes_mb']:.1f} MB. {hy['trips']} trips between nodes drawn uniformly over the network (a heavy epoch's",
+            f"  riders; {hy['edges']:,} edges in all), one thread: {hy['through_s'] * 1000:.0f} ms through it,",
+            f"  {hy['guided_s'] * 1000:.0f} ms goal-directed by the landmarks (`search.fastest_paths`); the same paths, checked.",
+        ]
     if lim is not None:
         lines += [
             f"- The `limits` scenario's first epoch ({lim['riders']:,} riders, {lim['taxis']:,} taxis of which",

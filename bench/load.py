@@ -10,7 +10,10 @@ A :class:`Platform` keeps a fleet and its riders between epochs the way a ride-h
 * new monitoring tasks are registered every epoch and stay open until a taxi serves them (the service
   keeps their state: an open task is posted once and read by every later epoch);
 * origins, destinations, POIs and the taxis' start nodes come from a :class:`Demand`: around a few
-  centres on a generated city, or drawn from a bundled city's recorded or synthetic requests and POIs.
+  centres on a generated city, spread over the whole network (:class:`SpreadDemand`), or drawn from a
+  bundled city's recorded or synthetic requests and POIs;
+* under the heaviest load (``Load.all_vacant``) every taxi is posted vacant every epoch, where its last
+  path took it: the rush-hour epoch in which every driver is free at once.
 
 Every draw is seeded, so a run is the same each time it is made, whichever path decides it (in-process or
 over HTTP): a decision is a function of its inputs, and the inputs of epoch ``e`` depend only on the
@@ -33,18 +36,21 @@ from services.city import City
 from services.model import Rider, RiderId, RiderMatch, Snapshot, Task, TaskAssignment, TaskId, Taxi, TaxiId
 from services.sim.engine import Job
 
-__all__ = ["Load", "Demand", "RecordedDemand", "CentresDemand", "Centres", "Platform"]
+__all__ = ["Load", "Demand", "RecordedDemand", "CentresDemand", "SpreadDemand", "Centres", "Platform"]
 
 
 @dataclass(frozen=True, slots=True)
 class Load:
-    """One scenario's load: fleet sizes, waiting riders posted per epoch, new tasks per epoch, the seed."""
+    """One scenario's load: fleet sizes, waiting riders posted per epoch, new tasks per epoch, the seed, and
+    whether every taxi is posted vacant every epoch (where its last path took it) instead of busy until
+    its path ends."""
 
     n_instrumented: int
     n_ordinary: int
     riders: int
     new_tasks: int
     seed: int = 20261123
+    all_vacant: bool = False
 
 
 class Demand(Protocol):
@@ -117,6 +123,23 @@ class CentresDemand:
 
     def taxi_starts(self, rng: np.random.Generator, n: int) -> NDArray[np.int64]:
         return self._near(rng, n)
+
+
+class SpreadDemand:
+    """Demand spread over the whole network: origins, destinations, POIs and taxis at nodes drawn uniformly,
+    so trips cross the city and every taxi is somewhere else."""
+
+    def __init__(self, city: City) -> None:
+        self._n = city.network.n_nodes
+
+    def trips(self, rng: np.random.Generator, n: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        return self.pois(rng, n), self.pois(rng, n)
+
+    def pois(self, rng: np.random.Generator, n: int) -> NDArray[np.int64]:
+        return rng.integers(self._n, size=n).astype(np.int64)
+
+    def taxi_starts(self, rng: np.random.Generator, n: int) -> NDArray[np.int64]:
+        return self.pois(rng, n)
 
 
 class NearCentres(Protocol):
@@ -195,9 +218,9 @@ class Platform:
             self._waiting[rid] = Rider(rid, int(o), int(d), float(np.floor(t)))
         pois = self.demand.pois(self._rng, self.load.new_tasks)
         tasks = [Task(TaskId(f"k{self._epoch}-{i}"), int(v), now - 60.0) for i, v in enumerate(pois.tolist())]
+        vacant = [self.load.all_vacant or job is None for job in self._job]
         taxis = tuple(
-            Taxi(self._ids[k], self._node[k], self._instrumented[k], self._job[k] is None)
-            for k in range(len(self._ids))
+            Taxi(self._ids[k], self._node[k], self._instrumented[k], vacant[k]) for k in range(len(self._ids))
         )
         snap = Snapshot(f"e{self._epoch}", now, tuple(self._waiting.values()), taxis)
         self._epoch += 1

@@ -44,7 +44,7 @@ from services.model import (
     TaxiId,
     Visit,
 )
-from services.network import search
+from services.network import hierarchy
 from services.network.graph import RoadGraph, road_graph
 from services.network.pads import pads_for
 from services.routing.algorithm1 import Route
@@ -175,9 +175,9 @@ def _rider_paths(
     pair_keys = pk.rider * len(taxis) + pk.taxi  # ascending: the pairs are ordered by rider, then taxi
     at = np.searchsorted(pair_keys, np.array([j * len(taxis) + i for i, j, _ in both], dtype=np.int64))
     with ep.pads.take() as pad:
-        legs_in = search.fastest_paths(
+        legs_in = hierarchy.fastest_paths(
             ep.graph,
-            pad.forward,
+            pad,
             np.array([taxis[i].node for i, _, _ in both], dtype=np.int64),
             np.array([riders[j].origin for _, j, _ in both], dtype=np.int64),
         )
@@ -481,7 +481,8 @@ def decide(
 def warm_up(city: City) -> None:
     """Solve a few tiny seeded epochs on ``city`` so that every compiled kernel a real epoch calls is compiled
     (or loaded from numba's on-disk cache), and the city's search structures (``road_graph``,
-    ``search.landmarks``) built, before the first real request: a kernel first met in a real epoch would
+    ``search.landmarks``, the contraction hierarchy of ``services.network.hierarchy``) built, before the first
+    real request: a kernel first met in a real epoch would
     otherwise be compiled inside it (seconds on a fresh install). The epochs cover riders matched in Steps 1
     and 2, Step 3 from the POIs' side (fewer than half as many POIs as taxis) with taxis counted in cells
     (their own costs, goal-directed searches) and from the taxis' side, and Algorithm 2's re-plans, on one

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from services.kernel.jit import compiled
 from services.kernel.parallel import parallel_map
-from services.network import search
+from services.network import hierarchy, search
 from services.network.graph import US_PER_S, Costs, Edges, RoadGraph, SearchGraph
 from services.network.pads import Pads
 
@@ -227,6 +227,6 @@ def trips(graph: RoadGraph, pairs: Sequence[tuple[int, int]], workers: int, pads
         src = np.array([a for a, _ in ps], dtype=np.int64)
         dst = np.array([b for _, b in ps], dtype=np.int64)
         with pads.take() as pad:
-            return [_leg(graph.edges, e) for e in search.fastest_paths(graph, pad.forward, src, dst)]
+            return [_leg(graph.edges, e) for e in hierarchy.fastest_paths(graph, pad, src, dst)]
 
     return parallel_map(chunk, pairs, workers)

@@ -62,6 +62,8 @@ __all__ = [
     "fastest_path",
     "fastest_paths",
     "paths",
+    "append_path",
+    "split_paths",
     "path",
     "walk",
 ]
@@ -1174,15 +1176,40 @@ def paths(
         if not unfold(g, ed, costs, INF, targets[i], ws):
             ptr[i + 1] = -1
             return ptr, flat[:used]
-        edges = path_to(ed, g.towards, ws.pred, sources[i], targets[i])
-        if used + edges.shape[0] > flat.shape[0]:
-            bigger = np.empty(2 * (used + edges.shape[0]), dtype=np.int64)
-            bigger[:used] = flat[:used]
-            flat = bigger
-        flat[used : used + edges.shape[0]] = edges
-        used += edges.shape[0]
+        flat, used = append_path(flat, used, path_to(ed, g.towards, ws.pred, sources[i], targets[i]))
         ptr[i + 1] = used
     return ptr, flat[:used]
+
+
+@compiled_inline
+def append_path(
+    flat: NDArray[np.int64], used: int, edges: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], int]:
+    """``edges`` written after the first ``used`` entries of ``flat`` (a bigger copy when it is full): the
+    array and its new length (the CSR ``paths`` builds)."""
+    if used + edges.shape[0] > flat.shape[0]:
+        bigger = np.empty(2 * (used + edges.shape[0]), dtype=np.int64)
+        bigger[:used] = flat[:used]
+        flat = bigger
+    flat[used : used + edges.shape[0]] = edges
+    return flat, used + edges.shape[0]
+
+
+def split_paths(
+    ptr: NDArray[np.int64], flat: NDArray[np.int64], sources: NDArray[np.int64], targets: NDArray[np.int64]
+) -> list[NDArray[np.int64]]:
+    """The paths of a CSR ``(ptr, flat)`` as ``paths`` returns them, one array each.
+
+    Raises
+    ------
+    ValueError
+        When a pair could not be joined (its ``ptr`` is -1).
+    """
+    bad = np.flatnonzero(ptr[1:] < 0)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"node {int(targets[i])} cannot be reached from node {int(sources[i])}")
+    return [flat[ptr[i] : ptr[i + 1]] for i in range(len(sources))]
 
 
 def fastest_paths(
@@ -1198,11 +1225,7 @@ def fastest_paths(
     src = np.asarray(sources, dtype=np.int64)
     tgt = np.asarray(targets, dtype=np.int64)
     ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt, landmarks(graph))
-    bad = np.flatnonzero(ptr[1:] < 0)
-    if bad.size:
-        i = int(bad[0])
-        raise ValueError(f"node {int(tgt[i])} cannot be reached from node {int(src[i])}")
-    return [flat[ptr[i] : ptr[i + 1]] for i in range(len(src))]
+    return split_paths(ptr, flat, src, tgt)
 
 
 def fastest_path(graph: RoadGraph, ws: Workspace, source: int, target: int) -> NDArray[np.int64]:

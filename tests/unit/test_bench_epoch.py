@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from bench import bench_epoch
-from bench.load import Load, Platform, RecordedDemand
+from bench.load import Load, Platform, RecordedDemand, SpreadDemand
+from bench.report import ROOT
 from services.model import RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
 from tests.citymaker import grid_city
 
@@ -71,6 +72,44 @@ def test_a_step3_route_moves_its_taxi_too() -> None:
     assert TaxiId("o0") in {x.id for x in snap1.taxis}
 
 
+def test_under_the_heaviest_load_every_taxi_is_vacant_where_its_path_took_it() -> None:
+    """With ``all_vacant`` a taxi given a path is posted vacant at the next epoch, at the node the path
+    reached by then (200 s: 20 edges of 10 s along), not busy until the path ends."""
+    city = grid_city(5, 100.0)
+    plat = Platform(city, Load(2, 1, 2, 1, seed=3, all_vacant=True), SpreadDemand(city))
+    snap, _ = plat.next_epoch()
+    assert all(t.vacant for t in snap.taxis)
+    t = snap.taxis[0]
+    there = [0, 1, 2, 3, 4, 9, 14, 19, 24]
+    path = tuple(there + there[::-1][1:] + there[1:] + there[::-1][1:])
+    plat.apply([RiderMatch(1, t.id, snap.riders[0].id, 0.0, 0.0, 0.0, 0.0, 0.0, path, ())], [], [])
+    snap1, _ = plat.next_epoch()
+    moved = next(x for x in snap1.taxis if x.id == t.id)
+    assert moved.vacant and moved.node == path[20]
+    assert all(x.vacant for x in snap1.taxis)
+
+
+def test_spread_demand_draws_over_the_whole_network() -> None:
+    """Origins, destinations, POIs and taxi starts are drawn uniformly from all the nodes: over many draws
+    every node of a small network comes up, each about equally often."""
+    city = grid_city(5, 100.0)
+    d = SpreadDemand(city)
+    rng = np.random.default_rng(1)
+    o, dst = d.trips(rng, 5000)
+    for nodes in (o, dst, d.pois(rng, 5000), d.taxi_starts(rng, 5000)):
+        counts = np.bincount(nodes, minlength=city.network.n_nodes)
+        assert counts.min() > 120 and counts.max() < 280  # 200 expected per node
+
+
+@pytest.mark.slow
+def test_the_benchmark_times_a_baseline_checkout_on_the_same_epochs() -> None:
+    """``--baseline DIR`` times DIR's ``decide`` in a process of its own on the same epochs and checks its
+    decisions against this checkout's (here DIR is this checkout itself)."""
+    r = bench_epoch.run_inprocess(bench_epoch.SCENARIOS["paper"], 2, baseline=ROOT)
+    assert len(r["latency_baseline"]) == 2 and all(x > 0 for x in r["latency_baseline"])
+    assert r["baseline"] == str(ROOT.resolve())
+
+
 @pytest.mark.slow
 def test_a_tiny_paper_run_of_the_epoch_benchmark(capsys: pytest.CaptureFixture[str]) -> None:
     """Two paper epochs in-process beside the floor, without writing the report: each has a latency on
@@ -83,3 +122,13 @@ def test_a_tiny_paper_run_of_the_epoch_benchmark(capsys: pytest.CaptureFixture[s
         assert len(r[key]) == 2
     assert set(r["phases_ms"]) == set(bench_epoch.PHASES)
     assert len(r["digests"]) == 3
+
+
+@pytest.mark.slow
+def test_a_tiny_run_of_the_heavy_grid_scenario() -> None:
+    """The heaviest load on the 53-minute grid (no reach applies there): one timed epoch in-process, every
+    instrumented taxi vacant, decisions equal on one thread and two (checked inside)."""
+    sc = bench_epoch.SCENARIOS["grid53-heavy"]
+    r = bench_epoch.run_inprocess(sc, 1)
+    assert len(r["latency"]) == 1 and r["city_size"][0] == 22_500
+    assert r["step3_taxis_median"] > 0

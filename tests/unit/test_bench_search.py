@@ -65,3 +65,12 @@ def test_limits_candidates_and_the_report(tmp_path: Path) -> None:
     assert "<!-- bench:search -->" in text and "Searches and memory at metropolitan scale" in text
     assert f"{lim['step1_candidates']:,} Step 1 candidate pairs" in text
     assert np.isfinite(_measured()["kappa"]["ratio"]["median"])
+
+
+def test_the_hierarchy_fits_its_room_and_its_trips_were_checked() -> None:
+    """The generated city gets a hierarchy of at most ``ARCS_PER_EDGE`` arcs per edge; its trips were found
+    both ways (the paths are checked equal inside) and have edges."""
+    hy = _measured()["hierarchy"]
+    assert hy["arcs"] is not None and 1.0 <= hy["arcs_per_edge"] <= 3.0
+    assert hy["trips"] == bench_search.TRIPS and hy["edges"] > 0
+    assert hy["through_s"] > 0 and hy["guided_s"] > 0 and hy["hierarchy_mb"] > 0

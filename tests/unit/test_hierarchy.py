@@ -1,0 +1,131 @@
+"""The contraction hierarchy's fastest paths (``services.network.hierarchy``) are the canonical ones.
+
+Checked against the plain lexicographic Dijkstra of ``tests/reference.py`` (every ordered pair of the small
+networks: the same path, or the same failure to join) and against the service's own search
+(``search.fastest_paths``) on the bundled city and on the largest network of the suite, the generated
+metropolis, where every trip of a heavy epoch is compared.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench import metro
+from services.citydata import load_city
+from services.network import hierarchy, search
+from services.network.graph import INF, RoadGraph, road_graph
+from services.network.pads import Pad
+from tests.citymaker import grid_city, make_city
+from tests.reference import canonical_tree, tree_path
+
+BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"
+
+
+def _one_way_city():
+    """A 4 x 3 lattice with a one-way side, pairs of equal-time routes everywhere (ties broken by the tie
+    words alone), a one-way loop and an island no path enters or leaves."""
+    nodes = {i: (100.0 * (i % 4), 100.0 * (i // 4)) for i in range(12)}
+    nodes |= {20: (1000.0, 0.0), 21: (1100.0, 0.0), 22: (1100.0, 100.0)}
+    one_way = [(3, 7), (7, 11), (11, 10), (20, 21), (21, 22), (22, 20)]
+    two_way = [(i, i + 1) for i in range(12) if i % 4 != 3] + [(i, i + 4) for i in range(8)]
+    two_way = [e for e in two_way if e not in {(3, 7), (7, 11), (10, 11)}]
+    return make_city(nodes, [*two_way, *[(v, u) for u, v in two_way], *one_way], both_ways=False)
+
+
+def _paths(graph: RoadGraph, src: np.ndarray, dst: np.ndarray) -> list[np.ndarray]:
+    return hierarchy.fastest_paths(graph, Pad(graph), src, dst)
+
+
+@pytest.mark.parametrize(
+    ("make", "some_unreachable"), [(_one_way_city, True), (lambda: grid_city(4, 100.0), False)]
+)
+def test_every_pair_gets_the_reference_path_or_none(make, some_unreachable):
+    """Every ordered pair of a small network: the hierarchy's path is the reference's canonical path (a
+    lattice of equal blocks has many routes of the same time: the tie words decide), and where none
+    exists the query says so."""
+    graph = road_graph(make())
+    h = hierarchy.build(
+        graph.n_nodes,
+        graph.edges.tail,
+        graph.edges.head,
+        graph.edges.time_us,
+        graph.edges.tie1,
+        graph.edges.tie2,
+    )
+    assert h is not None
+    ln = hierarchy.lanes(graph.n_nodes)
+    joined = failed = 0
+    for a in range(graph.n_nodes):
+        label, pred = canonical_tree(graph, graph.edges.time_us, a)
+        for b in range(graph.n_nodes):
+            ptr, flat = hierarchy.ch_paths(h, ln, np.array([a]), np.array([b]))
+            if label[b] is None:
+                assert ptr[1] == -1, (a, b)
+                failed += 1
+                continue
+            assert flat.tolist() == tree_path(graph, pred, a, b), (a, b)
+            joined += 1
+    assert joined and (failed > 0) == some_unreachable
+
+
+def test_a_network_that_would_need_too_many_shortcuts_keeps_the_plain_search():
+    """Manhattan's street grid would take more than ``ARCS_PER_EDGE`` arcs per edge: it gets no hierarchy,
+    and ``fastest_paths`` gives the plain search's paths there."""
+    graph = road_graph(load_city(BUNDLES / "manhattan"))
+    assert hierarchy.hierarchy(graph) is None
+    rng = np.random.default_rng(5)
+    src, dst = rng.integers(graph.n_nodes, size=30), rng.integers(graph.n_nodes, size=30)
+    want = search.fastest_paths(graph, search.workspace(graph), src, dst)
+    assert [p.tolist() for p in _paths(graph, src, dst)] == [p.tolist() for p in want]
+
+
+def test_chengdu_paths_are_the_searched_ones_interior_ends_included():
+    """The bundled Chengdu network gets a hierarchy (about two arcs per edge); 400 pairs, a quarter of them
+    starting and a quarter ending inside degree-2 chains, give the plain search's paths; the hierarchy
+    is built once per graph."""
+    graph = road_graph(load_city(BUNDLES / "chengdu"))
+    h = hierarchy.hierarchy(graph)
+    assert h is not None and hierarchy.hierarchy(graph) is h
+    assert h.arc_tail.shape[0] <= hierarchy.ARCS_PER_EDGE * graph.n_edges
+    rng = np.random.default_rng(11)
+    interior = np.flatnonzero(graph.forward.kept_of < 0)
+    src, dst = rng.integers(graph.n_nodes, size=400), rng.integers(graph.n_nodes, size=400)
+    src[:100] = rng.choice(interior, 100)
+    dst[100:200] = rng.choice(interior, 100)
+    src[300:310] = dst[300:310]  # the empty path
+    want = search.fastest_paths(graph, search.workspace(graph), src, dst)
+    got = _paths(graph, src, dst)
+    assert [p.tolist() for p in got] == [p.tolist() for p in want]
+
+
+def test_an_unreachable_target_is_an_error():
+    graph = road_graph(_one_way_city())
+    with pytest.raises(ValueError, match="cannot be reached"):
+        _paths(graph, np.array([0]), np.array([13]))
+
+
+@cache
+def _metro_graph() -> RoadGraph:
+    return road_graph(metro.metro_city())
+
+
+@pytest.mark.slow
+def test_every_trip_on_the_metropolis_is_the_searched_path():
+    """The largest network of the suite (the generated metropolis, 260,000 nodes): 800 trips between
+    nodes spread over the whole network -- a heavy epoch's riders' trips and pickups -- each the path of
+    the service's own search, edge for edge, and the same travel time to the microsecond."""
+    graph = _metro_graph()
+    h = hierarchy.hierarchy(graph)
+    assert h is not None
+    rng = np.random.default_rng(20261127)
+    src, dst = rng.integers(graph.n_nodes, size=800), rng.integers(graph.n_nodes, size=800)
+    want = search.fastest_paths(graph, search.workspace(graph), src, dst)
+    got = _paths(graph, src, dst)
+    for a, b in zip(got, want, strict=True):
+        assert a.tolist() == b.tolist()
+    cost = [int(graph.edges.time_us[p].sum()) for p in got]
+    assert max(cost) < INF and min(cost) >= 0
