@@ -25,7 +25,7 @@ from app.api.handlers import from_validation_errors
 from app.api.inputs import Limits
 from app.errors import BadRequest, FieldIssue, InvalidInput, UnsupportedMediaType
 from app.schemas.admin import ResetIn, RewindIn
-from app.schemas.dispatch import EpochIn, PlainTaxis, plain_taxis
+from app.schemas.dispatch import EpochIn, PlainRiders, PlainTaxis, plain_riders, plain_taxis
 from app.schemas.dro import MAX_SAMPLES, WorstCaseIn
 from app.schemas.tasks import TaskIn
 
@@ -90,12 +90,14 @@ def _validate(model: type[M], obj: Any) -> M:
 
 @dataclass(frozen=True, slots=True)
 class EpochPost:
-    """A validated epoch body. ``taxis`` is set when every taxi has the common form ``plain_taxis`` reads
-    (``body`` is then validated without them: one model per taxi is most of the cost at thousands of taxis);
-    otherwise ``body`` holds them, validated by the model."""
+    """A validated epoch body. ``taxis`` (``riders``) is set when every taxi (rider) has the common form
+    ``plain_taxis`` (``plain_riders``) reads, and ``body`` is then validated without them: one model per
+    item is most of the cost at thousands of taxis and hundreds of riders; otherwise ``body`` holds them,
+    validated by the model."""
 
     body: EpochIn
     taxis: PlainTaxis | None = None
+    riders: PlainRiders | None = None
 
 
 def _epoch(raw: RawBody, limits: LimitsDep) -> EpochPost:
@@ -103,9 +105,15 @@ def _epoch(raw: RawBody, limits: LimitsDep) -> EpochPost:
     if isinstance(obj, dict):
         _at_most(obj.get("riders"), limits.max_riders, "riders")
         _at_most(obj.get("taxis"), limits.max_taxis, "taxis")
-        taxis = plain_taxis(obj.get("taxis"))
-        if taxis is not None:  # valid as they are: the model validates the rest, with the same errors
-            return EpochPost(_validate(EpochIn, {**obj, "taxis": []}), taxis)
+        taxis, riders = plain_taxis(obj.get("taxis")), plain_riders(obj.get("riders"))
+        if taxis is not None or riders is not None:
+            # valid as they are: the model validates the rest, with the same errors
+            rest = {
+                **obj,
+                **({} if taxis is None else {"taxis": []}),
+                **({} if riders is None else {"riders": []}),
+            }
+            return EpochPost(_validate(EpochIn, rest), taxis, riders)
     return EpochPost(_validate(EpochIn, obj))
 
 

@@ -67,7 +67,7 @@ def post_epoch(
     """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
     started = time.perf_counter()
     try:
-        command = epoch_command(catalog.get(city), epoch.body, limits, epoch.taxis)
+        command = epoch_command(catalog.get(city), epoch.body, limits, epoch.taxis, epoch.riders)
         outcome = epochs.submit_epoch(city, command)
     except ServiceError as err:
         metrics.epochs.labels(outcome=err.kind).inc()

@@ -28,7 +28,7 @@ LIMITS = Limits(max_riders=20, max_taxis=6, max_tasks=10)
 
 
 def former(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
-    """The epoch path before ``plain_taxis``: the model validates the whole body."""
+    """The epoch path without ``plain_taxis`` and ``plain_riders``: the model validates the whole body."""
     body = _json(("application/json", json.dumps(obj).encode()))
     if isinstance(body, dict):
         for key, limit in (("riders", limits.max_riders), ("taxis", limits.max_taxis)):
@@ -47,7 +47,7 @@ class _Skip(Exception):
 def current(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
     """The epoch path as the route runs it."""
     post = _epoch(("application/json", json.dumps(obj).encode()), limits)
-    return epoch_command(city, post.body, limits, post.taxis)
+    return epoch_command(city, post.body, limits, post.taxis, post.riders)
 
 
 def outcome(run: Any, city: City, obj: Any) -> Any:
