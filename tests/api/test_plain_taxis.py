@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.api.bodies import _epoch, _json, _validate
+from app.api.bodies import _json, _validate, epoch_post
 from app.api.inputs import Limits, epoch_command, snapshot_of
 from app.cities import CityRegistry
 from app.errors import ServiceError
@@ -34,7 +34,7 @@ def former(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
         for key, limit in (("riders", limits.max_riders), ("taxis", limits.max_taxis)):
             if isinstance(body.get(key), list) and len(body[key]) > limit:
                 with pytest.raises(ServiceError):
-                    _epoch(("application/json", json.dumps(obj).encode()), limits)
+                    epoch_post(("application/json", json.dumps(obj).encode()), limits)
                 raise _Skip
     model = _validate(EpochIn, body)
     return EpochCommand(snapshot_of(city, model, limits), body_hash(model), model.time.isoformat())
@@ -46,7 +46,7 @@ class _Skip(Exception):
 
 def current(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
     """The epoch path as the route runs it."""
-    post = _epoch(("application/json", json.dumps(obj).encode()), limits)
+    post = epoch_post(("application/json", json.dumps(obj).encode()), limits)
     return epoch_command(city, post.body, limits, post.taxis, post.riders)
 
 
