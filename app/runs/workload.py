@@ -45,8 +45,10 @@ _TASK_STREAM = 0x7A5
 class NoDemandSource(ValueError):
     """A city bundle with neither POIs nor recorded requests: no demand can be drawn on it."""
 
-    def __init__(self, city: str) -> None:
-        super().__init__(f"city {city!r} has neither POIs nor recorded requests to build demand from")
+    @classmethod
+    def of(cls, city: str) -> NoDemandSource:
+        """The error for ``city`` (one argument, the message: it crosses to the worker's parent pickled)."""
+        return cls(f"city {city!r} has neither POIs nor recorded requests to build demand from")
 
 
 def check_demand_source(directory: Path) -> None:
@@ -54,7 +56,7 @@ def check_demand_source(directory: Path) -> None:
     alone is read: a run that would fail anyway fails before loading a network of any size)."""
     meta = read_meta(directory)
     if "pois" not in meta.files and "requests" not in meta.files:
-        raise NoDemandSource(meta.name)
+        raise NoDemandSource.of(meta.name)
 
 
 class Bundle:
@@ -79,7 +81,7 @@ class Bundle:
     def records(self) -> TripRecords:
         """The bundle's recorded trips (the bootstrap source when it has no POIs)."""
         if "requests" not in self.files:
-            raise NoDemandSource(self.city.name)
+            raise NoDemandSource.of(self.city.name)
         return read_nyc_requests(self.directory / self.files["requests"])
 
     @cached_property

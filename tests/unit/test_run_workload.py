@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 from pathlib import Path
 
 import pytest
@@ -29,8 +30,9 @@ def test_a_bundle_without_pois_or_requests_fails_before_its_network_is_read(tmp_
     bare = _bare(tmp_path)
     with pytest.raises(NoDemandSource, match="'bare' has neither POIs nor recorded requests"):
         check_demand_source(bare)
-    with pytest.raises(NoDemandSource):  # not the unreadable network's CityDataError: never opened
+    with pytest.raises(NoDemandSource) as raised:  # not the unreadable network's CityDataError: never opened
         run_job(RunJob(RunSpec(city="bare"), bare))
+    assert str(pickle.loads(pickle.dumps(raised.value))) == str(raised.value)  # as a pool process sends it
     check_demand_source(BUNDLED_DIR / "chengdu")  # POIs
     check_demand_source(BUNDLED_DIR / "manhattan")  # recorded requests
 
