@@ -427,13 +427,18 @@ def _solve_over(svc: _Service) -> bool:
 
 
 def run_http(
-    sc: Scenario, n: int, redis_url: str | None = None, worker: bool = True, port: int | None = None
+    sc: Scenario,
+    n: int,
+    redis_url: str | None = None,
+    worker: bool = True,
+    port: int | None = None,
+    worker_wait_s: float = WORKER_WAIT_S,
 ) -> dict[str, Any]:
     """Post the scenario's epochs to the real service over HTTP (``_service``), sampling the resident memory
     of the API process and of the service's whole process tree (``bench.rss``). With ``worker``, a fleet
     solve of the city is requested after the untimed first epoch, so that the timed epochs run beside the
     worker's simulation runs as on a platform at the top of an hour; its memory is sampled until that solve
-    is over, for at most ``WORKER_WAIT_S`` after the last epoch."""
+    is over, for at most ``worker_wait_s`` after the last epoch."""
     from app.schemas.dispatch import decision_of
 
     city = load_city(sc)
@@ -460,7 +465,7 @@ def run_http(
                     flush=True,
                 )
         waited = time.monotonic()
-        while worker and not _solve_over(svc) and time.monotonic() - waited < WORKER_WAIT_S:
+        while worker and not _solve_over(svc) and time.monotonic() - waited < worker_wait_s:
             time.sleep(1.0)
         solve_over = not worker or _solve_over(svc)
         ready_s = svc.ready_s

@@ -83,3 +83,22 @@ def test_a_tiny_paper_run_of_the_epoch_benchmark(capsys: pytest.CaptureFixture[s
         assert len(r[key]) == 2
     assert set(r["phases_ms"]) == set(bench_epoch.PHASES)
     assert len(r["digests"]) == 3
+
+
+@pytest.mark.slow
+def test_a_tiny_http_run_reports_the_api_and_the_whole_services_peak_memory() -> None:
+    """One timed paper epoch over HTTP on the real service, its fleet worker asked to solve after the first
+    epoch: the round trip, the server's solve and both peaks are reported, and the target lines say them."""
+    h = bench_epoch.run_http(bench_epoch.SCENARIOS["paper"], 1, worker=True, worker_wait_s=0.0)
+    assert len(h["latency"]) == len(h["server_solve"]) == 1 and len(h["digests"]) == 2
+    assert 100.0 < h["server_peak_rss_mb"] <= h["service_peak_rss_mb"]
+    r = {"inprocess": {"p99_ms": 1.0}, "floor": {"p99_ms": 1.0}, "http": {"p99_ms": 1.0}}
+    r |= {"http_over_solve_pct": 1.0, "http_minus_solve": {"p50_ms": 1.0, "p99_ms": 1.0}}
+    r |= {
+        k: h[k]
+        for k in ("server_peak_rss_mb", "service_peak_rss_mb", "worker", "worker_solve_over", "ready_s")
+    }
+    line = bench_epoch._facts("metro250k", r)
+    assert f"API process peak RSS {h['server_peak_rss_mb']:.0f} MB (target <= 1024 MB" in line
+    assert f"the whole service's peak RSS {h['service_peak_rss_mb']:.0f} MB (with the fleet worker" in line
+    assert "(target <= 1536 MB" in line
