@@ -6,7 +6,6 @@ random bodies that mix every form a rider can take, right or wrong, beside commo
 
 from __future__ import annotations
 
-import json
 import random
 from typing import Any
 
@@ -18,7 +17,7 @@ from services.city import City
 from tests.api.fakes import lonlat, node_id
 from tests.api.payloads import epoch
 from tests.api.test_plain_taxis import FORMS as TAXI_FORMS
-from tests.api.test_plain_taxis import _instance, city, same
+from tests.api.test_plain_taxis import _instance, city, draw, same
 
 __all__ = ["city"]  # the module's fixture, shared
 
@@ -117,13 +116,7 @@ def test_random_bodies(city: City) -> None:
     rng = random.Random(20261127)
     plain = 0
     for _ in range(400):
-        n = rng.randint(1, 5)
-        weights = [12 if k < 5 else 1 for k in range(len(FORMS))]  # mostly common riders
-        riders = [_instance(rng.choices(FORMS, weights)[0], i) for i in range(n)]
-        if rng.random() < 0.1 and n > 1:
-            riders[-1] = json.loads(json.dumps(riders[0]))  # a duplicate
-        taxi_weights = [8 if k < 5 else 1 for k in range(len(TAXI_FORMS))]
-        taxis = [_instance(rng.choices(TAXI_FORMS, taxi_weights)[0], i) for i in range(rng.randint(1, 3))]
+        riders, taxis = draw(rng, FORMS, 5, common=12), draw(rng, TAXI_FORMS, 3)
         obj = epoch(riders=riders, taxis=taxis)
         if rng.random() < 0.05:
             obj["time"] = "2026-11-23T08:00:00"  # another error beside the riders

@@ -175,15 +175,22 @@ def test_other_errors_with_common_taxis_are_the_models(city: City) -> None:
         assert isinstance(result, tuple) and result[0] == 422
 
 
+def draw(rng: random.Random, forms: list[Any], most: int, common: int = 8) -> list[Any]:
+    """1..``most`` items of ``forms``, mostly their first five (the common ones, ``common`` times as likely
+    as each other); one list in ten of two or more ends with a duplicate of its first item."""
+    n = rng.randint(1, most)
+    weights = [common if k < 5 else 1 for k in range(len(forms))]
+    items = [_instance(rng.choices(forms, weights)[0], i) for i in range(n)]
+    if rng.random() < 0.1 and n > 1:
+        items[-1] = json.loads(json.dumps(items[0]))  # a duplicate
+    return items
+
+
 def test_random_bodies(city: City) -> None:
     rng = random.Random(20261123)
     plain = 0
     for _ in range(400):
-        n = rng.randint(1, 5)
-        weights = [8 if k < 5 else 1 for k in range(len(FORMS))]  # mostly common taxis
-        taxis = [_instance(rng.choices(FORMS, weights)[0], i) for i in range(n)]
-        if rng.random() < 0.1 and n > 1:
-            taxis[-1] = json.loads(json.dumps(taxis[0]))  # a duplicate
+        taxis = draw(rng, FORMS, 5)
         obj = epoch(taxis=taxis)
         plain += plain_taxis(taxis) is not None
         same(city, obj)
