@@ -173,6 +173,7 @@ def _import(
     meta = dataclasses.replace(
         meta,
         params=dict(meta.params),
+        fleet=dict(meta.fleet),
         built_with={
             "script": f"app.cities.import_city(kind={kind!r})",
             "input": paths[0].name if len(paths) == 1 else [p.name for p in paths],
@@ -230,19 +231,22 @@ def import_city(
     return target
 
 
-def import_city_cli(
-    argv: Sequence[str],
-    default_out: Path | None = None,
-    stdout: TextIO | None = None,
-    stderr: TextIO | None = None,
-) -> int:
-    """``import-city NAME --osm FILE | --nodes nodes.csv --edges edges.csv [...]``; returns the exit code.
+def _named_values(items: Sequence[str], flag: str) -> dict[str, Any]:
+    """``NAME=JSON`` arguments as a dict (``ValueError`` naming the flag and the item)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError("expected NAME=JSON")
+            out[key.strip()] = json.loads(text)
+        except ValueError as exc:
+            raise ValueError(f"{flag} {item!r}: {exc}") from None
+    return out
 
-    ``argv`` holds the arguments after the sub-command. Without ``--out`` the bundle goes to
-    ``default_out`` (the caller passes the settings' user cities directory).
-    """
-    out = stdout or sys.stdout
-    err = stderr or sys.stderr
+
+def _import_parser(default_out: Path | None) -> argparse.ArgumentParser:
+    """The ``import-city`` command line."""
     parser = argparse.ArgumentParser(
         prog="import-city", description="Build a city bundle from OSM XML or CSV (nodes.csv, edges.csv)."
     )
@@ -266,6 +270,31 @@ def import_city_cli(
         help="a dispatch parameter of the city (docs/METHOD.md), e.g. step3_reach_s=600 or "
         "step3_reach_s=null; repeat for more",
     )
+    parser.add_argument(
+        "--fleet",
+        action="append",
+        default=[],
+        metavar="NAME=JSON",
+        help="a fleet-sizing parameter of the city (docs/FLEET.md, 'Per city'): sizes=[100,200,400], n0=450, "
+        "days=10, subsidy_cny_per_vehicle_hour=0.94 or completion_target=0.9; repeat for more",
+    )
+    return parser
+
+
+def import_city_cli(
+    argv: Sequence[str],
+    default_out: Path | None = None,
+    stdout: TextIO | None = None,
+    stderr: TextIO | None = None,
+) -> int:
+    """``import-city NAME --osm FILE | --nodes nodes.csv --edges edges.csv [...]``; returns the exit code.
+
+    ``argv`` holds the arguments after the sub-command. Without ``--out`` the bundle goes to
+    ``default_out`` (the caller passes the settings' user cities directory).
+    """
+    out = stdout or sys.stdout
+    err = stderr or sys.stderr
+    parser = _import_parser(default_out)
     try:
         args = parser.parse_args(list(argv))
     except SystemExit as exc:  # argparse has printed the usage
@@ -282,16 +311,12 @@ def import_city_cli(
     if args.out is None:
         print("import-city: --out DIR is required", file=err)
         return 2
-    params: dict[str, Any] = {}
-    for item in args.param:
-        key, sep, text = item.partition("=")
-        try:
-            if not sep:
-                raise ValueError("expected NAME=JSON")
-            params[key.strip()] = json.loads(text)
-        except ValueError as exc:
-            print(f"import-city: --param {item!r}: {exc}", file=err)
-            return 2
+    try:
+        params = _named_values(args.param, "--param")
+        fleet = _named_values(args.fleet, "--fleet")
+    except ValueError as exc:
+        print(f"import-city: {exc}", file=err)
+        return 2
     try:
         meta = CityMeta(
             name=args.name,
@@ -303,6 +328,7 @@ def import_city_cli(
             params=params,
             cell_m=args.cell_m,
             source=args.source,
+            fleet=fleet,
         )
         target, result, city = _import(kind, inputs, meta, args.out, overwrite=args.overwrite)
     except CityDataError as exc:

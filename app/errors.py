@@ -177,6 +177,21 @@ class TaskConflict(Conflict):
     kind = "task_conflict"
 
 
+class InsufficientHistory(Conflict):
+    """A fleet solve asked for before the city has the M days of history it is sized on (the body says
+    how many it has, how many it needs, and from which day a first solve is possible)."""
+
+    kind = "insufficient_history"
+
+    def __init__(self, detail: str, *, days: int, needed: int, first_solve_on: str) -> None:
+        super().__init__(detail)
+        self.history = {"days": days, "needed": needed, "first_solve_on": first_solve_on}
+
+    def body(self) -> dict[str, Any]:
+        """The error's body with the history it counted."""
+        return {**super().body(), "history": dict(self.history)}
+
+
 class RequestTimeout(ServiceError):
     """The client did not send the whole request in time; the connection is closed."""
 

@@ -10,7 +10,7 @@ import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
+from contextlib import asynccontextmanager, nullcontext
 from typing import Any
 
 from fastapi import FastAPI
@@ -27,9 +27,10 @@ from app.cities import CityRegistry
 from app.errors import ServiceError
 from app.metrics import Metrics
 from app.ports import Store
+from app.runs.executor import Foreground
 from app.schemas.dispatch import read_epoch, render_epoch
 from app.settings import Settings
-from app.usecases import CityCatalog, DecideFn, EpochLimits, UseCases
+from app.usecases import CityCatalog, DecideFn, EpochLimits, SizingConfig, UseCases
 
 __all__ = ["create_app", "make_store", "API_VERSION"]
 
@@ -75,8 +76,9 @@ def _use_cases(
     store: Store,
     decide: DecideFn | None,
     clock: Callable[[], float] | None,
+    foreground: Foreground | None,
 ) -> UseCases:
-    """The use cases over ``store``, with the settings' limits."""
+    """The use cases over ``store``, with the settings' limits (``foreground``: the embedded worker's)."""
     limits = EpochLimits(
         retention_s=settings.retention_s,
         commit_attempts=settings.commit_attempts,
@@ -92,7 +94,9 @@ def _use_cases(
         read_epoch=read_epoch,
         limits=limits,
         worker_stale_s=settings.worker_stale_s,
-        **({} if clock is None else {"clock": clock}),
+        sizing=SizingConfig.from_settings(settings),
+        clock=time.time if clock is None else clock,
+        foreground=nullcontext if foreground is None else foreground.epoch,
     )
 
 
@@ -120,7 +124,8 @@ def create_app(
     the_store = BoundedStore(raw_store, settings.store_concurrency, settings.store_queue_s)
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
-    use_cases = _use_cases(settings, the_registry, the_store, decide, clock)
+    foreground = Foreground() if embed_worker else None  # epochs pause the embedded worker's runs
+    use_cases = _use_cases(settings, the_registry, the_store, decide, clock, foreground)
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
@@ -140,7 +145,7 @@ def create_app(
         if embed_worker:
             from app.worker.embedded import EmbeddedWorker
 
-            worker = EmbeddedWorker(settings, raw_store, the_registry, ready=warmed)
+            worker = EmbeddedWorker(settings, raw_store, the_registry, ready=warmed, foreground=foreground)
             worker.start()
         try:
             yield

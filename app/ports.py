@@ -8,6 +8,7 @@ import datetime as dt
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
+from zoneinfo import ZoneInfo
 
 from services.model import IntervalKey, Task, TaskId, TaxiId, Visit
 
@@ -26,16 +27,17 @@ __all__ = [
     "SolveRequest",
     "EnqueueResult",
     "SolveProgress",
+    "Waiting",
     "WorkerBeat",
     "Store",
-    "utc_day",
+    "local_day",
 ]
 
 
-def utc_day(time_s: float) -> str:
-    """The UTC calendar day of a POSIX time as ``YYYYMMDD``: the day ``EpochStore.recorded_demand`` keys an
-    epoch's demand by."""
-    return dt.datetime.fromtimestamp(time_s, tz=dt.UTC).strftime("%Y%m%d")
+def local_day(time_s: float, timezone: str) -> str:
+    """The calendar day of a POSIX time in ``timezone`` as ``YYYYMMDD``: the day an epoch's demand is
+    recorded under (``EpochCommit.demand_day``, ``EpochStore.recorded_demand``)."""
+    return dt.datetime.fromtimestamp(time_s, tz=ZoneInfo(timezone)).strftime("%Y%m%d")
 
 
 class StoreUnavailable(RuntimeError):
@@ -82,11 +84,16 @@ class EpochCommit:
     task_updates: Sequence[Task]
     response_json: str
     retention_s: int = 8 * 86400  # how long counts, visits and epoch records are kept
-    demand_json: str | None = None  # the epoch's requests, recorded for the fleet-sizing worker
+    demand_json: str | None = None  # the epoch's requests and fleet, recorded for the fleet-sizing worker
+    demand_day: str = ""  # the city's local day of the epoch (``local_day``): where demand_json is recorded
     # Unique per commit attempt and stored with the record: when the store applied this very commit but
     # its reply was lost and the client library sent it again, the store finds its own nonce and answers
     # ``committed`` (not ``duplicate``), so the caller reports the commit it made.
     nonce: str = ""
+
+    def __post_init__(self) -> None:
+        if self.demand_json is not None and not self.demand_day:
+            raise ValueError("recorded demand needs its day (demand_day)")
 
 
 CommitStatus = Literal["committed", "duplicate", "version_mismatch", "stale"]
@@ -198,13 +205,24 @@ class SolveProgress:
 
 
 @dataclass(frozen=True, slots=True)
+class Waiting:
+    """Why a worker cannot size a city now (``kind``: ``insufficient_history`` or ``no_tasks``) since when;
+    it starts no run for the city until that changes."""
+
+    kind: str
+    reason: str
+    since_s: float
+
+
+@dataclass(frozen=True, slots=True)
 class WorkerBeat:
     """One fleet worker's heartbeat for one city (docs/FLEET.md, "Heartbeat and status").
 
     ``worker_id`` names the worker (host, process and a random suffix); ``seen_at_s`` is when it wrote the
     beat (POSIX seconds); ``embedded`` tells a worker inside the API process (``python -m app run`` on the
     memory store) from a ``python -m app worker`` process. ``solving`` is the city's solve in progress, if
-    any; ``next_interval`` the hour of the next scheduled solve, due at ``next_due_at_s``.
+    any; ``next_interval`` the hour of the next scheduled solve, due at ``next_due_at_s``; ``waiting`` why
+    the city cannot be sized now, if it cannot.
     """
 
     worker_id: str
@@ -217,6 +235,7 @@ class WorkerBeat:
     solving: SolveProgress | None = None
     next_interval: int | None = None
     next_due_at_s: float | None = None
+    waiting: Waiting | None = None
 
 
 class EpochStore(Protocol):
@@ -253,7 +272,12 @@ class EpochStore(Protocol):
         """Intervals with at least one count, ascending."""
 
     def recorded_demand(self, city: str, day: str) -> list[str]:
-        """The ``demand_json`` of the epochs committed on UTC day ``day`` (``YYYYMMDD``), in commit order."""
+        """The ``demand_json`` of the epochs committed with ``demand_day`` ``day`` (``YYYYMMDD``, the city's
+        local day), in commit order."""
+
+    def recorded_epochs(self, city: str, days: Sequence[str]) -> list[int]:
+        """How many epochs recorded demand on each of ``days`` (as ``recorded_demand`` keys them), without
+        reading the records."""
 
 
 class TaskStore(Protocol):

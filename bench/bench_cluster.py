@@ -4,7 +4,7 @@
     python -m bench.bench_cluster --full       # the worker's default: sizes 10..60 x 10 days (60 runs)
     python -m bench.bench_cluster --report-only docs/perf_cluster.json
 
-Three executors run the same re-solve (``FleetSizing.solve`` of Chengdu's 08:00 hour on the seeded
+Three executors run the same re-solve (``FleetSolver.solve`` of Chengdu's 08:00 hour on the seeded
 synthetic history, an empty run cache every time), in alternating order: 2 local processes
 (``ProcessExecutor``), a Dask cluster of 1 worker and one of 2 workers (``LocalCluster``: a scheduler and
 single-threaded worker processes on loopback ports). Every re-solve must publish the same recommendation.
@@ -32,8 +32,8 @@ from app.runs import Executor, Finished, ProcessExecutor, RunCache, Runner, open
 from app.runs.dask_executor import DaskExecutor
 from app.runs.localcluster import LocalCluster
 from app.schemas.fleet import render_recommendation
-from app.usecases import SizingService
-from app.worker.sizing import FleetSizing, SizingConfig
+from app.usecases.fleet_history import SizingConfig
+from app.usecases.fleet_solve import FleetSolver
 from bench.report import ROOT, stamp, write_section
 
 CITY = "chengdu"
@@ -67,8 +67,8 @@ def summary(values: list[float]) -> dict[str, float]:
 def resolve(executor: Executor, config: SizingConfig, cache: Path) -> tuple[float, dict[str, Any], int]:
     """One re-solve from an empty cache: wall time, the recommendation without its statistics, runs."""
     store = MemoryStore()
-    sizing = FleetSizing(
-        SizingService(store), Runner(RunCache(cache), executor), config, render=render_recommendation
+    sizing = FleetSolver(
+        store, Runner(RunCache(cache), executor), config, render=render_recommendation, cities=CityRegistry()
     )
     city = sizing.load_city(CITY)
     target = city.horizon.interval_of(city.horizon.start_s("2026-11-23"))
@@ -161,7 +161,7 @@ def write(results: dict[str, Any]) -> None:
         "",
         stamp("python -m bench.bench_cluster" + (" --full" if results["runs"] >= 60 else "")),
         "",
-        f"One re-solve = `FleetSizing.solve` of Chengdu's 08:00 hour on the seeded synthetic history: sizes "
+        f"One re-solve = `FleetSolver.solve` of Chengdu's 08:00 hour on the seeded synthetic history: sizes "
         f"{', '.join(map(str, c['sizes']))} x {c['days']} days = {results['runs']} whole-day runs ({c['n0']} ordinary "
         f"taxis, {c['tasks']} POI tasks), from an empty run cache, {results['reps']} repeats per executor in "
         f"alternating order. Dask clusters: a scheduler and single-threaded worker processes on loopback ports "

@@ -91,6 +91,7 @@ def build(shared: Path) -> None:
             source=f"{OSM_ODBL} (extract originally from lizihan021/ETA); see app/data/ATTRIBUTION.md",
             built_with={"script": "scripts/build_cities.py", "input": osm.name, "sha256": sha256_of(osm)},
             files={"pois": "chengdu_2ndring_osm_pois.csv", "aq_stations": "chengdu_aq_stations.csv"},
+            fleet={"synthetic_history": True},
         ),
     )
     for extra in ("chengdu_2ndring_osm_pois.csv", "chengdu_aq_stations.csv"):
@@ -109,6 +110,7 @@ def build(shared: Path) -> None:
             source=f"{OSM_ODBL}; network file from NREL/hive (BSD-3-Clause); see app/data/ATTRIBUTION.md",
             built_with={"script": "scripts/build_cities.py", "input": nl.name, "sha256": sha256_of(nl)},
             files={"requests": "nyc_20k.csv.gz"},
+            fleet={"synthetic_history": True},
         ),
     )
     src = shared / "manhattan" / "nyc_20k.csv"

@@ -16,7 +16,7 @@ from services.network.network import Network
 from services.rfc3339 import parse_rfc3339
 from services.sensing.grid import EdgeCells, Grid
 
-__all__ = ["Horizon", "DispatchParams", "City"]
+__all__ = ["Horizon", "DispatchParams", "FleetParams", "City"]
 
 _LABEL = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}$")
 
@@ -141,6 +141,16 @@ class Horizon:
         """Length of the operating horizon (``n_intervals * interval_s``)."""
         return self.n_intervals * self.interval_s
 
+    def coming_interval(self, now_s: float) -> IntervalKey:
+        """The first interval of the operating horizon that starts after ``now_s`` (today's next hour of
+        the horizon, or the first hour of the next day's): the hour a fleet solve at ``now_s`` is for."""
+        k = int(self.interval_of(now_s)) + 1
+        for _ in range(self.per_day):
+            if self.in_horizon(k):
+                return IntervalKey(k)
+            k += 1
+        raise AssertionError("a day always holds a horizon interval")
+
     def day_intervals(self, k: int) -> list[IntervalKey]:
         """The horizon intervals of the day that interval ``k`` belongs to."""
         first = k - (k % self.per_day)
@@ -185,6 +195,58 @@ class DispatchParams:
             )
 
 
+@dataclass(frozen=True, slots=True)
+class FleetParams:
+    """The city's fleet-sizing parameters (``city.json`` ``fleet``; docs/FLEET.md, "Per city"). A field left
+    ``None`` is derived from the fleet the platform posted (``sizes``, ``n0``) or taken from the worker's
+    settings (``days``, ``subsidy_cny_per_vehicle_hour``, ``completion_target``; a target of 0 is met by
+    every size: off). ``synthetic_history`` marks a demo city whose bundle carries a demand generator: it
+    is sized on that generator's seeded days until it has M recorded days (any other city waits for
+    them)."""
+
+    sizes: tuple[int, ...] | None = None  # candidate instrumented fleet sizes N1
+    n0: int | None = None  # ordinary taxis in every simulated day
+    days: int | None = None  # M: days of history per solve
+    subsidy_cny_per_vehicle_hour: float | None = None  # ζ
+    completion_target: float | None = None
+    synthetic_history: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.synthetic_history, bool):
+            raise ValueError(f"fleet.synthetic_history must be true or false, got {self.synthetic_history!r}")
+        if self.sizes is not None and (
+            not self.sizes
+            or any(isinstance(x, bool) or not isinstance(x, int) or x < 1 for x in self.sizes)
+            or len(set(self.sizes)) != len(self.sizes)
+        ):
+            raise ValueError(f"fleet.sizes must be distinct positive integers, got {list(self.sizes)}")
+        if self.n0 is not None and (isinstance(self.n0, bool) or not isinstance(self.n0, int) or self.n0 < 0):
+            raise ValueError(f"fleet.n0 must be a non-negative integer, got {self.n0!r}")
+        if self.days is not None and (
+            isinstance(self.days, bool) or not isinstance(self.days, int) or not 2 <= self.days <= 366
+        ):
+            raise ValueError(f"fleet.days must be an integer in 2..366, got {self.days!r}")
+        zeta = self.subsidy_cny_per_vehicle_hour
+        if zeta is not None and not (isinstance(zeta, int | float) and math.isfinite(zeta) and zeta >= 0):
+            raise ValueError(
+                f"fleet.subsidy_cny_per_vehicle_hour must be a non-negative number, got {zeta!r}"
+            )
+        target = self.completion_target
+        if target is not None and not (isinstance(target, int | float) and 0.0 <= target <= 1.0):
+            raise ValueError(f"fleet.completion_target must lie in [0, 1], got {target!r}")
+
+    def to_json(self) -> dict[str, object]:
+        """The ``city.json`` object: the fields set."""
+        out: dict[str, object] = {}
+        for name in ("sizes", "n0", "days", "subsidy_cny_per_vehicle_hour", "completion_target"):
+            value = getattr(self, name)
+            if value is not None:
+                out[name] = list(value) if isinstance(value, tuple) else value
+        if self.synthetic_history:
+            out["synthetic_history"] = True
+        return out
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class City:
     """Everything the core needs to serve one city.
@@ -202,6 +264,7 @@ class City:
     cell_weight: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     interval_weight: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     source: str = ""  # attribution / provenance line
+    fleet: FleetParams = field(default_factory=FleetParams)
 
     @property
     def n_cells_touched(self) -> int:

@@ -11,7 +11,9 @@ Bundle format (one directory per city)
 ``city.json``
     ``{"name", "timezone", "horizon": {"start": "08:00", "interval_s", "n_intervals", "epoch_s"},
     "params": {overrides of DispatchParams}, "cell_m": 1000, "source": attribution line,
-    "built_with": {"script", "input", "sha256"}, "files": {role: file name in the bundle}}``.
+    "built_with": {"script", "input", "sha256"}, "files": {role: file name in the bundle},
+    "fleet": {the FleetParams set: "sizes", "n0", "days", "subsidy_cny_per_vehicle_hour",
+    "completion_target"} (optional)}``.
 
 The city built from a bundle weighs every cell the network touches equally (``s_g = 1/|touched|``, 0
 elsewhere) and every interval of the horizon equally (``mu_t = 1/n_intervals``), docs/METHOD.md section 3.
@@ -36,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
-from services.city import City, DispatchParams, Horizon
+from services.city import City, DispatchParams, FleetParams, Horizon
 from services.network.network import Network, build_network
 from services.sensing.grid import build_edge_cells, build_grid, touched_cells
 
@@ -128,7 +130,8 @@ class CityMeta:
     """The contents of a bundle's ``city.json``.
 
     ``params`` holds overrides of :class:`services.city.DispatchParams` fields (JSON values; lists for
-    tuples). ``files`` maps a role (``"pois"``, ``"requests"``...) to a file name inside the bundle.
+    tuples); ``fleet`` the :class:`services.city.FleetParams` set for the city. ``files`` maps a role
+    (``"pois"``, ``"requests"``...) to a file name inside the bundle.
     """
 
     name: str
@@ -142,6 +145,7 @@ class CityMeta:
     source: str = ""
     built_with: dict[str, Any] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
+    fleet: dict[str, Any] = field(default_factory=dict)
 
     def horizon(self) -> Horizon:
         """The :class:`Horizon` described (raises ``ValueError`` when invalid)."""
@@ -173,11 +177,25 @@ class CityMeta:
         except TypeError as exc:
             raise ValueError(str(exc)) from None
 
+    def fleet_params(self) -> FleetParams:
+        """:class:`FleetParams` from ``fleet`` (raises ``ValueError`` when invalid)."""
+        known = {f.name for f in dataclasses.fields(FleetParams)}
+        unknown = sorted(set(self.fleet) - known)
+        if unknown:
+            raise ValueError(
+                f"unknown fleet parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+            )
+        kwargs: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v for k, v in self.fleet.items() if v is not None
+        }
+        return FleetParams(**kwargs)
+
     def validate(self) -> None:
         """Raise ``ValueError`` if any field is invalid."""
         validate_city_name(self.name)
         self.horizon()
         self.dispatch_params()
+        self.fleet_params()
         if not (isinstance(self.cell_m, int | float) and math.isfinite(self.cell_m) and self.cell_m > 0):
             raise ValueError("cell_m must be positive")
 
@@ -197,6 +215,7 @@ class CityMeta:
             "source": self.source,
             "built_with": dict(self.built_with),
             "files": dict(self.files),
+            **({"fleet": dict(self.fleet)} if self.fleet else {}),
         }
 
     @classmethod
@@ -213,13 +232,14 @@ class CityMeta:
             "source",
             "built_with",
             "files",
+            "fleet",
         }
         if extra:
             raise ValueError(f"unknown key(s) {', '.join(sorted(extra))}")
         hz = obj.get("horizon", {})
         if not isinstance(hz, dict) or set(hz) - {"start", "interval_s", "n_intervals", "epoch_s"}:
             raise ValueError("horizon must be an object with start, interval_s, n_intervals, epoch_s")
-        for key in ("params", "built_with", "files"):
+        for key in ("params", "built_with", "files", "fleet"):
             if not isinstance(obj.get(key, {}), dict):
                 raise ValueError(f"{key} must be an object")
         for key in ("interval_s", "n_intervals", "epoch_s"):
@@ -239,6 +259,7 @@ class CityMeta:
             source=obj.get("source", ""),
             built_with=dict(obj.get("built_with", {})),
             files=dict(obj.get("files", {})),
+            fleet=dict(obj.get("fleet", {})),
         )
         meta.validate()
         return meta
@@ -360,6 +381,7 @@ def city_from_network(network: Network, meta: CityMeta) -> City:
     try:
         horizon = meta.horizon()
         params = meta.dispatch_params()
+        fleet = meta.fleet_params()
     except ValueError as exc:
         raise CityDataError("city.json", None, str(exc)) from None
     grid = build_grid(network, float(meta.cell_m))
@@ -378,6 +400,7 @@ def city_from_network(network: Network, meta: CityMeta) -> City:
         cell_weight=cell_weight,
         interval_weight=interval_weight,
         source=meta.source,
+        fleet=fleet,
     )
 
 
@@ -387,8 +410,15 @@ def load_city(directory: Path | str) -> City:
     Raises
     ------
     CityDataError
-        If either file is missing or invalid.
+        If either file is missing or invalid (e.g. ``fleet.synthetic_history`` without the POIs or
+        recorded requests a demand generator draws from).
     """
     meta = read_meta(directory)
+    if meta.fleet.get("synthetic_history") and not {"pois", "requests"} & set(meta.files):
+        raise CityDataError(
+            "city.json",
+            None,
+            "fleet.synthetic_history needs a demand generator: files.pois or files.requests",
+        )
     network = load_network(directory, default_speed_kmh=meta.dispatch_params().speed_kmh)
     return city_from_network(network, meta)

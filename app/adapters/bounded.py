@@ -115,6 +115,10 @@ class BoundedStore:
         """Forwarded within a slot."""
         return self._call(lambda: self.inner.recorded_demand(city, day))
 
+    def recorded_epochs(self, city: str, days: Sequence[str]) -> list[int]:
+        """Forwarded within a slot."""
+        return self._call(lambda: self.inner.recorded_epochs(city, days))
+
     def publish_recommendation(self, city: str, record: FleetRecord, history_limit: int) -> PublishResult:
         """Forwarded within a slot."""
         return self._call(lambda: self.inner.publish_recommendation(city, record, history_limit))

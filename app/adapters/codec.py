@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from app.ports import FleetRecord, PutTasksResult, SolveProgress, SolveRequest, WorkerBeat
+from app.ports import FleetRecord, PutTasksResult, SolveProgress, SolveRequest, Waiting, WorkerBeat
 from services.model import Task, TaskId, TaxiId
 
 __all__ = [
@@ -188,6 +188,9 @@ def worker_beat_to_json(beat: WorkerBeat) -> str:
         "next_interval": None if beat.next_interval is None else int(beat.next_interval),
         "next_due_at_s": None if beat.next_due_at_s is None else float(beat.next_due_at_s),
     }
+    if beat.waiting is not None:
+        w = beat.waiting
+        doc["waiting"] = {"kind": w.kind, "reason": w.reason, "since_s": float(w.since_s)}
     return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
@@ -210,6 +213,8 @@ def worker_beat_from_json(text: str) -> WorkerBeat:
             failed,
         )
     nxt, due = doc.get("next_interval"), doc.get("next_due_at_s")
+    w = doc.get("waiting")
+    waiting = None if w is None else Waiting(str(w["kind"]), str(w["reason"]), float(w["since_s"]))
     return WorkerBeat(
         worker_id=str(doc["id"]),
         seen_at_s=float(doc["seen_at_s"]),
@@ -221,4 +226,5 @@ def worker_beat_from_json(text: str) -> WorkerBeat:
         solving=solving,
         next_interval=None if nxt is None else int(nxt),
         next_due_at_s=None if due is None else float(due),
+        waiting=waiting,
     )

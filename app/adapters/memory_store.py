@@ -23,7 +23,6 @@ from app.ports import (
     SolveRequest,
     StoredEpoch,
     WorkerBeat,
-    utc_day,
 )
 from services.ledger import Ledger, apply_decision
 from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
@@ -201,7 +200,7 @@ class MemoryStore:
             )
             self._touch((city, "epoch", commit.epoch_id), ttl)
             if commit.demand_json is not None:
-                day = utc_day(commit.time_s)
+                day = commit.demand_day
                 c.demand.setdefault(day, []).append(commit.demand_json)
                 self._touch((city, "demand", day), ttl)
             c.version += 1
@@ -274,9 +273,15 @@ class MemoryStore:
             return sorted(k for k, counts in self._city(city).ledger.counts.items() if counts)
 
     def recorded_demand(self, city: str, day: str) -> list[str]:
-        """Demand recorded on one UTC day (``YYYYMMDD``), in commit order."""
+        """Demand recorded on one local day (``YYYYMMDD``), in commit order."""
         with self._lock:
             return list(self._city(city).demand.get(day, []))
+
+    def recorded_epochs(self, city: str, days: Sequence[str]) -> list[int]:
+        """The number of records of each day."""
+        with self._lock:
+            demand = self._city(city).demand
+            return [len(demand.get(day, ())) for day in days]
 
     # -- fleet sizing -----------------------------------------------------------------------------------
 

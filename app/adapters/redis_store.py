@@ -52,7 +52,6 @@ from app.ports import (
     StoredEpoch,
     StoreUnavailable,
     WorkerBeat,
-    utc_day,
 )
 from services.model import DONE, IntervalKey, Task, TaskId, TaxiId
 
@@ -257,7 +256,7 @@ class RedisStore:
             self._key(city, "epoch", commit.epoch_id),
             self._key(city, "intervals"),
             self._key(city, "tasks"),
-            self._key(city, "demand", utc_day(commit.time_s)),
+            self._key(city, "demand", commit.demand_day or "none"),
             self._key(city, "tasks", "done"),
             self._key(city, "tasks", "done_at"),
         ]
@@ -379,9 +378,19 @@ class RedisStore:
         return [k for k, n in zip(ks, alive, strict=True) if n]
 
     def recorded_demand(self, city: str, day: str) -> list[str]:
-        """Demand recorded on one UTC day (``YYYYMMDD``), in commit order."""
+        """Demand recorded on one local day (``YYYYMMDD``), in commit order."""
         with self._guard("reading recorded demand"):
             return cast(list[str], self._client.lrange(self._key(city, "demand", day), 0, -1))
+
+    def recorded_epochs(self, city: str, days: Sequence[str]) -> list[int]:
+        """The length of each day's list (one round trip)."""
+        if not days:
+            return []
+        with self._guard("reading recorded demand"):
+            pipe = self._client.pipeline(transaction=False)
+            for day in days:
+                pipe.llen(self._key(city, "demand", day))
+            return [int(n) for n in pipe.execute()]
 
     # -- fleet sizing ---------------------------------------------------------------------------------
 

@@ -83,9 +83,10 @@ def list_recommendations(
 )
 def get_status(city: CityName, _: ReadAccess, fleet: FleetDep) -> FleetStatusOut:
     """The workers serving the city by their last heartbeat (`worker.seen`: one was seen within
-    `stale_after_s`, else `hint` says how to start one), the solve in progress with its simulation runs
-    (`solving`: "k of n runs"), the pending request, the last solve (published or failed) and the next
-    scheduled one."""
+    `stale_after_s`, else `hint` says how to start one), the history a solve today is sized on (`history`:
+    "collecting history: k of M days" and the first day a solve is possible), why the worker does not size
+    the city now (`waiting`), the solve in progress with its simulation runs (`solving`: "k of n runs"),
+    the pending request, the last solve (published or failed) and the next scheduled one."""
     return FleetStatusOut.of(fleet.status(city), START_WORKER_HINT)
 
 
@@ -94,14 +95,16 @@ def get_status(city: CityName, _: ReadAccess, fleet: FleetDep) -> FleetStatusOut
     status_code=202,
     response_model=SolveRequestOut,
     summary="Ask the worker for a solve now",
-    responses=errors(401, 403, 404, 422, 500, 503),
+    responses=errors(401, 403, 404, 409, 422, 500, 503),
 )
 def post_solve(city: CityName, principal: AdminAccess, fleet: FleetDep) -> SolveRequestOut:
     """Queue a solve of the coming hour for the worker, which polls its queue every few seconds (202 with the
     request id; the solve shows up in the history with that id, GET .../fleet/status shows its progress). A
-    request already pending is not duplicated: this one joins it (`already_queued`, same id). When no worker
+    request already pending is not duplicated: this one joins it (`already_queued`, same id). A city that
+    does not have the M days of history it is sized on yet is refused with 409 `insufficient_history`
+    (`history`: the days it has, the days it needs, the first day a solve is possible); when no worker
     serving the city has been seen recently the request is refused with 503 `no_worker` (saying how to start
-    one) and nothing is queued."""
+    one). A refused request queues nothing."""
     served, result = fleet.request_solve(city, uuid.uuid4().hex, principal.name)
     tz = served.horizon.timezone
     return SolveRequestOut(

@@ -10,10 +10,13 @@ import itertools
 import multiprocessing
 import os
 import queue
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic, Literal, Protocol, TypeVar
@@ -27,6 +30,7 @@ __all__ = [
     "InlineExecutor",
     "ProcessExecutor",
     "ExecutorName",
+    "Foreground",
 ]
 
 T = TypeVar("T")
@@ -155,6 +159,34 @@ class ProcessExecutor:
         self._pool: ProcessPoolExecutor | None = None
         self._started: Any = None
         self._batches = itertools.count()
+        self._paused = False
+        self._signal_lock = threading.Lock()
+
+    def _pids(self) -> list[int]:
+        """The pool's live processes (none before the first batch)."""
+        pool = self._pool
+        procs = dict(getattr(pool, "_processes", None) or {}) if pool is not None else {}
+        return [pid for pid, p in procs.items() if p.is_alive()]
+
+    def _signal_all(self, sig: signal.Signals) -> None:
+        for pid in self._pids():
+            try:
+                os.kill(pid, sig)
+            except ProcessLookupError:  # it ended meanwhile
+                continue
+
+    def pause(self) -> None:
+        """Stop the processes where they are (SIGSTOP) until :meth:`resume`: their runs take no CPU, and
+        a process the pool starts meanwhile is stopped as the next batch submits its items."""
+        with self._signal_lock:
+            self._paused = True
+            self._signal_all(signal.SIGSTOP)
+
+    def resume(self) -> None:
+        """Let the processes run on (SIGCONT)."""
+        with self._signal_lock:
+            self._paused = False
+            self._signal_all(signal.SIGCONT)
 
     @property
     def workers(self) -> int:
@@ -184,6 +216,9 @@ class ProcessExecutor:
         futures: dict[Future[R], int] = {
             pool.submit(_report_then, fn, (batch, i), item): i for i, item in enumerate(items)
         }
+        with self._signal_lock:
+            if self._paused:  # processes the submissions started
+                self._signal_all(signal.SIGSTOP)
         pending = set(futures)
         broken = False
         seen: set[int] = set()
@@ -227,7 +262,44 @@ class ProcessExecutor:
     def close(self) -> None:
         """Stop the processes."""
         if self._pool is not None:
+            self.resume()  # a stopped process would never take its shutdown
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
             self._started.close()
             self._started = None
+
+
+class Foreground:
+    """Epochs come first: while any epoch is being solved, the background runs of the processes added here
+    are paused (the first epoch to start pauses them, the last to end resumes them). The service that
+    embeds the fleet worker holds it around every epoch's solve, so the worker's simulations use the CPU
+    only between epochs (docs/FLEET.md, "When the worker solves")."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._in_flight = 0
+        self._executors: list[ProcessExecutor] = []
+
+    def add(self, executor: ProcessExecutor) -> None:
+        """Pause ``executor``'s processes while epochs are in flight."""
+        with self._lock:
+            self._executors.append(executor)
+            if self._in_flight:
+                executor.pause()
+
+    @contextmanager
+    def epoch(self) -> Iterator[None]:
+        """Hold for one epoch's solve."""
+        with self._lock:
+            self._in_flight += 1
+            if self._in_flight == 1:
+                for ex in self._executors:
+                    ex.pause()
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._in_flight -= 1
+                if self._in_flight == 0:
+                    for ex in self._executors:
+                        ex.resume()

@@ -11,7 +11,15 @@ from pathlib import Path
 from services.sim.demand import DEMAND_VERSION, DemandSet
 from services.sim.engine import SIM_VERSION
 
-__all__ = ["CACHE_FORMAT", "RunSpec", "TaskTemplate", "RunJob", "demand_digest", "tasks_digest"]
+__all__ = [
+    "CACHE_FORMAT",
+    "RunSpec",
+    "TaskTemplate",
+    "RunJob",
+    "demand_digest",
+    "nodes_digest",
+    "tasks_digest",
+]
 
 CACHE_FORMAT = "2"
 """Version of the cached result document (``RunResult.to_json``); part of every job key."""
@@ -74,6 +82,7 @@ class RunJob:
     bundle: Path
     demand: DemandSet | None = None
     tasks: tuple[TaskTemplate, ...] | None = None  # the platform's tasks (None: the spec's seeded draw)
+    start_nodes: tuple[int, ...] | None = None  # the taxis' start nodes, instrumented first (None: seeded)
 
     @property
     def key(self) -> str:
@@ -82,7 +91,8 @@ class RunJob:
         (A rebuilt city bundle is not part of the key: clear the cache when a bundle changes.)"""
         source = "syn" if self.demand is None else f"rec{demand_digest(self.demand)}"
         tasks = "" if self.tasks is None else f"-reg{tasks_digest(self.tasks)}"
-        return f"{self.spec.key}-{source}{tasks}-sim{SIM_VERSION}-dem{DEMAND_VERSION}-c{CACHE_FORMAT}"
+        start = "" if self.start_nodes is None else f"-st{nodes_digest(self.start_nodes)}"
+        return f"{self.spec.key}-{source}{tasks}{start}-sim{SIM_VERSION}-dem{DEMAND_VERSION}-c{CACHE_FORMAT}"
 
     @property
     def cost(self) -> float:
@@ -97,6 +107,11 @@ def demand_digest(demand: DemandSet) -> str:
     for r in demand.requests:
         h.update(f"\n{r.id}\t{int(r.time_s)}\t{r.origin}\t{r.destination}".encode())
     return h.hexdigest()[:16]
+
+
+def nodes_digest(nodes: tuple[int, ...]) -> str:
+    """16 hex digits of sha256 over start nodes."""
+    return hashlib.sha256(",".join(map(str, nodes)).encode()).hexdigest()[:16]
 
 
 def tasks_digest(tasks: tuple[TaskTemplate, ...]) -> str:

@@ -149,9 +149,11 @@ def simulate_spec(
     bundle: Bundle,
     demand: DemandSet | None = None,
     tasks: Sequence[TaskTemplate] | None = None,
+    start_nodes: Sequence[int] | None = None,
 ) -> tuple[City, RunTrace]:
-    """Simulate one spec in-process (on ``demand`` instead of the spec's own, e.g. recorded requests, and
-    on the platform's ``tasks`` instead of the spec's seeded draw)."""
+    """Simulate one spec in-process (on ``demand`` instead of the spec's own, e.g. recorded requests, on
+    the platform's ``tasks`` instead of the spec's seeded draw, from ``start_nodes`` instead of seeded
+    random nodes)."""
     city = bundle.city
     if city.params.active_sensing != spec.active:
         city = dataclasses.replace(city, params=dataclasses.replace(city.params, active_sensing=spec.active))
@@ -167,7 +169,7 @@ def simulate_spec(
     day_tasks = (
         tasks_for(spec, bundle, demand.date) if tasks is None else placed_tasks(tasks, bundle, demand.date)
     )
-    trace = simulate(city, demand, day_tasks, config, LocalDispatcher(city))
+    trace = simulate(city, demand, day_tasks, config, LocalDispatcher(city), start_nodes=start_nodes)
     return city, trace
 
 
@@ -176,7 +178,7 @@ def run_job(job: RunJob) -> RunResult:
     started = time.perf_counter()
     if job.demand is None:  # the spec's own demand, drawn from the bundle
         check_demand_source(shipped_copy(Path(job.bundle)))
-    city, trace = simulate_spec(job.spec, open_bundle(job.bundle), job.demand, job.tasks)
+    city, trace = simulate_spec(job.spec, open_bundle(job.bundle), job.demand, job.tasks, job.start_nodes)
     routes = None
     if job.spec.keep_routes:
         routes = tuple(

@@ -78,6 +78,31 @@ class ParamsOut(ResponseModel):
     )
 
 
+class FleetParamsOut(ResponseModel):
+    """The city's fleet-sizing parameters as its ``city.json`` sets them (docs/FLEET.md, "Per city"); null:
+    not set, so each solve derives it from the fleet the platform posted (sizes, n0) or takes the worker's
+    setting (days, subsidy, completion target)."""
+
+    sizes: list[int] | None = Field(
+        description="Candidate instrumented fleet sizes N1 (null: spread from a quarter to twice the "
+        "instrumented fleet posted)."
+    )
+    n0: int | None = Field(
+        description="Ordinary taxis in every simulated day (null: the ordinary fleet posted)."
+    )
+    days: int | None = Field(description="M, days of history per solve (null: SD_WORKER_DAYS).")
+    subsidy_cny_per_vehicle_hour: float | None = Field(
+        description="ζ (null: SD_WORKER_SUBSIDY_CNY_PER_VEHICLE_HOUR)."
+    )
+    completion_target: float | None = Field(
+        description="Worst-case completion rate every choice must meet (null: SD_WORKER_COMPLETION_TARGET)."
+    )
+    synthetic_history: bool = Field(
+        description="A demo city: sized on its demand generator's seeded days until M days are recorded "
+        "(false: the city waits for its recorded history)."
+    )
+
+
 class CityOut(ResponseModel):
     """A served city."""
 
@@ -87,6 +112,7 @@ class CityOut(ResponseModel):
     grid: GridOut
     horizon: HorizonOut
     params: ParamsOut
+    fleet: FleetParamsOut
     source: str = Field(description="Provenance and attribution.")
 
     @classmethod
@@ -137,6 +163,14 @@ class CityOut(ResponseModel):
                 step3_reach_configured_s=p.step3_reach_s,
                 step3_reach_above_s=p.step3_reach_above_s,
                 crossing_s=round(crossing, 3),
+            ),
+            fleet=FleetParamsOut(
+                sizes=None if city.fleet.sizes is None else list(city.fleet.sizes),
+                n0=city.fleet.n0,
+                days=city.fleet.days,
+                subsidy_cny_per_vehicle_hour=city.fleet.subsidy_cny_per_vehicle_hour,
+                completion_target=city.fleet.completion_target,
+                synthetic_history=city.fleet.synthetic_history,
             ),
             source=city.source,
         )

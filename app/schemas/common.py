@@ -38,6 +38,7 @@ __all__ = [
     "format_time",
     "LocationIn",
     "FieldErrorOut",
+    "HistoryCountOut",
     "ErrorOut",
 ]
 
@@ -178,9 +179,22 @@ class FieldErrorOut(ResponseModel):
     msg: str
 
 
+class HistoryCountOut(ResponseModel):
+    """How much of the history a fleet solve needs a city has (docs/FLEET.md)."""
+
+    days: int = Field(description="Local days with epochs in the look-back before today (at most needed).")
+    needed: int = Field(description="M, the days a solve is sized on.")
+    first_solve_on: str = Field(
+        description="The first local day (YYYY-MM-DD) a solve is possible if epochs are posted every day."
+    )
+
+
 class ErrorOut(ResponseModel):
     """The one error shape of the API."""
 
     error: str = Field(description="Machine-readable kind, e.g. validation_error, epoch_conflict.")
     detail: str
     fields: list[FieldErrorOut]
+    history: HistoryCountOut | None = Field(
+        default=None, description="insufficient_history only: the history the city has and needs."
+    )

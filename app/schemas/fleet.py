@@ -1,9 +1,9 @@
 """Response models of the fleet-sizing API (docs/FLEET.md) and their conversion from
 ``services.fleet.sizing``.
 
-The worker publishes a recommendation (``app.worker.sizing.Recommendation``) as the JSON of
-:class:`RecommendationBody` (``render_recommendation``, which the worker is given); the API adds the store's
-version and publication time and serves it as :class:`FleetRecommendationOut`.
+The fleet solve's result (``app.usecases.fleet_solve.Recommendation``) is published as the JSON of
+:class:`RecommendationBody` (``render_recommendation``, which the worker hands the use case); the API adds
+the store's version and publication time and serves it as :class:`FleetRecommendationOut`.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from services.city import Horizon
 from services.fleet.sizing import CandidateTable, Choice, RollingHour, SubsidyPoint
 from services.rfc3339 import format_time
 
-if TYPE_CHECKING:  # the worker's machinery stays out of the API process
-    from app.worker.sizing import Recommendation, SolveStats
+if TYPE_CHECKING:  # the simulation runs' machinery stays out of the API process
+    from app.usecases.fleet_solve import Recommendation, SolveStats
 
 __all__ = [
     "CandidateOut",
@@ -174,6 +174,30 @@ class SimulationOut(ResponseModel):
     """How each (size, day) run was simulated."""
 
     n0: int = Field(description="Ordinary taxis.")
+    n0_source: Literal["city", "recorded", "settings"] = Field(
+        default="settings",
+        description="Where n0 came from: the city's city.json, the ordinary fleet the platform posted "
+        "(median over the history days), or SD_WORKER_N0.",
+    )
+    sizes_source: Literal["city", "recorded", "settings"] = Field(
+        default="settings",
+        description="Where the candidate sizes came from: the city's city.json, spread from a quarter to "
+        "twice the instrumented fleet the platform posted (median over the history days), or "
+        "SD_WORKER_SIZES.",
+    )
+    posted_instrumented: int | None = Field(
+        default=None,
+        description="Instrumented taxis the platform posted, median over the history days (null: synthetic "
+        "history).",
+    )
+    posted_ordinary: int | None = Field(
+        default=None, description="Ordinary taxis the platform posted, likewise."
+    )
+    fleet_start: Literal["recorded", "seeded"] = Field(
+        default="seeded",
+        description="Where the simulated taxis start: where each history day's taxis stood when its horizon "
+        "opened (recorded), or seeded random nodes.",
+    )
     n_tasks: int = Field(description="POI monitoring tasks in every simulated day.")
     tasks_source: Literal["registered", "synthetic", "synthetic_per_day"] = Field(
         description="registered: the platform's tasks of the day solved for, in every simulated day; "
@@ -310,9 +334,14 @@ def _data_window(rec: Recommendation, labels: list[str]) -> DataWindowOut:
 
 def _simulation(rec: Recommendation) -> SimulationOut:
     """The simulations' settings."""
-    cfg = rec.config
+    cfg, fleet = rec.config, rec.fleet
     return SimulationOut(
         n0=cfg.n0,
+        n0_source=fleet.n0,
+        sizes_source=fleet.sizes,
+        posted_instrumented=fleet.posted_instrumented,
+        posted_ordinary=fleet.posted_ordinary,
+        fleet_start=fleet.starts,
         n_tasks=cfg.n_tasks if rec.tasks.templates is None else len(rec.tasks.templates),
         tasks_source=rec.tasks.source,
         reach_s=cfg.reach_s,

@@ -9,7 +9,7 @@ from typing import Literal
 from pydantic import Field
 
 from app.ports import WorkerBeat
-from app.schemas.common import ResponseModel
+from app.schemas.common import HistoryCountOut, ResponseModel
 from app.schemas.fleet import SolveEntryOut
 from app.usecases import FleetStatus
 from services.city import Horizon
@@ -22,6 +22,8 @@ __all__ = [
     "PendingRequestOut",
     "LastSolveOut",
     "NextSolveOut",
+    "HistoryOut",
+    "WaitingOut",
     "FleetStatusOut",
 ]
 
@@ -85,12 +87,35 @@ class NextSolveOut(ResponseModel):
     due_at: str = Field(description="When the solve is due (the hour's start minus SD_WORKER_LEAD_S).")
 
 
+class HistoryOut(HistoryCountOut):
+    """The history a solve today would be sized on."""
+
+    enough: bool = Field(description="A solve today has its M days.")
+    until_then: Literal["synthetic", "none"] = Field(
+        description="With fewer days: synthetic (a demo city is sized on its generator's seeded days) or "
+        "none (the city is not sized: POST .../fleet/solve answers 409 insufficient_history)."
+    )
+    text: str = Field(description='"collecting history: k of M days ..." or "history complete: ..."')
+
+
+class WaitingOut(ResponseModel):
+    """Why the worker does not size the city now (it starts no run until that changes)."""
+
+    kind: str = Field(description="insufficient_history or no_tasks.")
+    reason: str
+    since: str = Field(description="Since when, RFC 3339 in the city's time zone.")
+
+
 class FleetStatusOut(ResponseModel):
     """The fleet worker as the city sees it."""
 
     city: str
     now: str
     worker: WorkerStateOut
+    history: HistoryOut
+    waiting: WaitingOut | None = Field(
+        description="Why the live worker does not size the city (null: it does)."
+    )
     solving: SolvingOut | None
     pending_request: PendingRequestOut | None
     last_solve: LastSolveOut | None
@@ -129,10 +154,23 @@ class FleetStatusOut(ResponseModel):
             (b for b in live if b.next_due_at_s is not None), key=lambda b: b.next_due_at_s or 0
         )
         last, pending = st.last, st.pending
+        waiting = next((b.waiting for b in live if b.waiting is not None), None)
+        h = st.history
         return cls(
             city=st.city.name,
             now=format_time(now, tz),
             worker=state,
+            history=HistoryOut(
+                days=h.days,
+                needed=h.needed,
+                first_solve_on=h.first_solve_on.isoformat(),
+                enough=h.enough,
+                until_then="synthetic" if st.city.fleet.synthetic_history else "none",
+                text=h.describe(),
+            ),
+            waiting=None
+            if waiting is None
+            else WaitingOut(kind=waiting.kind, reason=waiting.reason, since=format_time(waiting.since_s, tz)),
             solving=None if solving is None else _solving(solving, now, hz),
             pending_request=None
             if pending is None

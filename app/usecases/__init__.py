@@ -1,7 +1,7 @@
 """Use cases: the only door to the store, one object per concern. They take the core's types (a resolved
 epoch, tasks, an interval key) and return the core's results; the API turns requests into those types
 (``app.api.inputs``) and renders the results (``app.schemas``), and the fleet worker reads and writes
-through ``SizingService``.
+through ``FleetSolver``.
 
 - ``epochs``: ``EpochService``, posted epochs solved and committed exactly once, committed epochs read back;
 - ``tasks``: ``TaskService``, the POIs the platform registers for monitoring;
@@ -9,7 +9,11 @@ through ``SizingService``.
 - ``coverage``: ``CoverageService``, Lambda, the coverage rate and Gamma of an interval;
 - ``readiness``: ``ReadinessService``, whether the instance can take epochs;
 - ``fleet``: ``FleetService``, the API's side of fleet sizing (recommendations, solve requests, status);
-- ``sizing``: ``SizingService``, the fleet worker's side (requests, inputs, publishing, heartbeat);
+- ``fleet_history``: the platform's recorded history (requests and fleet by local day) and the sizing
+  configuration of a city, which the API's status and the fleet solve share;
+- ``fleet_solve``: ``FleetSolver``, the fleet worker's side: solve requests, the solve (history window,
+  task set, runs, plan, sweep) and publishing, its heartbeat's record (imported by the worker only: it
+  brings the simulation runs);
 - ``cities``: ``CityCatalog``, the served cities by name.
 
 ``UseCases`` holds one of each of the API's, built over one store by ``UseCases.over``.
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 
 from app.ports import Store
@@ -40,8 +45,8 @@ from app.usecases.epochs import (
     StoredDecision,
 )
 from app.usecases.fleet import START_WORKER_HINT, FleetService, FleetStatus
+from app.usecases.fleet_history import SizingConfig
 from app.usecases.readiness import ReadinessService
-from app.usecases.sizing import SizingService, lock_name
 from app.usecases.tasks import TaskService
 
 __all__ = [
@@ -64,16 +69,16 @@ __all__ = [
     "LOOKAHEAD_INTERVALS",
     "ReadinessService",
     "START_WORKER_HINT",
-    "SizingService",
+    "SizingConfig",
     "StoredDecision",
     "StreamChange",
     "TaskService",
     "UseCases",
-    "lock_name",
 ]
 
 
 _DEFAULT_LIMITS = EpochLimits()
+_DEFAULT_SIZING = SizingConfig()
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,10 +104,14 @@ class UseCases:
         read_epoch: EpochReader,
         limits: EpochLimits = _DEFAULT_LIMITS,
         worker_stale_s: float = 30.0,
+        sizing: SizingConfig = _DEFAULT_SIZING,
         clock: Callable[[], float] = time.time,
+        foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
     ) -> UseCases:
         """Every use case of the API over ``store``; ``clock`` (POSIX seconds) is the epoch time window's
-        and the worker heartbeats' (``worker_stale_s``: a worker not seen for longer is gone)."""
+        and the worker heartbeats' (``worker_stale_s``: a worker not seen for longer is gone); ``sizing`` is
+        the fleet worker's settings (M and the look-back of the fleet status); ``foreground`` is held
+        around every epoch's solve (the embedded fleet worker pauses its runs meanwhile)."""
         return cls(
             cities=cities,
             epochs=EpochService(
@@ -113,10 +122,11 @@ class UseCases:
                 read_epoch=read_epoch,
                 limits=limits,
                 clock=clock,
+                foreground=foreground,
             ),
             tasks=TaskService(cities, store),
             admin=AdminService(cities, store),
             coverage=CoverageService(cities, store),
             readiness=ReadinessService(cities, store),
-            fleet=FleetService(cities, store, stale_s=worker_stale_s, clock=clock),
+            fleet=FleetService(cities, store, stale_s=worker_stale_s, sizing=sizing, clock=clock),
         )

@@ -6,6 +6,7 @@ types (a resolved epoch) and return the core's results; the API turns requests i
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import json
 import logging
 import math
@@ -13,8 +14,10 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from typing import Any
+from zoneinfo import ZoneInfo
 
 from app.errors import (
     Busy,
@@ -29,6 +32,7 @@ from app.ports import (
     DispatchStore,
     EpochCommit,
     StoredEpoch,
+    local_day,
 )
 from app.usecases.cities import CityCatalog
 from services.city import City
@@ -59,6 +63,7 @@ __all__ = [
     "EpochService",
     "EpochLimits",
     "LOOKAHEAD_INTERVALS",
+    "opens_horizon",
 ]
 
 log = logging.getLogger(__name__)
@@ -199,7 +204,9 @@ class EpochService:
         read_epoch: EpochReader,
         limits: EpochLimits = EpochLimits(),
         clock: Callable[[], float] = time.time,
+        foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
     ) -> None:
+        """``foreground`` is held around every epoch's solve (the embedded fleet worker pauses its runs)."""
         self.cities = cities
         self.store = store
         self.decide = decide
@@ -211,6 +218,7 @@ class EpochService:
         self._solve_slots = threading.BoundedSemaphore(limits.max_solves)
         self.max_ahead_s = limits.max_ahead_s
         self.clock = clock
+        self.foreground = foreground
 
     def _replay(self, stored: StoredEpoch, digest: str) -> EpochOutcome:
         if stored.body_hash != digest:
@@ -275,7 +283,8 @@ class EpochService:
                 "once; retry later"
             )
         try:
-            return self._solve_and_commit(name, city, epoch)
+            with self.foreground():
+                return self._solve_and_commit(name, city, epoch)
         finally:
             self._solve_slots.release()
 
@@ -288,7 +297,7 @@ class EpochService:
         # the epoch's interval and the next two (paths run on), plus the day's horizon for Gamma
         intervals = {IntervalKey(k0 + i) for i in range(LOOKAHEAD_INTERVALS + 1)} | set(day)
         instrumented = [t.id for t in snapshot.taxis if t.instrumented]
-        demand = _demand_json(city, epoch)  # the riders as posted: the same for every attempt
+        demand = _DemandRecord(city, epoch)  # the riders and the fleet as posted: the same every attempt
         for attempt in range(1, self.commit_attempts + 1):
             state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
             started = time.perf_counter()
@@ -316,7 +325,8 @@ class EpochService:
                     task_updates=(*decision.task_updates, *expired),
                     response_json=response,
                     retention_s=self.retention_s,
-                    demand_json=demand,
+                    demand_json=demand.json(opens_horizon(city, state.last_epoch_time_s, snapshot.time_s)),
+                    demand_day=demand.day,
                     nonce=uuid.uuid4().hex,  # per attempt: a resent commit finds it, knows it was its own
                 ),
             )
@@ -383,23 +393,58 @@ class EpochService:
         return EpochRoutes(city, decision, tuple(tasks))
 
 
-def _demand_json(city: City, epoch: EpochCommand) -> str:
-    """The epoch's riders for the fleet-sizing worker (a waiting rider recurs: dedupe by id)."""
-    ids = city.network.node_ids
-    snapshot = epoch.snapshot
-    doc: dict[str, Any] = {
-        "epoch_id": snapshot.epoch_id,
-        "time": epoch.time_text,
-        "time_s": snapshot.time_s,
-        "riders": [
-            {
-                "id": str(r.id),
-                "origin": int(ids[r.origin]),
-                "destination": int(ids[r.destination]),
-                "requested_at": format_time(r.requested_at_s, city.horizon.timezone),
-                "requested_at_s": r.requested_at_s,
-            }
-            for r in snapshot.riders
-        ],
-    }
-    return json.dumps(doc, separators=(",", ":"))
+def opens_horizon(city: City, last_epoch_s: float | None, time_s: float) -> bool:
+    """Whether an epoch at ``time_s`` is the first the city commits within its local day's horizon (the
+    last committed epoch, if any, lies before that horizon's start)."""
+    hz = city.horizon
+    start = hz.start_s(dt.datetime.fromtimestamp(time_s, tz=ZoneInfo(hz.timezone)).date())
+    return start <= time_s < start + hz.length_s and (last_epoch_s is None or last_epoch_s < start)
+
+
+class _DemandRecord:
+    """What an epoch records for the fleet-sizing worker (docs/FLEET.md, "The platform's history"): its
+    riders (a waiting rider recurs: the worker dedupes by id), how many instrumented and ordinary taxis it
+    posted, and, for the epoch that opens the day's horizon, where each of them stood."""
+
+    def __init__(self, city: City, epoch: EpochCommand) -> None:
+        ids = city.network.node_ids
+        snapshot = epoch.snapshot
+        tz = city.horizon.timezone
+        self.city = city
+        self.snapshot = snapshot
+        self.day = local_day(snapshot.time_s, tz)
+        instrumented = sum(1 for t in snapshot.taxis if t.instrumented)
+        self._doc: dict[str, Any] = {
+            "epoch_id": snapshot.epoch_id,
+            "time": epoch.time_text,
+            "time_s": snapshot.time_s,
+            "riders": [
+                {
+                    "id": str(r.id),
+                    "origin": int(ids[r.origin]),
+                    "destination": int(ids[r.destination]),
+                    "requested_at": format_time(r.requested_at_s, tz),
+                    "requested_at_s": r.requested_at_s,
+                }
+                for r in snapshot.riders
+            ],
+            "fleet": {"instrumented": instrumented, "ordinary": len(snapshot.taxis) - instrumented},
+        }
+        self._text: dict[bool, str] = {}
+
+    def json(self, opening: bool) -> str:
+        """The record, with the fleet's positions when the epoch opens the day's horizon."""
+        if opening not in self._text:
+            doc = self._doc
+            if opening:
+                ids = self.city.network.node_ids
+                taxis = self.snapshot.taxis
+                doc = {
+                    **doc,
+                    "fleet_at_open": {
+                        "instrumented": [int(ids[t.node]) for t in taxis if t.instrumented],
+                        "ordinary": [int(ids[t.node]) for t in taxis if not t.instrumented],
+                    },
+                }
+            self._text[opening] = json.dumps(doc, separators=(",", ":"))
+        return self._text[opening]

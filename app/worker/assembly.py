@@ -10,13 +10,14 @@ from dataclasses import dataclass
 
 from app.cities import CityRegistry
 from app.ports import Store
-from app.runs import Progress, ResultCache, RunCache, Runner, make_executor
+from app.runs import ProcessExecutor, Progress, ResultCache, RunCache, Runner, make_executor
+from app.runs.executor import Foreground
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
-from app.usecases.sizing import SizingService
+from app.usecases.fleet_history import SizingConfig
+from app.usecases.fleet_solve import FleetSolver
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker, WorkerMetrics
-from app.worker.sizing import FleetSizing, SizingConfig
 
 __all__ = ["make_runner", "worker_cities", "AssembledWorker", "assemble_worker"]
 
@@ -72,11 +73,20 @@ class AssembledWorker:
 
 
 def assemble_worker(
-    settings: Settings, store: Store, registry: CityRegistry, cities: Sequence[str], *, embedded: bool
+    settings: Settings,
+    store: Store,
+    registry: CityRegistry,
+    cities: Sequence[str],
+    *,
+    embedded: bool,
+    foreground: Foreground | None = None,
 ) -> AssembledWorker:
     """The worker of ``cities`` on ``store``, as the settings configure it (``embedded``: inside the API
-    process, its runs on local processes whatever ``SD_WORKER_JOBS`` says)."""
+    process, its runs on local processes whatever ``SD_WORKER_JOBS`` says, paused by ``foreground`` while
+    the API solves an epoch)."""
     runner = make_runner(settings, in_process=not embedded)
+    if foreground is not None and isinstance(runner.executor, ProcessExecutor):
+        foreground.add(runner.executor)
     metrics = WorkerMetrics()
     status = WorkerStatus(embedded=embedded, poll_s=settings.worker_poll_s)
 
@@ -84,16 +94,15 @@ def assemble_worker(
         metrics.progress(p)
         status.progress(p)
 
-    service = SizingService(
-        store, history_limit=settings.worker_history, lock_ttl_s=float(settings.worker_lock_ttl_s)
-    )
-    sizing = FleetSizing(
-        service,
+    sizing = FleetSolver(
+        store,
         runner,
         SizingConfig.from_settings(settings),
         render=render_recommendation,
         cities=registry,
         progress=progress,
+        history_limit=settings.worker_history,
+        lock_ttl_s=float(settings.worker_lock_ttl_s),
     )
     worker = FleetWorker(
         sizing,
@@ -103,5 +112,5 @@ def assemble_worker(
         metrics=metrics,
         status=status,
     )
-    heartbeat = Heartbeat(service, status, cities, interval_s=settings.worker_heartbeat_s)
+    heartbeat = Heartbeat(sizing, status, cities, interval_s=settings.worker_heartbeat_s)
     return AssembledWorker(worker, heartbeat, runner, metrics)

@@ -16,6 +16,7 @@ import threading
 
 from app.cities import CityRegistry
 from app.ports import Store
+from app.runs.executor import Foreground
 from app.settings import Settings
 from app.usecases import CityCatalog
 from app.worker.assembly import AssembledWorker, assemble_worker, worker_cities
@@ -35,15 +36,18 @@ class EmbeddedWorker:
         registry: CityCatalog,
         *,
         ready: threading.Event | None = None,
+        foreground: Foreground | None = None,
     ) -> None:
         """``registry`` serves the cities (a ``CityRegistry`` also gives the bundles the runs read; any
-        other catalog is replaced by the settings' registry); ``ready`` is set when the warm-up is over."""
+        other catalog is replaced by the settings' registry); ``ready`` is set when the warm-up is over;
+        ``foreground`` (the API's epochs) pauses the worker's runs while an epoch is solved."""
         self.settings = settings
         self.store = store
         self.registry = (
             registry if isinstance(registry, CityRegistry) else CityRegistry.from_settings(settings)
         )
         self.ready = ready
+        self.foreground = foreground
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.parts: AssembledWorker | None = None
@@ -59,7 +63,9 @@ class EmbeddedWorker:
                 self.registry.names(),
             )
             return
-        self.parts = assemble_worker(self.settings, self.store, self.registry, cities, embedded=True)
+        self.parts = assemble_worker(
+            self.settings, self.store, self.registry, cities, embedded=True, foreground=self.foreground
+        )
         self.parts.heartbeat.start()
         self._thread = threading.Thread(target=self._run, name="fleet-worker", daemon=True)
         self._thread.start()

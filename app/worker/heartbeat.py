@@ -20,9 +20,9 @@ from contextlib import contextmanager
 from dataclasses import replace
 from typing import Literal
 
-from app.ports import SolveProgress, StoreUnavailable, WorkerBeat
+from app.ports import SolveProgress, StoreUnavailable, Waiting, WorkerBeat
 from app.runs import Progress
-from app.usecases.sizing import SizingService
+from app.usecases.fleet_solve import FleetSolver
 
 __all__ = ["BEAT_KEEP_S", "WorkerStatus", "Heartbeat", "new_worker_id"]
 
@@ -53,6 +53,7 @@ class WorkerStatus:
         self._lock = threading.Lock()
         self._solving: tuple[str, SolveProgress] | None = None  # (city, its solve)
         self._next: dict[str, tuple[int, float]] = {}  # city -> (interval, due at)
+        self._waiting: dict[str, Waiting] = {}  # city -> why it cannot be sized now
         self.changed = threading.Event()  # set when a solve starts or ends: beat now
 
     @contextmanager
@@ -93,11 +94,30 @@ class WorkerStatus:
         with self._lock:
             self._next[city] = (int(interval), float(due_at_s))
 
+    def waiting(self, city: str, kind: str, reason: str) -> bool:
+        """The city cannot be sized now, for ``reason``; whether that is news (another kind or reason than
+        the one already shown)."""
+        with self._lock:
+            old = self._waiting.get(city)
+            if old is not None and (old.kind, old.reason) == (kind, reason):
+                return False
+            self._waiting[city] = Waiting(kind, reason, self.clock())
+        self.changed.set()
+        return True
+
+    def sizable(self, city: str) -> None:
+        """The city can be sized again (a solve ran)."""
+        with self._lock:
+            gone = self._waiting.pop(city, None)
+        if gone is not None:
+            self.changed.set()
+
     def beat(self, city: str) -> WorkerBeat:
         """The heartbeat of the city now."""
         with self._lock:
             solving = self._solving[1] if self._solving and self._solving[0] == city else None
             nxt = self._next.get(city)
+            waiting = self._waiting.get(city)
         return WorkerBeat(
             worker_id=self.worker_id,
             seen_at_s=self.clock(),
@@ -109,6 +129,7 @@ class WorkerStatus:
             solving=solving,
             next_interval=None if nxt is None else nxt[0],
             next_due_at_s=None if nxt is None else nxt[1],
+            waiting=waiting,
         )
 
 
@@ -118,7 +139,7 @@ class Heartbeat:
 
     def __init__(
         self,
-        service: SizingService,
+        service: FleetSolver,
         status: WorkerStatus,
         cities: Sequence[str],
         *,

@@ -9,14 +9,8 @@ __all__ = ["coming_interval", "due_interval"]
 
 
 def coming_interval(horizon: Horizon, now_s: float) -> IntervalKey:
-    """The first interval of the operating horizon that starts after ``now_s`` (today's next hour of the
-    horizon, or the first hour of the next day's)."""
-    k = int(horizon.interval_of(now_s)) + 1
-    for _ in range(horizon.per_day):
-        if horizon.in_horizon(k):
-            return IntervalKey(k)
-        k += 1
-    raise AssertionError("a day always holds a horizon interval")
+    """The hour a solve at ``now_s`` is for (``Horizon.coming_interval``)."""
+    return horizon.coming_interval(now_s)
 
 
 def due_interval(horizon: Horizon, now_s: float, lead_s: float) -> IntervalKey | None:

@@ -1,10 +1,12 @@
 """The worker loop: every few seconds, claim queued solve requests and run the solves that are due.
 
-Thin by design: *when* lives here (``app.worker.schedule``), *what* in ``FleetSizing.solve``. A solve of
-hour ``h`` is due from ``lead_s`` before ``h`` starts (default: the start of the previous hour, city local
-time); each worker tries it once, and the store lock plus the "already solved" check make sure only one of
-several workers solves it. A request from ``POST /v1/cities/{city}/fleet/solve`` is solved for the coming
-hour at the next poll, even if that hour is already solved.
+Thin by design: *when* lives here (``app.worker.schedule``), *what* in the use case
+``app.usecases.fleet_solve.FleetSolver.solve``. A solve of hour ``h`` is due from ``lead_s`` before ``h``
+starts (default: the start of the previous hour, city local time); each worker tries it once, and the store
+lock plus the "already solved" check make sure only one of several workers solves it. A request from
+``POST /v1/cities/{city}/fleet/solve`` is solved for the coming hour at the next poll, even if that hour is
+already solved. A city that cannot be sized yet (too little history, no tasks) starts no run: its heartbeat
+says why, and the reason is logged once, not at every hour.
 """
 
 from __future__ import annotations
@@ -20,9 +22,9 @@ from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
 from app.ports import StoreUnavailable
 from app.runs import Progress
+from app.usecases.fleet_solve import FleetSolver, SolveOutcome
 from app.worker.heartbeat import WorkerStatus
 from app.worker.schedule import coming_interval, due_interval
-from app.worker.sizing import FleetSizing, SolveOutcome
 from services.city import Horizon
 from services.model import IntervalKey
 
@@ -40,7 +42,7 @@ class WorkerMetrics:
         self.registry = CollectorRegistry(auto_describe=True)
         self.solves = Counter(
             "sd_fleet_solves",
-            "Fleet-sizing solve attempts by outcome (published, failed, skipped, busy).",
+            "Fleet-sizing solve attempts by outcome (published, failed, waiting, skipped, busy).",
             ["outcome"],
             registry=self.registry,
         )
@@ -50,7 +52,7 @@ class WorkerMetrics:
             buckets=(1, 5, 15, 30, 60, 120, 300, 600, 1800),
             registry=self.registry,
         )
-        for outcome in ("published", "failed", "skipped", "busy"):
+        for outcome in ("published", "failed", "waiting", "skipped", "busy"):
             self.solves.labels(outcome=outcome)
         self.runs = Gauge(
             "sd_fleet_runs",
@@ -80,7 +82,7 @@ class FleetWorker:
 
     def __init__(
         self,
-        sizing: FleetSizing,
+        sizing: FleetSolver,
         cities: Sequence[str],
         *,
         lead_s: float = 3600.0,
@@ -108,6 +110,13 @@ class FleetWorker:
 
     def _done(self, outcome: SolveOutcome) -> SolveOutcome:
         self.metrics.observe(outcome)
+        if outcome.status == "waiting":
+            kind, reason = outcome.waiting_for or "", outcome.reason or ""
+            news = self.status.waiting(outcome.city, kind, reason) if self.status else True
+            if news:
+                log.warning("fleet %s: not sized, no run started: %s", outcome.city, outcome.reason)
+        elif outcome.status in ("published", "failed") and self.status is not None:
+            self.status.sizable(outcome.city)
         if outcome.status == "skipped":
             log.info("fleet %s, interval %d: already solved", outcome.city, outcome.interval)
         elif outcome.status == "busy":

@@ -279,6 +279,14 @@ function showWorker(st) {
     const last = w.heartbeat_age_s === null ? "never seen" : `last heartbeat ${ago(w.heartbeat_age_s)} ago`;
     line.textContent = `no fleet worker (${last}): a solve request would wait for nobody; ${w.hint}`;
   }
+  const h = st.history;
+  const history = $("fleet-history");
+  const waiting = st.waiting ? ` · not sized now: ${st.waiting.reason}` : "";
+  history.hidden = h.enough && !st.waiting;
+  history.classList.toggle("gone", !h.enough && h.until_then === "none");
+  history.textContent = h.enough
+    ? waiting.slice(3)
+    : `${h.text}${h.until_then === "synthetic" ? "; until then sized on the seeded synthetic history (a demo city)" : ""}${waiting}`;
   const s = st.solving;
   $("fleet-solving").hidden = !s;
   if (s) {

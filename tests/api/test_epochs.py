@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Sequence
 from typing import Any
 
@@ -216,18 +217,29 @@ def test_duplicate_at_commit_is_a_replay(make_client: MakeClient) -> None:
     assert late.post(URL, json=changed, headers=auth()).json()["error"] == "epoch_conflict"
 
 
-def test_demand_recorded_for_the_worker(make_client: MakeClient) -> None:
-    store = MemoryStore()
-    client = make_client(store=store)
-    client.post(URL, json=payloads.epoch(), headers=auth())
-    import json
-
-    (doc,) = [json.loads(d) for d in store.recorded_demand(CITY, "20261123")]
-    assert doc["epoch_id"] == "e1"
-    assert [(r["id"], r["origin"], r["destination"]) for r in doc["riders"]] == [
+def test_demand_recorded_for_the_worker(make_client: MakeClient, any_store: Store) -> None:
+    """Every epoch records its riders and how many instrumented and ordinary taxis it posted, under the
+    city's local day; the one that opens the day's horizon also where each taxi stood. A replay records
+    nothing again."""
+    client = make_client(store=any_store)
+    for epoch_id, minutes in (("before", -30.0), ("e1", 0.0), ("e2", 200 / 60), ("next-day", 24 * 60.0 + 1)):
+        assert client.post(URL, json=payloads.epoch(epoch_id, minutes), headers=auth()).status_code == 200
+    assert client.post(URL, json=payloads.epoch("e2", 200 / 60), headers=auth()).status_code == 200  # replay
+    docs = [json.loads(d) for d in any_store.recorded_demand(CITY, "20261123")]
+    assert [d["epoch_id"] for d in docs] == ["before", "e1", "e2"]
+    assert [(r["id"], r["origin"], r["destination"]) for r in docs[1]["riders"]] == [
         ("r1", node_id(0, 0), node_id(4, 4)),
         ("r2", node_id(3, 3), node_id(1, 0)),
     ]
+    assert all(d["fleet"] == {"instrumented": 2, "ordinary": 1} for d in docs)
+    assert [("fleet_at_open" in d) for d in docs] == [False, True, False]  # 07:30 is before the horizon
+    assert docs[1]["fleet_at_open"] == {
+        "instrumented": [node_id(0, 1), node_id(4, 0)],
+        "ordinary": [node_id(2, 2)],
+    }
+    (nxt,) = [json.loads(d) for d in any_store.recorded_demand(CITY, "20261124")]
+    assert nxt["epoch_id"] == "next-day" and "fleet_at_open" in nxt  # the first epoch of that day's horizon
+    assert any_store.recorded_epochs(CITY, ["20261123", "20261124", "20261125"]) == [3, 1, 0]
 
 
 def test_unknown_exception_is_500_with_the_error_shape(make_client: MakeClient) -> None:

@@ -4,23 +4,36 @@ and error bodies, over the memory and the Redis store."""
 from __future__ import annotations
 
 import datetime as dt
+import json
 import time
+from zoneinfo import ZoneInfo
 
 import pytest
 from fastapi.testclient import TestClient
 
 from app.cities import CityRegistry
-from app.ports import FleetRecord, SolveProgress, SolveRequest, Store, WorkerBeat
+from app.ports import (
+    EpochCommit,
+    FleetRecord,
+    SolveProgress,
+    SolveRequest,
+    Store,
+    Waiting,
+    WorkerBeat,
+    local_day,
+)
 from app.schemas.fleet import render_recommendation
-from app.worker.sizing import (
+from app.usecases.fleet_history import SizingConfig
+from app.usecases.fleet_solve import (
+    FleetOrigin,
     HistoryDay,
     HistoryWindow,
     Observed,
     Recommendation,
-    SizingConfig,
     SolveStats,
     TaskSet,
 )
+from services.city import Horizon
 from services.fleet.sizing import CostModel, DayOutcomes, plan_fleet
 from services.model import IntervalKey
 from services.rfc3339 import format_time
@@ -93,8 +106,30 @@ def body_json(
         request_id,
         observed,
         TaskSet("synthetic", None),
+        FleetOrigin("settings", "settings", None, None, "seeded"),
     )
     return render_recommendation(rec)
+
+
+def solve_day() -> dt.date:
+    """The local date of the hour a solve now is for (the tiny city's coming hour)."""
+    hz = Horizon()  # the tiny city's: Asia/Shanghai, 08:00-12:00
+    return hz.local_start(hz.coming_interval(time.time())).date()
+
+
+def record_history(store: Store, days: int = 2) -> None:
+    """An epoch on each of the ``days`` local days before today: the history a solve with M = ``days``
+    needs (the clients below set ``worker_days=2``)."""
+    tz = ZoneInfo("Asia/Shanghai")
+    version = store.load_state(CITY, [], []).version
+    for back in range(days, 0, -1):
+        t = dt.datetime.combine(solve_day() - dt.timedelta(days=back), dt.time(9), tzinfo=tz).timestamp()
+        doc = json.dumps({"epoch_id": f"h{back}", "time_s": t, "riders": []})
+        commit = EpochCommit(
+            f"h{back}", "h", t, version, (), (), "{}", demand_json=doc, demand_day=local_day(t, tz.key)
+        )
+        assert store.commit_epoch(CITY, commit).status == "committed"
+        version += 1
 
 
 def beat(age_s: float = 1.0, now: float | None = None, **kw: object) -> WorkerBeat:
@@ -247,7 +282,8 @@ def test_history_lists_published_and_failed_solves_newest_first(
 
 
 def test_solve_request_is_queued_not_solved(make_client: MakeClient, any_store: Store) -> None:
-    client = make_client(store=any_store, tokens=WITH_ADMIN)
+    client = make_client(store=any_store, tokens=WITH_ADMIN, worker_days=2)
+    record_history(any_store)
     any_store.record_worker_beat(CITY, beat(), 3600.0)
     r = client.post(f"{BASE}/solve", headers=auth(ADMIN))
     assert r.status_code == 202, r.text
@@ -267,7 +303,8 @@ def test_solve_request_is_queued_not_solved(make_client: MakeClient, any_store: 
 
 
 def test_scopes(make_client: MakeClient) -> None:
-    client = make_client(tokens=WITH_ADMIN)
+    client = make_client(tokens=WITH_ADMIN, worker_days=2)
+    record_history(store_of(client))
     assert client.get(f"{BASE}/recommendations").status_code == 401
     assert client.get(f"{BASE}/recommendations", headers=auth(DISPATCH)).status_code == 403
     assert client.get(f"{BASE}/recommendations", headers=auth(ADMIN)).status_code == 403
@@ -297,7 +334,8 @@ def test_a_solve_request_with_no_worker_seen_is_503_no_worker_and_queues_nothing
     make_client: MakeClient, any_store: Store, age_s: float | None
 ) -> None:
     now = time.time()  # the service's clock stands still: the beat is exactly age_s old
-    client = make_client(store=any_store, tokens=WITH_ADMIN, clock=lambda: now)  # SD_WORKER_STALE_S: 30 s
+    client = make_client(store=any_store, tokens=WITH_ADMIN, clock=lambda: now, worker_days=2)  # stale: 30 s
+    record_history(any_store)
     if age_s is not None:
         any_store.record_worker_beat(CITY, beat(age_s, now), 3600.0)
     r = client.post(f"{BASE}/solve", headers=auth(ADMIN))
@@ -313,9 +351,46 @@ def test_a_solve_request_with_no_worker_seen_is_503_no_worker_and_queues_nothing
 
 
 def test_the_stale_limit_is_a_setting(make_client: MakeClient, any_store: Store) -> None:
-    client = make_client(store=any_store, tokens=WITH_ADMIN, worker_stale_s=120.0)
+    client = make_client(store=any_store, tokens=WITH_ADMIN, worker_stale_s=120.0, worker_days=2)
+    record_history(any_store)
     any_store.record_worker_beat(CITY, beat(90.0), 3600.0)
     assert client.post(f"{BASE}/solve", headers=auth(ADMIN)).status_code == 202
+
+
+def test_before_its_history_a_solve_is_409_and_the_status_counts_the_days(
+    make_client: MakeClient, any_store: Store
+) -> None:
+    """A city sized on the platform's own history: until it has M days with epochs a solve request is
+    refused with the days it has and needs (nothing queued), and the status says how far it is."""
+    client = make_client(store=any_store, tokens=WITH_ADMIN, worker_days=3)
+    any_store.record_worker_beat(CITY, beat(), 3600.0)
+    record_history(any_store, days=2)
+    r = client.post(f"{BASE}/solve", headers=auth(ADMIN))
+    assert r.status_code == 409, r.text
+    body = r.json()
+    first = (solve_day() + dt.timedelta(days=1)).isoformat()
+    assert body["error"] == "insufficient_history" and body["fields"] == []
+    assert body["history"] == {"days": 2, "needed": 3, "first_solve_on": first}
+    assert "collecting history: 2 of 3 days" in body["detail"]
+    assert any_store.pending_solve_request(CITY) is None
+    st = client.get(f"{BASE}/status", headers=auth(READ)).json()
+    assert st["history"] == {
+        "days": 2,
+        "needed": 3,
+        "first_solve_on": first,
+        "enough": False,
+        "until_then": "none",
+        "text": body["detail"].removeprefix("'tiny' cannot be sized yet: "),
+    }
+    assert st["history"]["text"].startswith("collecting history: 2 of 3 days")
+    # a worker that found the city not sizable says why, once, in its beat
+    waiting = Waiting("insufficient_history", st["history"]["text"], time.time() - 5.0)
+    any_store.record_worker_beat(CITY, beat(waiting=waiting), 3600.0)
+    st = client.get(f"{BASE}/status", headers=auth(READ)).json()
+    assert st["waiting"]["kind"] == "insufficient_history" and st["waiting"]["reason"] == waiting.reason
+    other = make_client(store=any_store, tokens=WITH_ADMIN, worker_days=2)  # M = 2: enough
+    assert other.post(f"{BASE}/solve", headers=auth(ADMIN)).status_code == 202
+    assert other.get(f"{BASE}/status", headers=auth(READ)).json()["history"]["enough"] is True
 
 
 def test_status_shows_the_worker_its_solve_the_request_the_last_and_the_next_solve(

@@ -46,6 +46,7 @@ def _commit(epoch_id: str, version: int, time_s: float, nonce: str = "n-1") -> E
         task_updates=[Task(TaskId("p1"), 1, T0, status="completed")],
         response_json="{}",
         demand_json="{}",
+        demand_day="20231114",
         nonce=nonce,
     )
 
@@ -64,6 +65,8 @@ def test_every_node_serves_its_cities(
         assert (state.version, state.counts, state.visited) == (1, {K: {3: 1}}, {TaxiId("a"): {(K, 3)}})
         assert [t.id for t in store.list_tasks(city)] == ["p1"]
         assert store.list_intervals(city) == [K]
+        assert store.recorded_demand(city, "20231114") == ["{}"]
+        assert store.recorded_epochs(city, ["20231114", "20231115"]) == [1, 0]
         assert store.rewind_epochs(city, T0 - 60).status == "rewound"
         assert store.reset_epochs(city) > 0 and store.load_state(city, [], []).version == 0
 

@@ -31,6 +31,7 @@ def _commit(epoch_id: str, version: int, visits: list[Visit], retention_s: int) 
         response_json="{}",
         retention_s=retention_s,
         demand_json="[]",
+        demand_day="20231114",
     )
 
 

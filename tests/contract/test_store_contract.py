@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from app.adapters import RedisStore
-from app.ports import CityState, EpochCommit, Store, StoredEpoch, StoreUnavailable, utc_day
+from app.ports import CityState, EpochCommit, Store, StoredEpoch, StoreUnavailable, local_day
 from services.ledger import Ledger, apply_decision
 from services.model import IntervalKey, Task, TaskId, TaxiId, Visit
 
@@ -37,6 +37,7 @@ def commit(
     body_hash: str | None = None,
     demand_json: str | None = None,
     retention_s: int = 8 * 86400,
+    demand_day: str | None = None,
 ) -> EpochCommit:
     return EpochCommit(
         epoch_id=epoch_id,
@@ -48,6 +49,7 @@ def commit(
         response_json=f'{{"epoch_id": "{epoch_id}"}}',
         retention_s=retention_s,
         demand_json=demand_json,
+        demand_day=(demand_day or local_day(time_s, "UTC")) if demand_json is not None else "",
     )
 
 
@@ -59,7 +61,7 @@ def full_state(store: Store, city: str = CITY) -> tuple[object, ...]:
         store.list_intervals(city),
         store.list_tasks(city),
         [store.interval_counts(city, k) for k in ks],
-        store.recorded_demand(city, utc_day(T0)),
+        store.recorded_demand(city, local_day(T0, "UTC")),
     )
 
 
@@ -163,7 +165,7 @@ def test_ids_and_times_round_trip_exactly(store: Store) -> None:
 
 def test_duplicate_epoch_returns_stored_record_and_changes_nothing(case: StoreCase) -> None:
     store = case.store
-    day = utc_day(T0)
+    day = local_day(T0, "UTC")
     first = commit("e1", version=0, visits=[visit(A, K1, 5)], tasks=[task("p1")], demand_json='["r1"]')
     store.commit_epoch(CITY, first)
     before, raw_before = full_state(store), case.raw()
@@ -330,15 +332,33 @@ def test_list_intervals_ascending(store: Store) -> None:
     assert store.list_intervals(CITY) == [K3, K1, K2]  # 7 < 480 < 481: numeric, not lexicographic
 
 
-def test_recorded_demand_by_utc_day(store: Store) -> None:
-    midnight = 1_700_006_400.0  # 2023-11-15 00:00:00 UTC
-    store.commit_epoch(CITY, commit("e1", version=0, time_s=midnight - 1, demand_json='["a"]'))
-    store.commit_epoch(CITY, commit("e2", version=1, time_s=midnight - 0.5, demand_json=None))
-    store.commit_epoch(CITY, commit("e3", version=2, time_s=midnight, demand_json='["b"]'))
-    store.commit_epoch(CITY, commit("e4", version=3, time_s=midnight + 5, demand_json='["c"]'))
-    assert store.recorded_demand(CITY, "20231114") == ['["a"]']
+def test_recorded_demand_by_the_day_each_commit_names(store: Store) -> None:
+    """The store keeps each commit's demand under the day the commit names (the city's local day, which
+    the epoch use case computes), in commit order, and counts a day's records without reading them."""
+    midnight = 1_700_006_400.0 - 8 * 3600  # 2023-11-15 00:00:00 in Shanghai (16:00 UTC the day before)
+    tz = "Asia/Shanghai"
+    for version, (epoch, t, doc) in enumerate(
+        [
+            ("e1", midnight - 1, '["a"]'),
+            ("e2", midnight, '["b"]'),
+            ("e3", midnight + 1, None),
+            ("e4", midnight + 5, '["c"]'),
+        ]
+    ):
+        day = local_day(t, tz) if doc is not None else None
+        assert (
+            store.commit_epoch(
+                CITY, commit(epoch, version=version, time_s=t, demand_json=doc, demand_day=day)
+            ).status
+            == "committed"
+        )
+    assert store.recorded_demand(CITY, "20231114") == ['["a"]']  # 23:59:59 in Shanghai, 15:59:59 UTC
     assert store.recorded_demand(CITY, "20231115") == ['["b"]', '["c"]']
     assert store.recorded_demand(CITY, "20231116") == []
+    assert store.recorded_epochs(CITY, ["20231116", "20231115", "20231114"]) == [0, 2, 1]
+    assert store.recorded_epochs(CITY, []) == []
+    with pytest.raises(ValueError, match="demand_day"):
+        EpochCommit("e5", "h", midnight, 4, (), (), "{}", demand_json='["d"]')
 
 
 # -- property: Lambda is the number of distinct taxis per (interval, cell) -----------------------------
@@ -395,7 +415,7 @@ def test_retention_ttl_on_redis_keys(redis_store: RedisStore, redis_url: str) ->
             f"{p}:count:{K1}",
             f"{p}:visit:{K1}:{A}",
             f"{p}:epoch:e1",
-            f"{p}:demand:{utc_day(T0)}",
+            f"{p}:demand:{local_day(T0, 'UTC')}",
             f"{p}:meta",
         ):
             assert 0 < client.ttl(key) <= retention, key
@@ -581,7 +601,7 @@ def test_reset_forgets_the_stream_but_not_the_fleet(case: StoreCase) -> None:
     state = store.load_state(CITY, [K1], [A])
     assert (state.version, state.last_epoch_id, state.counts, state.tasks) == (0, None, {K1: {}}, [])
     assert store.get_epoch(CITY, "e1") is None and store.list_tasks(CITY) == []
-    assert store.list_intervals(CITY) == [] and store.recorded_demand(CITY, utc_day(T0)) == []
+    assert store.list_intervals(CITY) == [] and store.recorded_demand(CITY, local_day(T0, "UTC")) == []
     # the fleet records, the lock and the other city stay
     assert store.current_recommendation(CITY) == record
     assert lock is not None and store.acquire_lock(CITY, "solve", 60) is None

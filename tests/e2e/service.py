@@ -27,10 +27,15 @@ def _free_port() -> int:
 
 
 def start_process(
-    env: Mapping[str, str], tokens: Mapping[str, Sequence[str]], *, port: int | None = None, log: bool = False
+    env: Mapping[str, str],
+    tokens: Mapping[str, Sequence[str]],
+    *,
+    port: int | None = None,
+    log_file: Path | None = None,
 ) -> tuple[subprocess.Popen[bytes], str]:
     """Start ``python -m app run`` with ``SD_*`` settings ``env`` (on top of this environment) and the
-    tokens, on ``port`` (a free one by default); its output is captured when ``log``, else only stderr."""
+    tokens, on ``port`` (a free one by default); its whole output goes to ``log_file`` when given (a file,
+    not a pipe: a busy access log never blocks the server on a full pipe), else only stderr is captured."""
     port = port or _free_port()
     full = {
         **os.environ,
@@ -39,13 +44,19 @@ def start_process(
         "SD_LOG_LEVEL": "warning",
         **env,
     }
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app", "run"],
-        cwd=ROOT,
-        env=full,
-        stdout=subprocess.PIPE if log else subprocess.DEVNULL,
-        stderr=subprocess.STDOUT if log else subprocess.PIPE,
-    )
+    if log_file is None:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "app", "run"],
+            cwd=ROOT,
+            env=full,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+    else:
+        with log_file.open("wb") as out:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "app", "run"], cwd=ROOT, env=full, stdout=out, stderr=subprocess.STDOUT
+            )
     return proc, f"http://127.0.0.1:{port}"
 
 

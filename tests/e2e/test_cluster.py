@@ -22,10 +22,9 @@ from app.runs.dask_executor import DaskExecutor
 from app.runs.localcluster import LocalCluster, free_port
 from app.runs.workload import open_bundle
 from app.schemas.fleet import render_recommendation
-from app.usecases import SizingService
+from app.usecases.fleet_solve import FleetSolver
 from app.worker import main as worker_main
 from app.worker.service import WorkerMetrics
-from app.worker.sizing import FleetSizing
 from services.model import IntervalKey
 from tests.e2e.cluster_tasks import where_opened
 from tests.e2e.test_worker import CITY, TINY, Clock, local
@@ -38,12 +37,13 @@ CLOCK_FIELDS = ("elapsed_s", "solve_ms_median")  # clock readings: the only fiel
 
 def sizing(
     runner: Runner, store: MemoryStore, progress: Callable[[Progress], None] | None = None
-) -> FleetSizing:
-    return FleetSizing(
-        SizingService(store),
+) -> FleetSolver:
+    return FleetSolver(
+        store,
         runner,
         TINY,
         render=render_recommendation,
+        cities=CityRegistry(),
         clock=Clock(local(23, 7, 0)),
         progress=progress,
     )
@@ -57,7 +57,7 @@ def tiny_jobs() -> list[RunJob]:
     """The small re-solve's 6 jobs."""
     s = sizing(Runner(RunCache(Path("unused"))), MemoryStore())
     city = s.load_city(CITY)
-    return list(s.jobs(city, s.window(city, target())).values())
+    return list(s.jobs(city, s.window(city, target(), TINY), TINY).values())
 
 
 def body_of(store: MemoryStore) -> dict[str, Any]:

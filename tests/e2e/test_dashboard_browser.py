@@ -27,11 +27,12 @@ from PIL import Image
 from playwright.sync_api import Browser, ConsoleMessage, Page, Response, expect
 
 from app.adapters.redis_store import RedisStore
+from app.cities import CityRegistry
 from app.replay import HttpDispatcher
 from app.runs import RunCache, Runner
 from app.schemas.fleet import render_recommendation
-from app.usecases import SizingService
-from app.worker.sizing import FleetSizing, SizingConfig
+from app.usecases.fleet_history import SizingConfig
+from app.usecases.fleet_solve import FleetSolver
 from services.city import City
 from services.citydata import load_city
 from services.model import Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
@@ -75,11 +76,12 @@ def _publish_recommendations(redis_url: str, prefix: str, cache: Path) -> None:
         hours = [dt.datetime(2026, 11, 23, h, tzinfo=SHANGHAI).timestamp() for h in (7, 8)]
         clock = {"t": hours[0]}
         config = SizingConfig(sizes=(2, 4, 6), days=3, n0=4, n_tasks=3, rate_per_hour=10.0, lookback_days=9)
-        sizing = FleetSizing(
-            SizingService(store),
+        sizing = FleetSolver(
+            store,
             Runner(RunCache(cache)),
             config,
             render=render_recommendation,
+            cities=CityRegistry(),
             clock=lambda: clock["t"],
         )
         city = load_city(ROOT / "app" / "data" / "cities" / CITY)

@@ -19,10 +19,14 @@ import tempfile
 from pathlib import Path
 
 from app.adapters import MemoryStore
+from app.cities import CityRegistry
 from app.main import create_app
+from app.runs import RunCache, Runner
+from app.schemas.fleet import render_recommendation
 from app.serve import serve_app_in_thread
 from app.settings import Settings
-from app.usecases import SizingService
+from app.usecases.fleet_history import SizingConfig
+from app.usecases.fleet_solve import FleetSolver
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 
 TOKEN = "schemathesis-token-0001"
@@ -38,7 +42,13 @@ def run_schemathesis(max_examples: int) -> tuple[int, str]:
     app = create_app(settings, store=store)
     # a fleet worker's heartbeat (it never solves): a solve request is queued, as a deployment answers it
     beats = Heartbeat(
-        SizingService(store),
+        FleetSolver(
+            store,
+            Runner(RunCache(Path(tempfile.mkdtemp()))),
+            SizingConfig(),
+            render=render_recommendation,
+            cities=CityRegistry(),
+        ),
         WorkerStatus(embedded=False, poll_s=2.0),
         ["chengdu", "manhattan"],
         interval_s=2.0,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import httpx
 import pytest
@@ -96,10 +97,10 @@ def test_connections_beyond_the_cap_are_refused_at_once(served: tuple[str, int, 
             assert c.get("/healthz").status_code == 200
 
 
-def test_query_token_not_in_the_access_log() -> None:
+def test_query_token_not_in_the_access_log(tmp_path: Path) -> None:
     secret = "sd-secret-in-the-query-0123456789"
     env = {"SD_STORE": "memory", "SD_LOG_LEVEL": "info", "SD_HEADER_TIMEOUT_S": "1"}
-    proc, url = start_process(env, {"tok-log-test-0001": ["read"]}, log=True)
+    proc, url = start_process(env, {"tok-log-test-0001": ["read"]}, log_file=tmp_path / "service.log")
     try:
         wait_ready(url, proc)
         r = httpx.get(f"{url}/v1/cities?token={secret}&x=1", timeout=10)
@@ -110,7 +111,6 @@ def test_query_token_not_in_the_access_log() -> None:
             assert _read_all(s).startswith(b"HTTP/1.1 408 ")
     finally:
         stop(proc)
-    assert proc.stdout is not None
-    log = proc.stdout.read().decode(errors="replace")
+    log = (tmp_path / "service.log").read_text(errors="replace")
     assert "GET /v1/cities?token=***&x=1 HTTP/1.1" in log, log[-2000:]
     assert secret not in log

@@ -21,7 +21,7 @@ from fastapi.testclient import TestClient
 from app.adapters import MemoryStore, RedisStore
 from app.cities import CityRegistry
 from app.main import create_app
-from app.ports import EpochCommit, SolveRequest, Store
+from app.ports import EpochCommit, SolveRequest, Store, local_day
 from app.runs import (
     ProcessExecutor,
     ProgressFn,
@@ -37,11 +37,11 @@ from app.runs import (
 )
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
-from app.usecases import SizingService
+from app.usecases.fleet_history import SizingConfig
+from app.usecases.fleet_solve import FleetSolver, SolveOutcome
 from app.worker import main as worker_main
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker
-from app.worker.sizing import FleetSizing, SizingConfig, SolveOutcome
 from services.sim.demand import DemandSet, Request
 
 CITY = "chengdu"
@@ -95,11 +95,12 @@ def worker(
     status: WorkerStatus | None = None,
 ) -> FleetWorker:
     progress = None if status is None else status.progress
-    sizing = FleetSizing(
-        SizingService(store),
+    sizing = FleetSolver(
+        store,
         runner or Runner(RunCache(cache)),
         config,
         render=render_recommendation,
+        cities=CityRegistry(),
         clock=clock,
         progress=progress,
     )
@@ -292,7 +293,7 @@ def test_an_admin_request_is_picked_up_at_the_next_poll(tmp_path: Path) -> None:
     slow = Runner(RunCache(tmp_path), run_fn=slow_run_job)  # each run takes 0.2 s more: progress to see
     w = worker(store, tmp_path, clock, runner=slow, status=status)
     assert w.tick() == []
-    heartbeat = Heartbeat(SizingService(store), status, [CITY], interval_s=0.05)
+    heartbeat = Heartbeat(w.sizing, status, [CITY], interval_s=0.05)
     solve_url, status_url = f"/v1/cities/{CITY}/fleet/solve", f"/v1/cities/{CITY}/fleet/status"
     with client_for(store, clock) as client:
         r = client.post(solve_url, headers=auth(ADMIN))
@@ -364,7 +365,8 @@ def record_demand(store: Store, demand: DemandSet) -> None:
     for doc in recorded_epochs(demand, BUNDLE.city.network.node_ids):
         t = json.loads(doc)["time_s"]
         version = store.load_state(CITY, [], []).version
-        commit = EpochCommit(f"e{t}", "h", t, version, (), (), "{}", demand_json=doc)
+        day = local_day(t, BUNDLE.city.horizon.timezone)
+        commit = EpochCommit(f"e{t}", "h", t, version, (), (), "{}", demand_json=doc, demand_day=day)
         assert store.commit_epoch(CITY, commit).status == "committed"
 
 
@@ -387,6 +389,13 @@ def test_recorded_demand_is_used_once_m_days_exist(tmp_path: Path) -> None:
     window = current_body(store)["data_window"]
     assert window["source"] == "recorded" and window["days"] == ["2026-11-22", "2026-11-21"]
     assert window["requests_per_day"] == expected[::-1] and window["seed"] is None
+    simulation = current_body(store)["simulation"]  # these records carry no fleet: the settings' sizes
+    assert (simulation["sizes_source"], simulation["n0_source"], simulation["n0"]) == (
+        "settings",
+        "settings",
+        4,
+    )
+    assert simulation["fleet_start"] == "seeded" and simulation["posted_instrumented"] is None
 
 
 def test_the_rolling_recommendation_conditions_on_the_hours_recorded_today(tmp_path: Path) -> None:
@@ -434,13 +443,15 @@ def test_the_rolling_recommendation_conditions_on_the_hours_recorded_today(tmp_p
 
 def test_two_processes_give_the_same_runs_as_one(tmp_path: Path) -> None:
     city = BUNDLE.city
-    sizing = FleetSizing(
-        SizingService(MemoryStore()),
+    sizing = FleetSolver(
+        MemoryStore(),
         Runner(RunCache(tmp_path / "unused")),
         TINY,
         render=render_recommendation,
+        cities=CityRegistry(),
     )
-    jobs = list(sizing.jobs(city, sizing.window(city, city.horizon.interval_of(local(23, 8)))).values())
+    k = city.horizon.interval_of(local(23, 8))
+    jobs = list(sizing.jobs(city, sizing.window(city, k, TINY), TINY).values())
     pooled = Runner(RunCache(tmp_path / "pool"), ProcessExecutor(2))
     try:
         two = pooled.run(jobs)

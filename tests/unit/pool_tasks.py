@@ -18,3 +18,19 @@ def exit_on_2(x: int) -> int:
     if x == 2:
         os._exit(7)
     return x
+
+
+def count_until_stopped(directory: str) -> int:
+    """Count up, writing the count to ``directory/count`` every few milliseconds, until the file
+    ``directory/stop`` appears; the last count."""
+    import pathlib
+    import time
+
+    here = pathlib.Path(directory)
+    n = 0
+    while not (here / "stop").exists():
+        n += 1
+        (here / "count.tmp").write_text(str(n))
+        os.replace(here / "count.tmp", here / "count")
+        time.sleep(0.005)
+    return n

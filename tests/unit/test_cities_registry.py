@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from app.cities import BUNDLED_DIR, CityRegistry, UnknownCity, import_city, import_city_cli
+from services.city import FleetParams
 from services.citydata import CityDataError, CityMeta, load_city
 from services.network.network import SnapError
 
@@ -197,3 +198,35 @@ def test_cli_import_sets_dispatch_parameters(tmp_path: Path) -> None:
     for bad in ("no_such=1", "step3_reach_s=-5", "step3_reach_s", "step3_reach_s={"):
         assert import_city_cli(["bad", *base, "--param", bad], stdout=out, stderr=err) == 2, bad
     assert not (tmp_path / "c" / "bad").exists()
+
+
+def test_cli_import_sets_fleet_sizing_parameters(tmp_path: Path) -> None:
+    """``--fleet NAME=JSON`` writes the city's fleet-sizing parameters into its city.json; the ones not set
+    stay null (derived from the fleet posted, or the worker's settings). A bad value writes nothing, and a
+    demo city's synthetic history needs a demand generator in the bundle."""
+    n, e = _csv(tmp_path)
+    out, err = io.StringIO(), io.StringIO()
+    base = ["--nodes", str(n), "--edges", str(e), "--out", str(tmp_path / "c")]
+    fleet = ["--fleet", "sizes=[300, 100, 200]", "--fleet", "n0=450", "--fleet", "completion_target=0.9"]
+    assert import_city_cli(["own", *base, *fleet], stdout=out, stderr=err) == 0, err.getvalue()
+    assert import_city_cli(["bare", *base], stdout=out, stderr=err) == 0
+    reg = CityRegistry(user_dir=tmp_path / "c")
+    assert reg.get("own").fleet == FleetParams(sizes=(300, 100, 200), n0=450, completion_target=0.9)
+    assert json.loads((tmp_path / "c" / "own" / "city.json").read_text())["fleet"] == {
+        "sizes": [300, 100, 200],
+        "n0": 450,
+        "completion_target": 0.9,
+    }
+    assert reg.get("bare").fleet == FleetParams()
+    assert "fleet" not in json.loads((tmp_path / "c" / "bare" / "city.json").read_text())
+    for bad in ("sizes=[10, 10]", "sizes=[0]", "n0=-1", "days=1", "completion_target=2", "budget=3", "n0"):
+        err = io.StringIO()
+        assert import_city_cli(["bad", *base, "--fleet", bad], stdout=out, stderr=err) == 2, bad
+        assert "fleet" in err.getvalue(), bad
+    assert import_city_cli(["bad", *base, "--fleet", "synthetic_history=true"], stdout=out, stderr=err) == 1
+    assert not (tmp_path / "c" / "bad").exists()
+
+
+def test_the_bundled_cities_are_demo_cities_sized_on_synthetic_history(bundled: CityRegistry) -> None:
+    for name in ("chengdu", "manhattan"):
+        assert bundled.get(name).fleet == FleetParams(synthetic_history=True)

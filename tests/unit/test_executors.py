@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -27,9 +29,10 @@ from app.runs import (
     open_bundle,
 )
 from app.runs.bundles import BundleFiles, install_shipped, shipped_copy
+from app.runs.executor import Foreground
 from app.runs.localcluster import free_port
 from tests.api.fakes import CITY, build_bundle
-from tests.unit.pool_tasks import exit_on_2, square_unless_3
+from tests.unit.pool_tasks import count_until_stopped, exit_on_2, square_unless_3
 from tests.unit.test_worker_parts import result
 
 T = TypeVar("T")
@@ -210,3 +213,73 @@ def test_executors_by_name() -> None:
     with pytest.raises(ExecutorUnavailable, match=f"cannot reach the Dask scheduler at {nobody}"):
         list(dask.map_unordered(square_unless_3, [1]))
     dask.close()
+
+
+def _count(directory: Path) -> int:
+    try:
+        return int((directory / "count").read_text() or 0)
+    except FileNotFoundError:
+        return 0
+
+
+def _until(check: Callable[[], bool], timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.02)
+
+
+@pytest.mark.slow  # starting a pool process takes seconds
+def test_paused_processes_make_no_progress_until_resumed(tmp_path: Path) -> None:
+    """What the embedded worker's runs do while the API solves an epoch (``Foreground``): stopped where
+    they are, then going on; closing a paused executor still ends its processes."""
+    executor = ProcessExecutor(1)
+    events: list[Any] = []
+    runs = threading.Thread(
+        target=lambda: events.extend(executor.map_unordered(count_until_stopped, [str(tmp_path)]))
+    )
+    runs.start()
+    try:
+        _until(lambda: _count(tmp_path) > 5)
+        executor.pause()
+        time.sleep(0.2)  # a write under way when the signal came is over
+        held = _count(tmp_path)
+        time.sleep(0.5)
+        assert _count(tmp_path) == held  # no progress while paused
+        executor.resume()
+        _until(lambda: _count(tmp_path) > held + 5)
+        (tmp_path / "stop").touch()
+        runs.join(timeout=60)
+        assert [e.value for e in events if isinstance(e, Finished)] == [_count(tmp_path)]
+        executor.pause()
+    finally:
+        (tmp_path / "stop").touch()
+        executor.close()  # resumes first: a stopped process would never take its shutdown
+    assert not runs.is_alive()
+
+
+class _Recorder:
+    def __init__(self) -> None:
+        self.calls: list[str] = []
+
+    def pause(self) -> None:
+        self.calls.append("pause")
+
+    def resume(self) -> None:
+        self.calls.append("resume")
+
+
+def test_the_first_epoch_in_flight_pauses_and_the_last_resumes() -> None:
+    gate = Foreground()
+    first, second = _Recorder(), _Recorder()
+    gate.add(first)  # type: ignore[arg-type]
+    with gate.epoch():
+        assert first.calls == ["pause"]
+        with gate.epoch():  # a second epoch solved at the same time
+            gate.add(second)  # type: ignore[arg-type]  # added while epochs are in flight: paused at once
+            assert first.calls == ["pause"] and second.calls == ["pause"]
+        assert first.calls == ["pause"]  # one epoch still in flight
+    assert first.calls == second.calls == ["pause", "resume"]
+    with pytest.raises(RuntimeError), gate.epoch():
+        raise RuntimeError("an epoch that fails still resumes the runs")
+    assert first.calls == ["pause", "resume", "pause", "resume"]

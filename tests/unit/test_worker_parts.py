@@ -1,5 +1,6 @@
-"""The fleet-sizing worker's parts without simulation: schedule, recorded demand, history window, run cache
-and runner, settings and options. (Real solves: tests/e2e/test_worker.py.)"""
+"""The fleet-sizing worker's parts without simulation: schedule, the recorded history (requests and fleet by
+local day, k of M days), the history window, the fleet of a solve, run cache and runner, settings and
+options. (Real solves: tests/e2e/test_worker.py.)"""
 
 from __future__ import annotations
 
@@ -12,12 +13,13 @@ from pathlib import Path
 from typing import Any, get_args
 from zoneinfo import ZoneInfo
 
+import numpy as np
 import pytest
 from pydantic import ValidationError
 
 from app.adapters import MemoryStore
 from app.cities import CityRegistry
-from app.ports import EpochCommit
+from app.ports import EpochCommit, SolveRequest, local_day
 from app.runs import (
     RunCache,
     RunJob,
@@ -36,12 +38,31 @@ from app.settings import (
     DivergenceName,
     Settings,
 )
-from app.usecases import SizingService
+from app.usecases.fleet_history import (
+    FleetHistory,
+    HistoryState,
+    RecordedDemandError,
+    RecordedFleet,
+    SizingConfig,
+    day_from_records,
+    demand_from_records,
+    posted_fleet,
+    recorded_days,
+    spread_sizes,
+    start_nodes,
+)
+from app.usecases.fleet_solve import (
+    FleetOrigin,
+    FleetSolver,
+    HistoryDay,
+    HistoryWindow,
+    NotReady,
+    TaskSet,
+    observed_today,
+)
 from app.worker.cli import parser, settings_from_args
-from app.worker.recorded import RecordedDemandError, demand_from_records, recorded_days
 from app.worker.schedule import coming_interval, due_interval
-from app.worker.sizing import FleetSizing, SizingConfig, TaskSet, observed_today
-from services.city import City, Horizon
+from services.city import City, FleetParams, Horizon
 from services.fleet.dro import DIVERGENCE_NAMES
 from services.model import Task, TaskId
 from services.sim.demand import DemandSet, Request
@@ -106,22 +127,31 @@ def test_due_in_another_time_zone_and_lead() -> None:
     assert due_interval(hz, t, 3600.0) is None and due_interval(hz, t, 5400.0) == k
 
 
-# ------------------------------------------------------------------------------------------ recorded demand
+# ------------------------------------------------------------------------------------------ recorded history
 
 
-def record(epoch: str, time_s: float, riders: list[tuple[str, int, int, float]]) -> str:
-    """An epoch's demand as the service records it (``app.usecases.epochs``)."""
-    return json.dumps(
-        {
-            "epoch_id": epoch,
-            "time": dt.datetime.fromtimestamp(time_s, tz=SHANGHAI).isoformat(),
-            "time_s": time_s,
-            "riders": [
-                {"id": i, "origin": o, "destination": d, "requested_at": "", "requested_at_s": t}
-                for i, o, d, t in riders
-            ],
-        }
-    )
+def record(
+    epoch: str,
+    time_s: float,
+    riders: list[tuple[str, int, int, float]],
+    fleet: tuple[int, int] | None = None,
+    at_open: tuple[list[Any], list[Any]] | None = None,
+) -> str:
+    """An epoch's record as the service writes it (``app.usecases.epochs``)."""
+    doc: dict[str, Any] = {
+        "epoch_id": epoch,
+        "time": dt.datetime.fromtimestamp(time_s, tz=SHANGHAI).isoformat(),
+        "time_s": time_s,
+        "riders": [
+            {"id": i, "origin": o, "destination": d, "requested_at": "", "requested_at_s": t}
+            for i, o, d, t in riders
+        ],
+    }
+    if fleet is not None:
+        doc["fleet"] = {"instrumented": fleet[0], "ordinary": fleet[1]}
+    if at_open is not None:
+        doc["fleet_at_open"] = {"instrumented": at_open[0], "ordinary": at_open[1]}
+    return json.dumps(doc)
 
 
 def test_recorded_epochs_become_a_demand_set(tiny: City) -> None:
@@ -160,53 +190,142 @@ def test_recorded_epochs_become_a_demand_set(tiny: City) -> None:
     assert demand_from_records(tiny, "2026-11-22", records).requests == (p,)
 
 
+def test_a_days_fleet_is_where_its_opening_epoch_found_it(tiny: City) -> None:
+    """The fleet of a day: the counts and positions of the epoch that opened its horizon (the earliest
+    such record), node ids as network indices, unknown ids left out; without one, the largest counts any
+    epoch posted and no positions."""
+    t0 = at(23, 8)
+    net = tiny.network
+    opening = record("e1", t0, [], (2, 1), ([node_id(1, 1), node_id(2, 2)], [node_id(4, 4), 999_999]))
+    later = record("e2", t0 + 200, [], (3, 4))
+    day = day_from_records(tiny, "2026-11-23", [later, opening])
+    assert day.fleet is not None and (day.fleet.instrumented, day.fleet.ordinary) == (2, 1)
+    assert day.fleet.instrumented_nodes is not None and day.fleet.ordinary_nodes is not None
+    assert day.fleet.instrumented_nodes.tolist() == [net.index_of(node_id(1, 1)), net.index_of(node_id(2, 2))]
+    assert day.fleet.ordinary_nodes.tolist() == [net.index_of(node_id(4, 4))]
+    no_open = day_from_records(tiny, "2026-11-23", [later, record("e3", t0 + 400, [], (5, 2))])
+    assert no_open.fleet is not None and (no_open.fleet.instrumented, no_open.fleet.ordinary) == (5, 4)
+    assert no_open.fleet.instrumented_nodes is None
+    assert posted_fleet([day, no_open, no_open]) == (5, 4)  # medians of (2, 5, 5) and (1, 4, 4)
+    assert posted_fleet([day, no_open]) == (4, 3)  # 3.5 and 2.5 rounded half up
+    bare = day_from_records(tiny, "2026-11-23", [record("e9", t0, [])])  # records without a fleet
+    assert bare.fleet is None and posted_fleet([bare]) is None and posted_fleet([bare, day]) == (2, 1)
+    with pytest.raises(RecordedDemandError, match="bad node id"):
+        day_from_records(tiny, "2026-11-23", [record("e1", t0, [], (1, 0), (["x"], []))])
+
+
 @pytest.mark.parametrize(
     "bad",
-    ["not json", '{"epoch_id": "e1"}', '{"epoch_id": "e1", "riders": [{"id": "a"}]}', '{"riders": 3}'],
+    [
+        "not json",
+        '{"epoch_id": "e1"}',
+        '{"epoch_id": "e1", "riders": [{"id": "a"}]}',
+        '{"riders": 3}',
+        '{"epoch_id": "e1", "riders": [], "fleet": {"instrumented": "many"}}',
+    ],
 )
 def test_malformed_records_are_an_error(tiny: City, bad: str) -> None:
     with pytest.raises(RecordedDemandError, match="2026-11-23"):
         demand_from_records(tiny, "2026-11-23", [bad])
 
 
-def commit_demand(store: MemoryStore, city: str, docs: list[tuple[float, str]]) -> None:
-    """Commit one epoch per (time, demand JSON), as the API does."""
+def test_simulated_taxis_start_where_the_recorded_fleet_stood() -> None:
+    """Each kind takes its own recorded positions: all of them (in a seeded order) up to the number posted,
+    then seeded draws among them; a kind with none takes the other kind's; no positions: seeded nodes."""
+    inst, ordinary = np.array([10, 11, 12]), np.array([20, 21])
+    fleet = RecordedFleet(3, 2, inst, ordinary)
+    day = dt.date(2026, 11, 23)
+    few = start_nodes(fleet, day, 2, 1, seed=0)
+    assert few is not None and few.size == 3
+    assert len(set(few[:2].tolist())) == 2 and set(few[:2].tolist()) <= {10, 11, 12} and few[2] in (20, 21)
+    many = start_nodes(fleet, day, 5, 4, seed=0)
+    assert many is not None and many.size == 9
+    assert {10, 11, 12} <= set(many[:5].tolist()) <= {10, 11, 12}
+    assert {20, 21} <= set(many[5:].tolist()) <= {20, 21}
+    again = start_nodes(fleet, day, 5, 4, seed=0)
+    assert again is not None and np.array_equal(many, again)  # seeded
+    only_ordinary = RecordedFleet(0, 2, np.zeros(0, dtype=np.int64), ordinary)
+    mixed = start_nodes(only_ordinary, day, 3, 2, seed=1)
+    assert mixed is not None and set(mixed.tolist()) <= {20, 21}
+    assert start_nodes(RecordedFleet(3, 2), day, 2, 1, seed=0) is None
+
+
+def test_candidate_sizes_spread_around_the_instrumented_fleet() -> None:
+    assert spread_sizes(150) == (38, 75, 113, 150, 225, 300)
+    assert spread_sizes(4) == (1, 2, 3, 4, 6, 8)
+    assert spread_sizes(1) == (1, 2)
+    with pytest.raises(ValueError, match="no instrumented fleet"):
+        spread_sizes(0)
+
+
+def commit_records(store: MemoryStore, city: City, docs: list[tuple[float, str]]) -> None:
+    """Commit one epoch per (time, record), kept under the city's local day as the API does."""
     for i, (time_s, doc) in enumerate(docs):
-        version = store.load_state(city, [], []).version
-        commit = EpochCommit(f"e{time_s:.0f}", "h", time_s, version, (), (), "{}", demand_json=doc)
-        assert store.commit_epoch(city, commit).status == "committed", i
+        version = store.load_state(city.name, [], []).version
+        day = local_day(time_s, city.horizon.timezone)
+        commit = EpochCommit(
+            f"e{time_s:.0f}", "h", time_s, version, (), (), "{}", demand_json=doc, demand_day=day
+        )
+        assert store.commit_epoch(city.name, commit).status == "committed", i
 
 
-def test_a_local_day_spans_two_utc_days(tiny: City) -> None:
+def test_records_are_kept_by_the_citys_local_day(tiny: City) -> None:
     store = MemoryStore()
     r1 = ("r1", node_id(0, 0), node_id(1, 1), at(23, 1))  # UTC 22 Nov 17:00
     r2 = ("r2", node_id(1, 1), node_id(2, 2), at(23, 9))  # UTC 23 Nov 01:00
     r3 = ("r3", node_id(2, 2), node_id(3, 3), at(24, 1))  # UTC 23 Nov 17:00, local 24 Nov
-    commit_demand(store, CITY, [(r[3] + 60, record(r[0], r[3] + 60, [r])) for r in (r1, r2, r3)])
-    assert len(SizingService(store).recorded_day(tiny, dt.date(2026, 11, 23))) == 3
-    found = recorded_days(SizingService(store), tiny, dt.date(2026, 11, 25), want=5, lookback_days=4)
+    commit_records(store, tiny, [(r[3] + 60, record(r[0], r[3] + 60, [r])) for r in (r1, r2, r3)])
+    history = FleetHistory(store, SizingConfig())
+    assert len(history.recorded_day(tiny, dt.date(2026, 11, 23))) == 2
+    assert history.recorded_epoch_counts(tiny, [dt.date(2026, 11, d) for d in (22, 23, 24)]) == [0, 2, 1]
+    found = recorded_days(history, tiny, dt.date(2026, 11, 25), want=5, lookback_days=4)
     assert [(d.date.isoformat(), [r.id for r in d.demand.requests]) for d in found] == [
         ("2026-11-24", ["r3"]),
         ("2026-11-23", ["r1", "r2"]),
     ]
-    assert [d.date.day for d in recorded_days(SizingService(store), tiny, dt.date(2026, 11, 25), 1, 4)] == [
-        24
-    ]
-    assert recorded_days(SizingService(store), tiny, dt.date(2026, 11, 25), 5, lookback_days=1) == found[:1]
+    assert [d.date.day for d in recorded_days(history, tiny, dt.date(2026, 11, 25), 1, 4)] == [24]
+    assert [d.date for d in recorded_days(history, tiny, dt.date(2026, 11, 25), 5, 1)] == [found[0].date]
 
 
-def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path: Path) -> None:
+def test_the_history_counts_days_with_epochs_and_dates_the_first_solve(tiny: City) -> None:
+    store = MemoryStore()
+    commit_records(store, tiny, [(at(day, 9), record(f"d{day}", at(day, 9), [])) for day in (20, 21, 23)])
+    history = FleetHistory(store, SizingConfig(days=5, lookback_days=7))
+    state = history.state(tiny, dt.date(2026, 11, 23))  # the 23rd itself does not count today
+    assert (state.days, state.needed, state.enough) == (2, 5, False)
+    assert state.first_solve_on == dt.date(2026, 11, 26)  # the 23rd, 24th and 25th still to record
+    assert state.describe().startswith("collecting history: 2 of 5 days")
+    assert "2026-11-26" in state.describe()
+    later = history.state(tiny, dt.date(2026, 11, 24))
+    assert (later.days, later.first_solve_on) == (3, dt.date(2026, 11, 26))
+    own = dataclasses.replace(tiny, fleet=FleetParams(days=2))
+    assert history.state(own, dt.date(2026, 11, 24)).enough  # the city's own M
+    assert HistoryState(dt.date(2026, 11, 24), 3, 3, 7).describe().startswith("history complete")
+
+
+def solver(
+    store: MemoryStore, tmp_path: Path, config: SizingConfig, cities: CityRegistry | None = None
+) -> FleetSolver:
+    """A fleet solve over ``store`` whose runs would go to an empty cache (these tests start none)."""
+    return FleetSolver(
+        store,
+        Runner(RunCache(tmp_path)),
+        config,
+        render=render_recommendation,
+        cities=cities or CityRegistry(),
+    )
+
+
+def test_the_window_is_recorded_with_m_days_else_synthetic_on_a_demo_city(tiny: City, tmp_path: Path) -> None:
     store = MemoryStore()
     docs = []
     for day in (20, 21, 22):
         t = at(day, 9)
         docs.append((t, record(f"d{day}", t, [(f"r{day}", node_id(0, 0), node_id(4, 4), t - 30)])))
-    commit_demand(store, CITY, docs)
+    commit_records(store, tiny, docs)
     k = tiny.horizon.interval_of(at(23, 9))
-    runner = Runner(RunCache(tmp_path))
-    two = FleetSizing(
-        SizingService(store), runner, SizingConfig(days=2, lookback_days=7), render=render_recommendation
-    ).window(tiny, k)
+    cfg = SizingConfig(days=2, lookback_days=7)
+    two = solver(store, tmp_path, cfg).window(tiny, k, cfg)
     assert two.source == "recorded" and two.recorded_available == 2
     assert [d.label for d in two.days] == ["2026-11-22", "2026-11-21"]
     assert [d.spec_day for d in two.days] == [
@@ -214,48 +333,73 @@ def test_the_window_is_recorded_with_m_days_else_synthetic(tiny: City, tmp_path:
         dt.date(2026, 11, 21).toordinal(),
     ]
     assert all(d.demand is not None and len(d.demand.requests) == 1 for d in two.days)
-    four = FleetSizing(
-        SizingService(store),
-        runner,
-        SizingConfig(days=4, lookback_days=7, seed=5),
-        render=render_recommendation,
-    ).window(tiny, k)
-    assert four.source == "synthetic" and four.recorded_available == 3
-    assert [(d.label, d.spec_day, d.demand) for d in four.days] == [
+    four = SizingConfig(days=4, lookback_days=7, seed=5)
+    with pytest.raises(NotReady, match="collecting history: 3 of 4 days") as waiting:
+        solver(store, tmp_path, four).window(tiny, k, four)
+    assert waiting.value.kind == "insufficient_history"
+    demo = dataclasses.replace(tiny, fleet=FleetParams(synthetic_history=True))
+    synthetic = solver(store, tmp_path, four).window(demo, k, four)
+    assert synthetic.source == "synthetic" and synthetic.recorded_available == 3
+    assert [(d.label, d.spec_day, d.demand) for d in synthetic.days] == [
         (f"synthetic-{d}", d, None) for d in range(1, 5)
     ]
-    assert "3 day(s) of recorded demand" in four.note and "seed 5" in four.note
-    # the look-back bounds the search (retention): two days back finds only the 22nd
-    short = FleetSizing(
-        SizingService(store), runner, SizingConfig(days=2, lookback_days=1), render=render_recommendation
-    ).window(tiny, k)
-    assert short.source == "synthetic" and short.recorded_available == 1
+    assert "3 day(s) with epochs" in synthetic.note and "seed 5" in synthetic.note
+    # the look-back bounds the search (retention): one day back finds only the 22nd
+    short = SizingConfig(days=2, lookback_days=1)
+    with pytest.raises(NotReady, match="1 of 2 days"):
+        solver(store, tmp_path, short).window(tiny, k, short)
 
 
-def test_registered_tasks_of_the_day_become_templates_else_one_seeded_set(
+def test_the_fleet_comes_from_the_city_else_the_fleet_posted_else_the_settings(
+    tiny: City, tiny_cities: CityRegistry, tmp_path: Path
+) -> None:
+    store = MemoryStore()
+    docs = []
+    for day, (n1, n0) in zip((20, 21, 22), ((150, 450), (160, 440), (140, 460)), strict=True):
+        t = at(day, 8)
+        docs.append((t, record(f"d{day}", t, [], (n1, n0), ([node_id(0, 0)] * n1, [node_id(1, 1)] * n0))))
+    commit_records(store, tiny, docs)
+    k = tiny.horizon.interval_of(at(23, 9))
+    cfg = SizingConfig(sizes=(10, 20), n0=60, days=3, lookback_days=7)
+    sizing = solver(store, tmp_path, cfg, tiny_cities)
+    window = sizing.window(tiny, k, cfg)
+    derived, origin = sizing.fleet_config(tiny, window, cfg)
+    assert derived.sizes == spread_sizes(150) and derived.n0 == 450
+    assert origin == FleetOrigin("recorded", "recorded", 150, 450, "recorded")
+    own = dataclasses.replace(tiny, fleet=FleetParams(sizes=(100, 300), n0=400))
+    mine, from_city = sizing.fleet_config(own, window, cfg.for_city(own.fleet))
+    assert mine.sizes == (100, 300) and mine.n0 == 400
+    assert (from_city.sizes, from_city.n0, from_city.posted_instrumented) == ("city", "city", 150)
+    synthetic = HistoryWindow("synthetic", (HistoryDay("synthetic-1", 1, None),), 0, "")
+    fallback, from_settings = sizing.fleet_config(tiny, synthetic, cfg)
+    assert fallback.sizes == (10, 20) and fallback.n0 == 60
+    assert from_settings == FleetOrigin("settings", "settings", None, None, "seeded")
+    jobs = sizing.jobs(tiny, window, derived, TaskSet("registered", (TaskTemplate("a", 3, 0.0),)))
+    assert len(jobs) == 6 * 3
+    job = jobs[(derived.sizes[0], 0)]
+    assert job.start_nodes is not None and len(job.start_nodes) == derived.sizes[0] + 450
+    net = tiny.network
+    assert set(job.start_nodes[: derived.sizes[0]]) == {net.index_of(node_id(0, 0))}
+    assert set(job.start_nodes[derived.sizes[0] :]) == {net.index_of(node_id(1, 1))}
+
+
+def test_registered_tasks_of_the_day_become_templates_else_a_demo_citys_seeded_set(
     tiny: City, tiny_cities: CityRegistry, tmp_path: Path
 ) -> None:
     """The platform's tasks scheduled within the target day's horizon are every simulated day's tasks, kept
-    at their offset from the horizon's start; without any, one seeded set (or one per day if they vary)."""
+    at their offset from the horizon's start; without any, one seeded set on a demo city (or one per day
+    if they vary), and no solve on any other city."""
     store = MemoryStore()
     k = tiny.horizon.interval_of(at(23, 9))
-    runner = Runner(RunCache(tmp_path))
-    sizing = FleetSizing(
-        SizingService(store),
-        runner,
-        SizingConfig(sizes=(2, 4), days=2),
-        render=render_recommendation,
-        cities=tiny_cities,
-    )
-    assert sizing.task_set(tiny, k) == TaskSet("synthetic", None)
-    varying = FleetSizing(
-        SizingService(store),
-        runner,
-        SizingConfig(sizes=(2, 4), days=2, vary_tasks=True),
-        render=render_recommendation,
-        cities=tiny_cities,
-    )
-    assert varying.task_set(tiny, k).source == "synthetic_per_day"
+    cfg = SizingConfig(sizes=(2, 4), days=2)
+    sizing = solver(store, tmp_path, cfg, tiny_cities)
+    demo = dataclasses.replace(tiny, fleet=FleetParams(synthetic_history=True))
+    assert sizing.task_set(demo, k, cfg) == TaskSet("synthetic", None)
+    varying = dataclasses.replace(cfg, vary_tasks=True)
+    assert sizing.task_set(demo, k, varying).source == "synthetic_per_day"
+    with pytest.raises(NotReady, match="no monitoring task") as waiting:
+        sizing.task_set(tiny, k, cfg)
+    assert waiting.value.kind == "no_tasks"
     store.put_tasks(
         CITY,
         [
@@ -265,19 +409,19 @@ def test_registered_tasks_of_the_day_become_templates_else_one_seeded_set(
             Task(TaskId("after-hours"), 1, at(23, 12, 0)),
         ],
     )
-    ts = sizing.task_set(tiny, k)
+    ts = sizing.task_set(tiny, k, cfg)
     assert ts.source == "registered"
     assert ts.templates == (TaskTemplate("a", 7, 300.0), TaskTemplate("b", 3, 9000.0))
-    window = sizing.window(tiny, k)
-    jobs = sizing.jobs(tiny, window, ts)
+    window = sizing.window(demo, k, cfg)
+    jobs = sizing.jobs(tiny, window, cfg, ts)
     assert {j.spec.n_tasks for j in jobs.values()} == {2} and all(
         j.tasks == ts.templates for j in jobs.values()
     )
-    seeded = sizing.jobs(tiny, window, TaskSet("synthetic", None))
+    assert all(j.start_nodes is None for j in jobs.values())  # synthetic days: seeded starts
+    seeded = sizing.jobs(tiny, window, cfg, TaskSet("synthetic", None))
     assert {j.spec.tasks_day for j in seeded.values()} == {0}
-    assert {
-        j.spec.tasks_day for j in varying.jobs(tiny, window, TaskSet("synthetic_per_day", None)).values()
-    } == {None}
+    per_day = sizing.jobs(tiny, window, varying, TaskSet("synthetic_per_day", None))
+    assert {j.spec.tasks_day for j in per_day.values()} == {None}
 
 
 def test_observed_hours_are_the_whole_horizon_hours_past(tiny: City) -> None:
@@ -289,16 +433,15 @@ def test_observed_hours_are_the_whole_horizon_hours_past(tiny: City) -> None:
         ("r3", node_id(2, 2), node_id(3, 3), at(23, 9, 20)),
         ("r4", node_id(2, 2), node_id(3, 3), at(23, 10, 1)),
     ]
-    commit_demand(store, CITY, [(r[3] + 5, record(r[0], r[3] + 5, [r])) for r in riders])
+    commit_records(store, tiny, [(r[3] + 5, record(r[0], r[3] + 5, [r])) for r in riders])
+    history = FleetHistory(store, SizingConfig())
     k11 = tiny.horizon.interval_of(at(23, 11))
-    seen = observed_today(SizingService(store), tiny, k11, at(23, 10, 5))
+    seen = observed_today(history, tiny, k11, at(23, 10, 5))
     assert seen.date == "2026-11-23" and seen.requests_per_hour == (2, 1)
-    assert observed_today(SizingService(store), tiny, k11, at(23, 11, 30)).requests_per_hour == (2, 1, 1)
+    assert observed_today(history, tiny, k11, at(23, 11, 30)).requests_per_hour == (2, 1, 1)
     k9 = tiny.horizon.interval_of(at(23, 9))
-    assert observed_today(SizingService(store), tiny, k9, at(23, 8)).requests_per_hour == ()
-    assert observed_today(SizingService(store), tiny, k9, at(23, 11)).requests_per_hour == (
-        2,
-    )  # never the hour itself
+    assert observed_today(history, tiny, k9, at(23, 8)).requests_per_hour == ()
+    assert observed_today(history, tiny, k9, at(23, 11)).requests_per_hour == (2,)  # never the hour itself
 
 
 def test_tasks_day_fixes_the_task_draw_across_days(tiny_cities: CityRegistry) -> None:
@@ -364,7 +507,8 @@ def test_job_keys_name_the_inputs() -> None:
     keys |= {RunJob(dataclasses.replace(spec, tasks_day=0), BUNDLE).key}
     keys |= {RunJob(spec, BUNDLE, None, (TaskTemplate("a", 1, 0.0),)).key}
     keys |= {RunJob(spec, BUNDLE, None, (TaskTemplate("a", 1, 60.0),)).key}
-    assert len(keys) == 7
+    keys |= {RunJob(spec, BUNDLE, start_nodes=(1, 2)).key, RunJob(spec, BUNDLE, start_nodes=(2, 1)).key}
+    assert len(keys) == 9
     same = DemandSet("chengdu", "2026-11-23", d1.requests, "x")
     assert RunJob(spec, BUNDLE, d1).key == RunJob(spec, BUNDLE, same).key
 
@@ -483,3 +627,51 @@ def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> No
         parser().parse_args(["--sizes", "two"])
     with pytest.raises(ValidationError):
         settings_from_args(parser().parse_args(["--alpha", "2"]))
+
+
+class _NoRuns:
+    """A runner that must not be asked for anything."""
+
+    workers = 2
+
+    def run(self, jobs: Any, progress: Any = None) -> Any:
+        raise AssertionError(f"{len(jobs)} runs started for a city that cannot be sized")
+
+
+def test_a_city_without_its_history_starts_no_run_and_is_reported_once(
+    tiny_cities: CityRegistry, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The worker's scheduled solves of an imported city with too little history: no run (no process, no
+    network loaded), the reason in the heartbeat and the log once, nothing in the history; an admin
+    request gets one failed entry with its reason."""
+    from app.worker.heartbeat import WorkerStatus
+    from app.worker.service import FleetWorker
+
+    store = MemoryStore()
+    clock = {"t": at(23, 7, 0)}
+    sizing = FleetSolver(
+        store,
+        _NoRuns(),
+        SizingConfig(days=3),
+        render=render_recommendation,
+        cities=tiny_cities,
+        clock=lambda: clock["t"],
+    )
+    status = WorkerStatus(embedded=True, poll_s=1.0, clock=lambda: clock["t"])
+    worker = FleetWorker(sizing, [CITY], clock=lambda: clock["t"], status=status)
+    with caplog.at_level(logging.WARNING):
+        outcomes = [*worker.tick(), *worker.tick()]  # 07:00: the 08:00 solve is due; tried once
+        clock["t"] = at(23, 8, 0)
+        outcomes += worker.tick()  # 08:00: the 09:00 solve, the same reason
+    assert [(o.status, o.waiting_for) for o in outcomes] == [("waiting", "insufficient_history")] * 2
+    assert outcomes[0].reason is not None and outcomes[0].reason.startswith("collecting history: 0 of 3 days")
+    assert caplog.text.count("not sized, no run started") == 1
+    beat = status.beat(CITY)
+    assert beat.waiting is not None and beat.waiting.kind == "insufficient_history"
+    assert beat.waiting.since_s == at(23, 7, 0)
+    assert store.recommendation_history(CITY, 10) == []
+    store.enqueue_solve_request(CITY, SolveRequest("req-1", clock["t"], "admin"))
+    (asked,) = worker.tick()
+    assert asked.status == "waiting" and asked.request_id == "req-1"
+    (entry,) = store.recommendation_history(CITY, 10)
+    assert entry.status == "failed" and entry.request_id == "req-1" and entry.reason == asked.reason
