@@ -420,6 +420,16 @@ WORKER_WAIT_S = 60.0
 """How long after the last epoch the memory of the service is still sampled while its worker solves."""
 
 
+def _request_solve(svc: _Service) -> bool:
+    """Ask the service's worker for a fleet solve of the city: ``True`` when accepted, ``False`` when the
+    city has too little recorded history to be sized (409 ``insufficient_history``: no run starts)."""
+    r = svc.client.post(f"/v1/cities/{svc.name}/fleet/solve")
+    if r.status_code == 409 and r.json().get("error") == "insufficient_history":
+        return False
+    r.raise_for_status()
+    return True
+
+
 def _solve_over(svc: _Service) -> bool:
     """Whether the worker has no solve of the city running or pending."""
     st = svc.client.get(f"/v1/cities/{svc.name}/fleet/status").json()
@@ -446,6 +456,7 @@ def run_http(
     lat: list[float] = []
     solve: list[float] = []  # the server's own solve time of each epoch (its response's stats.solve_ms)
     digests: list[str] = []
+    solving = False  # a fleet solve was accepted (a city without its M days of history gets none)
     with _service(sc, city, redis_url, worker, port) as svc, TreePeak(svc.proc.pid) as peak:
         for e in range(n + 1):
             snap, tasks = epochs.next()
@@ -456,7 +467,7 @@ def run_http(
             if epochs.platform is not None:
                 epochs.platform.apply(d.rider_matches, d.task_assignments, expired)
             if e == 0 and worker:
-                svc.client.post(f"/v1/cities/{svc.name}/fleet/solve").raise_for_status()
+                solving = _request_solve(svc)
             if e > 0:  # the server's first epoch may still compile kernels: epochs 1..n are timed
                 lat.append(took)
                 solve.append(float(doc["stats"]["solve_ms"]) / 1000.0)
@@ -465,9 +476,9 @@ def run_http(
                     flush=True,
                 )
         waited = time.monotonic()
-        while worker and not _solve_over(svc) and time.monotonic() - waited < worker_wait_s:
+        while solving and not _solve_over(svc) and time.monotonic() - waited < worker_wait_s:
             time.sleep(1.0)
-        solve_over = not worker or _solve_over(svc)
+        solve_over = not solving or _solve_over(svc)
         ready_s = svc.ready_s
     print(f"  [{sc.name}] peak RSS: API {peak.process_mb:.0f} MB, service {peak.tree_mb:.0f} MB", flush=True)
     return {
@@ -477,6 +488,7 @@ def run_http(
         "service_peak_rss_mb": peak.tree_mb,
         "worker": worker,
         "worker_solve_over": solve_over,
+        "worker_solved": solving,
         "digests": digests,
         "ready_s": ready_s,
     }
@@ -542,7 +554,13 @@ def measure(sc: Scenario, n: int, http: bool, worker: bool = True, port: int | N
             raise AssertionError(f"{sc.name}: the service decided other epochs than the core in-process")
         res["http"] = summary(h["latency"])
         res["http_minus_solve"], res["http_over_solve_pct"] = over_solve(h)
-        for key in ("server_peak_rss_mb", "service_peak_rss_mb", "worker", "worker_solve_over"):
+        for key in (
+            "server_peak_rss_mb",
+            "service_peak_rss_mb",
+            "worker",
+            "worker_solve_over",
+            "worker_solved",
+        ):
             res[key] = h[key]
         res["ready_s"] = h["ready_s"]
     res["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
@@ -690,6 +708,8 @@ def _rss_facts(r: dict[str, Any], t: dict[str, float]) -> list[str]:
         whole = r["service_peak_rss_mb"]
         if not r.get("worker"):
             how = "no fleet worker"
+        elif not r.get("worker_solved", True):
+            how = "the fleet worker inside, no solve: the city has too little history to be sized"
         elif r.get("worker_solve_over"):
             how = "with the fleet worker's solve"
         else:
@@ -716,8 +736,9 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "the API's largest epoch (module docstring). In-process = `services.dispatch.decide` with the default",
         "threads and with one (decisions checked equal); HTTP = a real `python -m app run` (uvicorn, in-memory",
         "store, the fleet worker inside it as `make run` runs it) posting the same epochs (decisions checked equal",
-        "to the in-process ones), with a fleet solve of the city requested after the untimed first epoch, so that",
-        "the timed epochs run beside the worker's simulation processes (niceness +10) as at the top of an hour;",
+        "to the in-process ones), with a fleet solve of the city requested after the untimed first epoch (a city",
+        "without its days of recorded history is refused one), so that the timed epochs run beside the worker's",
+        "simulation processes as at the top of an hour;",
         "peak RSS: the API process's high-water mark (VmHWM), and the largest sum of the resident memory of the",
         "service's processes (the API and the worker's, sampled every 50 ms until the solve is over, at most",
         f"{WORKER_WAIT_S:.0f} s after the last epoch; `bench/rss.py`). Floor = with scipy, one",
