@@ -63,8 +63,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     from app.logs import log_config
     from app.main import create_app
-    from app.server import server_config
+    from app.server import server_config, tune_allocator
 
+    tune_allocator()
     settings = Settings()
     if args.host is not None or args.port is not None:
         settings = settings.model_copy(
@@ -90,7 +91,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "out): it solves before every hour of the horizon and on POST .../fleet/solve",
             flush=True,
         )
-    app = create_app(settings, tune_gc=True, embed_worker=embed)
+    app = create_app(settings, tune_gc=True, embed_worker=embed, compile_apart=True)
     uvicorn.Server(server_config(app, settings)).run()
     return 0
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import gc
 import logging
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
@@ -107,13 +109,15 @@ def create_app(
     clock: Callable[[], float] | None = None,
     tune_gc: bool = False,
     embed_worker: bool = False,
+    compile_apart: bool = False,
 ) -> FastAPI:
     """Build the FastAPI app; a store passed in is the caller's to close, one built here is closed here.
     ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window and of
     the fleet worker's heartbeats. ``tune_gc`` (the ``run`` command's: the process is the service's alone)
     sets the garbage collector for a long-lived heap (``GC_THRESHOLD``, and start-up's objects frozen once
     the cities are warm). ``embed_worker`` runs the fleet worker in this process for the app's lifetime,
-    on the same store (``app.worker.embedded``; its first pass waits for the warm-up)."""
+    on the same store (``app.worker.embedded``; its first pass waits for the warm-up). ``compile_apart`` (the
+    ``run`` command's too) compiles the kernels in a child process before the warm-up (``_compile_apart``)."""
     settings = settings or Settings()
     owns_store = store is None
     raw_store = store if store is not None else make_store(settings)
@@ -132,7 +136,10 @@ def create_app(
         warmed = threading.Event()
         use_cases.readiness.warming = warmed
         threading.Thread(
-            target=_warm, args=(the_registry, tune_gc, warmed), name="warm-cities", daemon=True
+            target=_warm,
+            args=(the_registry, tune_gc, warmed, compile_apart),
+            name="warm-cities",
+            daemon=True,
         ).start()
         worker = None
         if embed_worker:
@@ -206,18 +213,62 @@ dicts), so at 700 the young generations were collected ~45 times an epoch and th
 epochs; docs/DESIGN.md ("Speed without changing a decision") and docs/PERFORMANCE.md have the measurements."""
 
 
-def _warm(registry: CityCatalog, freeze: bool = False, done: threading.Event | None = None) -> None:
+def _warm_bundle(directory: str) -> None:
+    """In a child process: warm up the city bundle in ``directory`` (``_compile_apart``)."""
+    from services.citydata import load_city
+    from services.dispatch import warm_up
+
+    warm_up(load_city(directory))
+
+
+def _compile_apart(registry: CityCatalog) -> str | None:
+    """Compile every kernel an epoch calls in a child process, by warming the smallest served city there:
+    numba writes what it compiles to its on-disk cache, and this process's warm-up then loads the kernels
+    from there. Compiling (LLVM) holds memory that the process keeps for its lifetime: about 360 MB more
+    than loading the same kernels from the cache (docs/PERFORMANCE.md, "Memory of the service"), which a
+    fresh install would otherwise carry in the service for good. With the cache already filled the child
+    only reads it (a few seconds). A child that fails is logged; the warm-up then compiles here. The name
+    of the city warmed in the child, ``None`` when it failed or no bundle is served."""
+    if not isinstance(registry, CityRegistry) or not registry.names():
+        return None
+    bundles = [registry.bundle_dir(name) for name in registry.names()]
+    smallest = min(bundles, key=lambda d: (d / "network.npz").stat().st_size)
+    began = time.perf_counter()
+    code = f"from app.main import _warm_bundle; _warm_bundle({str(smallest)!r})"
+    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    if child.returncode != 0:
+        log.warning(
+            "compiling the kernels in a child process failed (exit %s): %s",
+            child.returncode,
+            child.stderr[-2000:],
+        )
+        return None
+    log.info("kernels compiled apart (warming %s) in %.1f s", smallest.name, time.perf_counter() - began)
+    return smallest.name
+
+
+def _warm(
+    registry: CityCatalog,
+    freeze: bool = False,
+    done: threading.Event | None = None,
+    compile_apart: bool = False,
+) -> None:
     """Load every city once and warm it up (``services.dispatch.warm_up``), so that every kernel is compiled
     (or loaded from cache) and each city's search structures (road graph, landmark table) built before its
     first epoch arrives (errors surface later, per request and in /readyz). With ``freeze``, what start-up
     built (the cities, the app, the compiled kernels' Python objects) is then moved out of the collector's
     reach (``gc.freeze``): it lives as long as the process, and scanning it made each full collection
     ~100 ms at Manhattan scale. ``done`` is set at the end, whatever happened (a city that failed to load
-    is /readyz's to report)."""
+    is /readyz's to report). With ``compile_apart`` the kernels are compiled in a child first."""
     from services.dispatch import warm_up
 
     began = time.perf_counter()
     try:
+        if compile_apart:
+            try:
+                _compile_apart(registry)
+            except Exception:
+                log.exception("compiling the kernels in a child process failed")
         for name in registry.names():
             try:
                 warm_up(registry.get(name))

@@ -11,11 +11,12 @@ Epoch 0 is solved and committed untimed on every path, epochs 1..n are timed. Pe
   first); the two decisions are checked equal;
 * floor: with scipy, one reverse search per rider bounded by the pickup radius, one full reverse tree per
   new task's POI, and the two assignments (instrumented and ordinary taxis x riders over the pickup times);
-* HTTP: a real ``python -m app run`` (uvicorn; in-memory store, or Redis) posting the same epochs (their
-  decisions are checked equal to the in-process ones), with the server's peak resident memory read from
-  /proc; each round trip is also set against the server's own solve of that epoch (its response's
-  ``stats.solve_ms``): the HTTP path's cost epoch by epoch, which load that changes between the in-process
-  and the HTTP runs does not move.
+* HTTP: a real ``python -m app run`` (uvicorn; in-memory store with the fleet worker inside, a fleet solve
+  requested after the first epoch; or Redis, without a worker) posting the same epochs (their decisions are
+  checked equal to the in-process ones), with the peak resident memory of the API process and of the
+  service's whole process tree read from /proc (``bench.rss``); each round trip is also set against the
+  server's own solve of that epoch (its response's ``stats.solve_ms``): the HTTP path's cost epoch by epoch,
+  which load that changes between the in-process and the HTTP runs does not move.
 
 ``limits`` is not a platform's load but the API's largest epoch: 2,000 riders and 5,000 taxis (half
 instrumented) within 1 km of Chengdu's centre, drawn afresh every epoch, no tasks. The ``-heavy`` scenarios
@@ -35,6 +36,7 @@ process of its own on the same inputs (``bench.baseline``), its decision checked
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import functools
 import hashlib
@@ -61,6 +63,7 @@ from bench import metro
 from bench.baseline import Baseline
 from bench.load import Centres, CentresDemand, Demand, Load, Platform, RecordedDemand, SpreadDemand
 from bench.report import ROOT, stamp, write_section
+from bench.rss import TreePeak
 from services.city import City
 from services.citydata import CityMeta, city_from_network, haversine_m, save_bundle
 from services.dispatch import decide, warm_up
@@ -361,22 +364,33 @@ def _wait_ready(client: Any, proc: subprocess.Popen[bytes]) -> float:
         time.sleep(0.1)
 
 
-def run_http(sc: Scenario, n: int, redis_url: str | None = None) -> dict[str, Any]:
-    """Start the real service (uvicorn; in-memory store, or Redis at ``redis_url`` under a fresh key
-    prefix, deleted afterwards) and post the scenario's epochs over HTTP."""
+@dataclass
+class _Service:
+    """A running ``python -m app run`` of the benchmark: its process, client and the city's name there."""
+
+    proc: subprocess.Popen[bytes]
+    client: Any  # httpx.Client with the token
+    name: str
+    ready_s: float
+
+
+@contextlib.contextmanager
+def _service(
+    sc: Scenario, city: City, redis_url: str | None, worker: bool, port: int | None
+) -> Iterator[_Service]:
+    """The real service (uvicorn; in-memory store, or Redis at ``redis_url`` under a fresh key prefix,
+    deleted afterwards), ready; stopped with its whole process group on the way out. With ``worker`` the
+    fleet worker runs inside it as ``make run`` runs it (its simulation runs on child processes), with a
+    fresh run cache."""
     import httpx
 
-    from app.schemas.dispatch import decision_of
-
-    city = load_city(sc)
-    port = _free_port()
+    port = port or _free_port()
     token = "bench-token-0123456789"
     prefix = f"bench{os.getpid()}x{port}"
     with tempfile.TemporaryDirectory() as tmp:
-        env = {**os.environ, "SD_PORT": str(port), "SD_TOKENS": json.dumps({token: ["read", "dispatch"]})}
-        env["SD_WORKER_EMBEDDED"] = (
-            "off"  # the epoch path alone (bench_fleet_service times it beside a solve)
-        )
+        env = {**os.environ, "SD_PORT": str(port), "SD_VAR_DIR": str(Path(tmp) / "var")}
+        env["SD_TOKENS"] = json.dumps({token: ["read", "dispatch", "admin"]})
+        env["SD_WORKER_EMBEDDED"] = "on" if worker else "off"
         if redis_url is not None:
             env.update({"SD_STORE": "redis", "SD_REDIS_URL": redis_url, "SD_REDIS_PREFIX": prefix})
         name = sc.city
@@ -384,7 +398,6 @@ def run_http(sc: Scenario, n: int, redis_url: str | None = None) -> dict[str, An
             name = GENERATED[sc.city]
             save_bundle(Path(tmp) / name, city.network, CityMeta(name=name, timezone=city.horizon.timezone))
             env["SD_CITIES_DIR"] = tmp
-        epochs = Epochs(sc, city)
         started = time.monotonic()
         proc = subprocess.Popen(
             [sys.executable, "-m", "app", "run"],
@@ -392,11 +405,8 @@ def run_http(sc: Scenario, n: int, redis_url: str | None = None) -> dict[str, An
             cwd=ROOT,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            start_new_session=True,  # its own process group: the worker's processes stop with it
         )
-        ids = city.network.node_ids
-        lat: list[float] = []
-        solve: list[float] = []  # the server's own solve time of each epoch (its response's stats.solve_ms)
-        digests: list[str] = []
         try:
             with httpx.Client(
                 base_url=f"http://127.0.0.1:{port}",
@@ -404,48 +414,14 @@ def run_http(sc: Scenario, n: int, redis_url: str | None = None) -> dict[str, An
                 headers={"Authorization": f"Bearer {token}"},
             ) as client:
                 _wait_ready(client, proc)
-                ready_s = time.monotonic() - started
-                for e in range(n + 1):
-                    snap, tasks = epochs.next()
-                    if tasks:
-                        client.post(
-                            f"/v1/cities/{name}/tasks",
-                            json=[
-                                {
-                                    "id": t.id,
-                                    "location": {"node": int(ids[t.node])},
-                                    "scheduled_at": _iso(city, t.scheduled_at_s),
-                                }
-                                for t in tasks
-                            ],
-                        ).raise_for_status()
-                    body = _epoch_body(city, snap)
-                    t0 = time.perf_counter()
-                    r = client.post(
-                        f"/v1/cities/{name}/epochs",
-                        content=body,
-                        headers={"Content-Type": "application/json"},
-                    )
-                    took = time.perf_counter() - t0
-                    r.raise_for_status()
-                    doc = r.json()
-                    d = decision_of(city, doc)
-                    expired = tuple(RiderId(x) for x in doc["expired_rider_ids"])
-                    digests.append(digest(_with_expired(d, expired)))
-                    if epochs.platform is not None:
-                        epochs.platform.apply(d.rider_matches, d.task_assignments, expired)
-                    if e > 0:  # the server's first epoch may still compile kernels: epochs 1..n are timed
-                        lat.append(took)
-                        solve.append(float(doc["stats"]["solve_ms"]) / 1000.0)
-                        print(
-                            f"  [{sc.name}] HTTP epoch {e}: {took * 1000:.0f} ms (server solve {solve[-1] * 1000:.0f})",
-                            flush=True,
-                        )
-            status = Path(f"/proc/{proc.pid}/status").read_text()
-            rss = int(status.split("VmHWM:")[1].split()[0]) / 1024.0
+                yield _Service(proc, client, name, time.monotonic() - started)
         finally:
             proc.terminate()
-            proc.wait(timeout=30)
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, 9)
+                proc.wait()
             if redis_url is not None:
                 import redis
 
@@ -453,10 +429,106 @@ def run_http(sc: Scenario, n: int, redis_url: str | None = None) -> dict[str, An
                 for key in keys.scan_iter(match=f"{prefix}:*", count=1000):
                     keys.delete(key)
                 keys.close()
+
+
+def _post_epoch(svc: _Service, city: City, snap: Snapshot, tasks: list[Task]) -> tuple[float, dict[str, Any]]:
+    """Register the epoch's new tasks, post the epoch; the round trip's seconds and the response."""
+    ids = city.network.node_ids
+    if tasks:
+        svc.client.post(
+            f"/v1/cities/{svc.name}/tasks",
+            json=[
+                {
+                    "id": t.id,
+                    "location": {"node": int(ids[t.node])},
+                    "scheduled_at": _iso(city, t.scheduled_at_s),
+                }
+                for t in tasks
+            ],
+        ).raise_for_status()
+    body = _epoch_body(city, snap)
+    t0 = time.perf_counter()
+    r = svc.client.post(
+        f"/v1/cities/{svc.name}/epochs", content=body, headers={"Content-Type": "application/json"}
+    )
+    took = time.perf_counter() - t0
+    r.raise_for_status()
+    return took, dict(r.json())
+
+
+WORKER_WAIT_S = 60.0
+"""How long after the last epoch the memory of the service is still sampled while its worker solves."""
+
+
+def _request_solve(svc: _Service) -> bool:
+    """Ask the service's worker for a fleet solve of the city: ``True`` when accepted, ``False`` when the
+    city has too little recorded history to be sized (409 ``insufficient_history``: no run starts)."""
+    r = svc.client.post(f"/v1/cities/{svc.name}/fleet/solve")
+    if r.status_code == 409 and r.json().get("error") == "insufficient_history":
+        return False
+    r.raise_for_status()
+    return True
+
+
+def _solve_over(svc: _Service) -> bool:
+    """Whether the worker has no solve of the city running or pending."""
+    st = svc.client.get(f"/v1/cities/{svc.name}/fleet/status").json()
+    return st.get("solving") is None and st.get("pending_request") is None
+
+
+def run_http(
+    sc: Scenario,
+    n: int,
+    redis_url: str | None = None,
+    worker: bool = True,
+    port: int | None = None,
+    worker_wait_s: float = WORKER_WAIT_S,
+) -> dict[str, Any]:
+    """Post the scenario's epochs to the real service over HTTP (``_service``), sampling the resident memory
+    of the API process and of the service's whole process tree (``bench.rss``). With ``worker``, a fleet
+    solve of the city is requested after the untimed first epoch, so that the timed epochs run beside the
+    worker's simulation runs as on a platform at the top of an hour; its memory is sampled until that solve
+    is over, for at most ``worker_wait_s`` after the last epoch."""
+    from app.schemas.dispatch import decision_of
+
+    city = load_city(sc)
+    epochs = Epochs(sc, city)
+    lat: list[float] = []
+    solve: list[float] = []  # the server's own solve time of each epoch (its response's stats.solve_ms)
+    digests: list[str] = []
+    solving = False  # a fleet solve was accepted (a city without its M days of history gets none)
+    with _service(sc, city, redis_url, worker, port) as svc, TreePeak(svc.proc.pid) as peak:
+        for e in range(n + 1):
+            snap, tasks = epochs.next()
+            took, doc = _post_epoch(svc, city, snap, tasks)
+            d = decision_of(city, doc)
+            expired = tuple(RiderId(x) for x in doc["expired_rider_ids"])
+            digests.append(digest(_with_expired(d, expired)))
+            if epochs.platform is not None:
+                epochs.platform.apply(d.rider_matches, d.task_assignments, expired)
+            if e == 0 and worker:
+                solving = _request_solve(svc)
+            if e > 0:  # the server's first epoch may still compile kernels: epochs 1..n are timed
+                lat.append(took)
+                solve.append(float(doc["stats"]["solve_ms"]) / 1000.0)
+                print(
+                    f"  [{sc.name}] HTTP epoch {e}: {took * 1000:.0f} ms (server solve {solve[-1] * 1000:.0f})",
+                    flush=True,
+                )
+        waited = time.monotonic()
+        while solving and not _solve_over(svc) and time.monotonic() - waited < worker_wait_s:
+            time.sleep(1.0)
+        solve_over = not solving or _solve_over(svc)
+        ready_s = svc.ready_s
+    print(f"  [{sc.name}] peak RSS: API {peak.process_mb:.0f} MB, service {peak.tree_mb:.0f} MB", flush=True)
     return {
         "latency": lat,
         "server_solve": solve,
-        "server_peak_rss_mb": rss,
+        "server_peak_rss_mb": peak.process_mb,
+        "service_peak_rss_mb": peak.tree_mb,
+        "worker": worker,
+        "worker_solve_over": solve_over,
+        "worker_solved": solving,
         "digests": digests,
         "ready_s": ready_s,
     }
@@ -498,7 +570,14 @@ def summary(xs: list[float]) -> dict[str, float]:
     }
 
 
-def measure(sc: Scenario, n: int, http: bool, baseline: Path | None = None) -> dict[str, Any]:
+def measure(
+    sc: Scenario,
+    n: int,
+    http: bool,
+    baseline: Path | None = None,
+    worker: bool = True,
+    port: int | None = None,
+) -> dict[str, Any]:
     """One scenario in-process (and over HTTP, and beside ``baseline``): the figures the report reads."""
     print(f"[{sc.name}] in-process, {n} epochs ...", flush=True)
     load_before = os.getloadavg()
@@ -521,12 +600,19 @@ def measure(sc: Scenario, n: int, http: bool, baseline: Path | None = None) -> d
         res["over_baseline"] = float(np.median(np.array(r["latency"]) / np.array(r["latency_baseline"])))
     if http:
         print(f"[{sc.name}] over HTTP, {n} epochs ...", flush=True)
-        h = run_http(sc, n)
+        h = run_http(sc, n, worker=worker, port=port)
         if h["digests"] != r["digests"]:
             raise AssertionError(f"{sc.name}: the service decided other epochs than the core in-process")
         res["http"] = summary(h["latency"])
         res["http_minus_solve"], res["http_over_solve_pct"] = over_solve(h)
-        res["server_peak_rss_mb"] = h["server_peak_rss_mb"]
+        for key in (
+            "server_peak_rss_mb",
+            "service_peak_rss_mb",
+            "worker",
+            "worker_solve_over",
+            "worker_solved",
+        ):
+            res[key] = h[key]
         res["ready_s"] = h["ready_s"]
     res["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
     return res
@@ -538,6 +624,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--epochs", type=int, default=None, help="override the scenarios' epoch counts")
     ap.add_argument("--no-http", action="store_true")
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument(
+        "--no-worker", action="store_true", help="HTTP: leave the fleet worker out of the service (no solve)"
+    )
+    ap.add_argument("--port", type=int, help="HTTP: the service's port (default: a free one)")
     ap.add_argument("--report-only", type=Path, metavar="JSON", help="rewrite the report from saved results")
     ap.add_argument(
         "--baseline",
@@ -556,12 +646,18 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.redis_url:
         return _redis_main(
-            args.redis_url, args.scenario or ["paper", "city", "metro250k"], args.epochs, not args.no_write
+            args.redis_url,
+            args.scenario or ["paper", "city", "metro250k"],
+            args.epochs,
+            not args.no_write,
+            args.port,
         )
     results: dict[str, dict[str, Any]] = {}
     for name in args.scenario or list(SCENARIOS):
         sc = SCENARIOS[name]
-        results[name] = measure(sc, args.epochs or sc.epochs, not args.no_http, args.baseline)
+        results[name] = measure(
+            sc, args.epochs or sc.epochs, not args.no_http, args.baseline, not args.no_worker, args.port
+        )
         print(json.dumps(results[name], indent=1), flush=True)
         (ROOT / "bench" / "out").mkdir(exist_ok=True)
         (ROOT / "bench" / "out" / "last_epoch_results.json").write_text(json.dumps(results, indent=1))
@@ -570,14 +666,14 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _redis_main(url: str, names: list[str], epochs: int | None, write: bool) -> int:
+def _redis_main(url: str, names: list[str], epochs: int | None, write: bool, port: int | None = None) -> int:
     """The HTTP path with the service on Redis, against the server's own solve of each epoch."""
     rows = []
     for name in names:
         sc = SCENARIOS[name]
         n = epochs or sc.epochs
         print(f"[{name}] over HTTP on Redis, {n} epochs ...", flush=True)
-        h = run_http(sc, n, redis_url=url)
+        h = run_http(sc, n, redis_url=url, worker=False, port=port)
         rows.append((name, n, summary(h["latency"]), *over_solve(h), h["server_peak_rss_mb"]))
         print(
             f"  {name}: round trip p50 {rows[-1][2]['p50_ms']:.0f} ms, over the solve {rows[-1][4]:+.1f} %",
@@ -618,6 +714,10 @@ TARGETS: dict[str, dict[str, float]] = {  # p99 in ms; the HTTP p99 as a multipl
 }
 
 
+SERVICE_RSS_MB = 1536.0
+"""The whole service's peak (the API process and the fleet worker's processes) where the API has an RSS target."""
+
+
 def _verdict(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
@@ -652,17 +752,36 @@ def _facts(name: str, r: dict[str, Any]) -> str:
             f"HTTP round trip over the server's solve: median {pct:+.1f} % (target <= +15 %: {_verdict(pct <= 15)}), "
             f"{r['http_minus_solve']['p50_ms']:.1f} ms (p99 {r['http_minus_solve']['p99_ms']:.1f} ms)"
         )
-        rss = r["server_peak_rss_mb"]
-        verdict = (
-            f" (target <= {t['rss_mb']:.0f} MB: {_verdict(rss <= t['rss_mb'])})" if "rss_mb" in t else ""
-        )
-        facts.append(f"server peak RSS {rss:.0f} MB{verdict}")
+        facts += _rss_facts(r, t)
         if "ready_s" in t:
             ok = r["ready_s"] <= t["ready_s"]
             facts.append(
                 f"start-up to ready {r['ready_s']:.1f} s (target <= {t['ready_s']:.0f}: {_verdict(ok)})"
             )
     return f"- {name}: " + "; ".join(facts)
+
+
+def _rss_facts(r: dict[str, Any], t: dict[str, float]) -> list[str]:
+    """The API process's peak resident memory and the whole service's (children included), with targets."""
+
+    def target(mb: float, limit: float | None) -> str:
+        return "" if limit is None else f" (target <= {limit:.0f} MB: {_verdict(mb <= limit)})"
+
+    api = r["server_peak_rss_mb"]
+    facts = [f"API process peak RSS {api:.0f} MB{target(api, t.get('rss_mb'))}"]
+    if "service_peak_rss_mb" in r:  # results of runs made before the service's peak was sampled lack it
+        whole = r["service_peak_rss_mb"]
+        if not r.get("worker"):
+            how = "no fleet worker"
+        elif not r.get("worker_solved", True):
+            how = "the fleet worker inside, no solve: the city has too little history to be sized"
+        elif r.get("worker_solve_over"):
+            how = "with the fleet worker's solve"
+        else:
+            how = f"with the fleet worker's solve, still running {WORKER_WAIT_S:.0f} s after the last epoch"
+        limit = SERVICE_RSS_MB if "rss_mb" in t else None
+        facts.append(f"the whole service's peak RSS {whole:.0f} MB ({how}){target(whole, limit)}")
+    return facts
 
 
 def write_report(results: dict[str, dict[str, Any]]) -> None:
@@ -685,9 +804,15 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "the API's largest epoch (module docstring). In-process = `services.dispatch.decide` with the default",
         "threads and with one (decisions checked equal); previous code = the same epochs decided by the checkout",
         "the run was given (`--baseline`), in its own process, decisions checked equal; HTTP = a real",
-        "`python -m app run` (uvicorn, in-memory store) posting the same epochs (decisions checked equal to the",
-        "in-process ones); floor = with scipy, one reverse search per rider bounded by the pickup radius, one full",
-        "reverse tree per new task's POI, and the two assignments over the pickup times, on the same epochs.",
+        "`python -m app run` (uvicorn, in-memory store, the fleet worker inside it as `make run` runs it) posting",
+        "the same epochs (decisions checked equal to the in-process ones), with a fleet solve of the city requested",
+        "after the untimed first epoch (a city without its days of recorded history is refused one), so that the",
+        "timed epochs run beside the worker's simulation processes as at the top of an hour;",
+        "peak RSS: the API process's high-water mark (VmHWM), and the largest sum of the resident memory of the",
+        "service's processes (the API and the worker's, sampled every 50 ms until the solve is over, at most",
+        f"{WORKER_WAIT_S:.0f} s after the last epoch; `bench/rss.py`). Floor = with scipy, one",
+        "reverse search per rider bounded by the pickup radius, one full reverse tree per new task's POI, and the",
+        "two assignments over the pickup times, on the same epochs.",
         "",
         "| scale | nodes | taxis (instr.) | riders | new tasks | open tasks (median) | Step 3 taxis (median) | epochs | path | p50 ms | p99 ms | min-max ms | IQR ms |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",

@@ -6,7 +6,7 @@ import time
 
 from fastapi import APIRouter, Response
 
-from app.api.bodies import EpochBody, TasksBody, request_body
+from app.api.bodies import RawBody, TasksBody, epoch_post, request_body
 from app.api.deps import CitiesDep, CityName, DispatchAccess, EpochsDep, LimitsDep, MetricsDep, TasksDep
 from app.api.inputs import epoch_command, tasks_of
 from app.api.responses import WRITE_ERRORS
@@ -58,16 +58,17 @@ def post_tasks(
 def post_epoch(
     city: CityName,
     _: DispatchAccess,
-    epoch: EpochBody,
+    raw: RawBody,
     catalog: CitiesDep,
     epochs: EpochsDep,
     metrics: MetricsDep,
     limits: LimitsDep,
 ) -> Response:
     """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
+    epoch = epoch_post(raw, limits)  # on this threadpool thread, before anything is counted
     started = time.perf_counter()
     try:
-        command = epoch_command(catalog.get(city), epoch.body, limits, epoch.taxis)
+        command = epoch_command(catalog.get(city), epoch.body, limits, epoch.taxis, epoch.riders)
         outcome = epochs.submit_epoch(city, command)
     except ServiceError as err:
         metrics.epochs.labels(outcome=err.kind).inc()

@@ -12,7 +12,7 @@ import numpy as np
 
 from app.errors import InvalidInput
 from app.schemas.common import LABEL_PATTERN, RFC3339_PATTERN, LocationIn
-from app.schemas.dispatch import EpochIn, PlainTaxis, body_hash
+from app.schemas.dispatch import EpochIn, PlainRiders, PlainTaxis, body_hash
 from app.schemas.tasks import TaskIn
 from app.settings import Settings
 from app.usecases import EpochCommand
@@ -104,24 +104,8 @@ def _at_most(n: int, limit: int, where: str) -> None:
         raise InvalidInput.at(where, f"at most {limit} items per request, got {n}")
 
 
-def snapshot_of(city: City, body: EpochIn, limits: Limits, plain: PlainTaxis | None = None) -> Snapshot:
-    """The epoch resolved to node indices (sizes, unique ids, request times and locations checked). With
-    ``plain`` (the body's taxis read by ``plain_taxis``, ``body`` validated without them) the taxis are
-    those, checked in the same order with the same errors."""
-    taxi_ids = [t.id for t in body.taxis] if plain is None else plain.ids
-    _at_most(len(body.riders), limits.max_riders, "riders")
-    _at_most(len(taxi_ids), limits.max_taxis, "taxis")
-    _unique([r.id for r in body.riders], "riders")
-    _unique(taxi_ids, "taxis")
-    time_s = body.time.timestamp()
-    snapped = snap_all(
-        city,
-        [
-            *(r.origin for r in body.riders),
-            *(r.destination for r in body.riders),
-            *(t.location for t in body.taxis),
-        ],
-    )
+def _riders(city: City, body: EpochIn, time_s: float, snapped: Snapped) -> list[Rider]:
+    """The body's riders (validated by the model) resolved, in order, each checked as it comes."""
     riders: list[Rider] = []
     for i, r in enumerate(body.riders):
         requested_s = r.requested_at.timestamp()
@@ -135,6 +119,58 @@ def snapshot_of(city: City, body: EpochIn, limits: Limits, plain: PlainTaxis | N
                 requested_at_s=requested_s,
             )
         )
+    return riders
+
+
+def _plain_riders(city: City, plain: PlainRiders, time_s: float) -> list[Rider]:
+    """Riders read by ``plain_riders``, checked in the same order with the same errors as ``_riders``."""
+    index_of = city.network.index_of
+    riders: list[Rider] = []
+    for i, (ident, origin, destination, requested_s) in enumerate(
+        zip(plain.ids, plain.origins, plain.destinations, plain.requested_at_s, strict=True)
+    ):
+        if requested_s > time_s:
+            raise InvalidInput.at(f"riders[{i}].requested_at", "is later than the epoch time")
+        nodes = []
+        for node_id, end in ((origin, "origin"), (destination, "destination")):
+            try:
+                nodes.append(index_of(node_id))
+            except SnapError:
+                node_of(city, LocationIn(node=node_id), f"riders[{i}].{end}")  # raises, naming the field
+        riders.append(Rider(RiderId(ident), nodes[0], nodes[1], requested_s))
+    return riders
+
+
+def snapshot_of(
+    city: City,
+    body: EpochIn,
+    limits: Limits,
+    plain: PlainTaxis | None = None,
+    plain_riders: PlainRiders | None = None,
+) -> Snapshot:
+    """The epoch resolved to node indices (sizes, unique ids, request times and locations checked). With
+    ``plain`` (``plain_riders``), the body's taxis (riders) read by ``plain_taxis`` (``plain_riders``) and
+    ``body`` validated without them, the taxis (riders) are those, checked in the same order with the same
+    errors."""
+    taxi_ids = [t.id for t in body.taxis] if plain is None else plain.ids
+    rider_ids = [r.id for r in body.riders] if plain_riders is None else plain_riders.ids
+    _at_most(len(rider_ids), limits.max_riders, "riders")
+    _at_most(len(taxi_ids), limits.max_taxis, "taxis")
+    _unique(rider_ids, "riders")
+    _unique(taxi_ids, "taxis")
+    time_s = body.time.timestamp()
+    snapped = snap_all(
+        city,
+        [
+            *(r.origin for r in body.riders),
+            *(r.destination for r in body.riders),
+            *(t.location for t in body.taxis),
+        ],
+    )
+    if plain_riders is None:
+        riders = _riders(city, body, time_s, snapped)
+    else:
+        riders = _plain_riders(city, plain_riders, time_s)
     index_of = city.network.index_of
     taxis: list[Taxi] = []
     if plain is not None:
@@ -156,10 +192,21 @@ def snapshot_of(city: City, body: EpochIn, limits: Limits, plain: PlainTaxis | N
     return Snapshot(epoch_id=body.epoch_id, time_s=time_s, riders=tuple(riders), taxis=tuple(taxis))
 
 
-def epoch_command(city: City, body: EpochIn, limits: Limits, plain: PlainTaxis | None = None) -> EpochCommand:
+def epoch_command(
+    city: City,
+    body: EpochIn,
+    limits: Limits,
+    plain: PlainTaxis | None = None,
+    plain_riders: PlainRiders | None = None,
+) -> EpochCommand:
     """The use case's input for an epoch post: the snapshot, the body's canonical hash and the posted time
-    (``plain``: the body's taxis as ``plain_taxis`` read them, ``body`` validated without them)."""
-    return EpochCommand(snapshot_of(city, body, limits, plain), body_hash(body, plain), body.time.isoformat())
+    (``plain``, ``plain_riders``: the body's taxis and riders as ``plain_taxis`` and ``plain_riders`` read
+    them, ``body`` validated without them)."""
+    return EpochCommand(
+        snapshot_of(city, body, limits, plain, plain_riders),
+        body_hash(body, plain, plain_riders),
+        body.time.isoformat(),
+    )
 
 
 def tasks_of(city: City, tasks: Sequence[TaskIn], limits: Limits) -> list[Task]:

@@ -28,9 +28,36 @@ from services.sim.engine import RunTrace, SimConfig, poi_tasks, simulate
 from services.sim.kpi import run_kpis
 from services.sim.local import LocalDispatcher
 
-__all__ = ["Bundle", "open_bundle", "demand_for", "tasks_for", "placed_tasks", "simulate_spec", "run_job"]
+__all__ = [
+    "Bundle",
+    "NoDemandSource",
+    "check_demand_source",
+    "open_bundle",
+    "demand_for",
+    "tasks_for",
+    "placed_tasks",
+    "simulate_spec",
+    "run_job",
+]
 
 _TASK_STREAM = 0x7A5
+
+
+class NoDemandSource(ValueError):
+    """A city bundle with neither POIs nor recorded requests: no demand can be drawn on it."""
+
+    @classmethod
+    def of(cls, city: str) -> NoDemandSource:
+        """The error for ``city`` (one argument, the message: it crosses to the worker's parent pickled)."""
+        return cls(f"city {city!r} has neither POIs nor recorded requests to build demand from")
+
+
+def check_demand_source(directory: Path) -> None:
+    """``NoDemandSource`` when the bundle in ``directory`` can draw no demand of its own (its ``city.json``
+    alone is read: a run that would fail anyway fails before loading a network of any size)."""
+    meta = read_meta(directory)
+    if "pois" not in meta.files and "requests" not in meta.files:
+        raise NoDemandSource.of(meta.name)
 
 
 class Bundle:
@@ -66,9 +93,7 @@ class Bundle:
     def records(self) -> TripRecords:
         """The bundle's recorded trips (the bootstrap source when it has no POIs)."""
         if "requests" not in self.files:
-            raise ValueError(
-                f"city {self.city.name!r} has neither POIs nor recorded requests to build demand from"
-            )
+            raise NoDemandSource.of(self.city.name)
         return read_nyc_requests(self.directory / self.files["requests"])
 
     @cached_property
@@ -162,6 +187,8 @@ def simulate_spec(
 
 def run_job(job: RunJob) -> RunResult:
     """Simulate one job in this process (top level, so an executor can send it to other processes)."""
+    if job.demand is None:  # the spec's own demand, drawn from the bundle
+        check_demand_source(shipped_copy(Path(job.bundle)))
     bundle = open_bundle(job.bundle)  # once per process: not part of the run's time
     started, cpu = time.perf_counter(), time.process_time()
     city, trace = simulate_spec(job.spec, bundle, job.demand, job.tasks, job.start_nodes)

@@ -3,6 +3,7 @@ as the response document renders it (stored with the commit and returned verbati
 
 from __future__ import annotations
 
+import datetime as dt
 import hashlib
 import json
 import math
@@ -32,7 +33,7 @@ from app.usecases import EpochResult, StoredDecision
 from services.city import City
 from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
 from services.network.network import Network
-from services.rfc3339 import parse_rfc3339
+from services.rfc3339 import MAX_YEAR, MIN_YEAR, parse_rfc3339
 
 __all__ = [
     "RiderIn",
@@ -40,6 +41,8 @@ __all__ = [
     "EpochIn",
     "PlainTaxis",
     "plain_taxis",
+    "PlainRiders",
+    "plain_riders",
     "body_hash",
     "RiderMatchOut",
     "TaskAssignmentOut",
@@ -78,6 +81,49 @@ class EpochIn(TimedRequest):
     taxis: list[TaxiIn]
 
 
+_TAXI_KEYS = frozenset({"id", "location", "instrumented", "status"})
+_RIDER_KEYS = frozenset({"id", "origin", "destination", "requested_at"})
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+_INT64 = (-(2**63), 2**63 - 1)
+_LOCATION_KEYS = frozenset({"node", "lon", "lat"})
+if (frozenset(TaxiIn.model_fields), frozenset(LocationIn.model_fields), frozenset(RiderIn.model_fields)) != (
+    _TAXI_KEYS,
+    _LOCATION_KEYS,
+    _RIDER_KEYS,
+):
+    # plain_taxis and plain_riders write exactly these fields' canonical JSON
+    raise RuntimeError(
+        "plain_taxis and plain_riders read the models as they are: change them with the models"
+    )
+# a time the model keeps as it is written (its JSON dump gives the same text): seconds, no fraction, an
+# offset other than +00:00 and -00:00 (which the dump writes as Z), a year within the API's range
+_PLAIN_TIME = re.compile(
+    r"(19[7-9][0-9]|2[0-9]{3})-(0[1-9]|1[0-2])-(0[1-9]|[12][0-9]|3[01])T([01][0-9]|2[0-3]):[0-5][0-9]:[0-5][0-9]"
+    r"[+-](?!00:00)([01][0-9]|2[0-3]):[0-5][0-9]"
+)
+
+
+def _plain_node(loc: object) -> int | None:
+    """The node id of a location of the form ``{"node": a JSON integer in int64}``, else ``None``."""
+    if type(loc) is not dict or len(loc) != 1:
+        return None
+    node = loc.get("node")
+    lo, hi = _INT64
+    return node if type(node) is int and lo <= node <= hi else None
+
+
+def _plain_ids(ids: Sequence[str]) -> bool:
+    """Whether every id is printable ASCII of 1..``ID_MAX_LEN`` characters (what ``Identifier`` keeps)."""
+    if not all(0 < len(ident) <= ID_MAX_LEN for ident in ids):
+        return False
+    every_id = "".join(ids)  # no id is empty, so one look at them all
+    return every_id.isascii() and not _CONTROL.search(every_id)
+
+
+def _location_json(node: int) -> str:
+    return f'{{"lat":null,"lon":null,"node":{node}}}'
+
+
 @dataclass(frozen=True, slots=True)
 class PlainTaxis:
     """An epoch's taxis read by ``plain_taxis``: external node ids, and their part of the canonical JSON."""
@@ -89,15 +135,6 @@ class PlainTaxis:
     canonical: str  # the JSON array ``body_hash`` writes for these taxis
 
 
-_TAXI_KEYS = frozenset({"id", "location", "instrumented", "status"})
-_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
-_INT64 = (-(2**63), 2**63 - 1)
-_LOCATION_KEYS = frozenset({"node", "lon", "lat"})
-if (frozenset(TaxiIn.model_fields), frozenset(LocationIn.model_fields)) != (_TAXI_KEYS, _LOCATION_KEYS):
-    # plain_taxis writes exactly these fields' canonical JSON
-    raise RuntimeError("plain_taxis reads TaxiIn and LocationIn as they are: change it with the models")
-
-
 def plain_taxis(value: object) -> PlainTaxis | None:
     """The parsed JSON ``taxis`` of an epoch body read without a model per taxi, when every item has the
     common form ``{"id": printable ASCII text of 1..128 characters, "location": {"node": a JSON integer in
@@ -106,7 +143,6 @@ def plain_taxis(value: object) -> PlainTaxis | None:
     refuse: the model then validates the taxis and says what is wrong (``app.api.bodies``)."""
     if type(value) is not list:
         return None
-    lo, hi = _INT64
     ids: list[str] = []
     nodes: list[int] = []
     instrumented: list[bool] = []
@@ -115,19 +151,14 @@ def plain_taxis(value: object) -> PlainTaxis | None:
     for item in value:
         if type(item) is not dict or item.keys() != _TAXI_KEYS:
             return None
-        ident, loc, instr, status = item["id"], item["location"], item["instrumented"], item["status"]
+        ident, instr, status = item["id"], item["instrumented"], item["status"]
+        node = _plain_node(item["location"])
         if (
-            type(ident) is not str
-            or not 0 < len(ident) <= ID_MAX_LEN
-            or type(loc) is not dict
-            or len(loc) != 1
+            node is None
+            or type(ident) is not str
             or type(instr) is not bool
-            or type(status) is not str
             or (status != "vacant" and status != "busy")
         ):
-            return None
-        node = loc.get("node")
-        if type(node) is not int or not lo <= node <= hi:
             return None
         ids.append(ident)
         nodes.append(node)
@@ -135,13 +166,77 @@ def plain_taxis(value: object) -> PlainTaxis | None:
         vacant.append(status == "vacant")
         parts.append(
             f'{{"id":{encode_basestring_ascii(ident)},"instrumented":{"true" if instr else "false"},'
-            f'"location":{{"lat":null,"lon":null,"node":{node}}},"status":"{status}"}}'
+            f'"location":{_location_json(node)},"status":"{status}"}}'
         )
-    every_id = "".join(ids)  # no id is empty, so one look at them all
-    if not every_id.isascii() or _CONTROL.search(every_id):
+    if not _plain_ids(ids):
         return None
     return PlainTaxis(
         tuple(ids), tuple(nodes), tuple(instrumented), tuple(vacant), "[" + ",".join(parts) + "]"
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class PlainRiders:
+    """An epoch's riders read by ``plain_riders``: external node ids, request times (POSIX seconds), and
+    their part of the canonical JSON."""
+
+    ids: tuple[str, ...]
+    origins: tuple[int, ...]
+    destinations: tuple[int, ...]
+    requested_at_s: tuple[float, ...]
+    canonical: str  # the JSON array ``body_hash`` writes for these riders
+
+
+def _plain_time_s(text: object) -> float | None:
+    """POSIX seconds of a request time the model keeps as written (``_PLAIN_TIME``) and accepts (a real
+    date whose UTC instant lies in the API's years), else ``None``."""
+    if type(text) is not str or not _PLAIN_TIME.fullmatch(text):
+        return None
+    try:
+        when = dt.datetime.fromisoformat(text)
+    except ValueError:  # no such day (2026-02-30)
+        return None
+    year = int(text[:4])
+    # offsets are under a day: only an instant in the first or the last year can leave the range in UTC
+    if year in (MIN_YEAR, MAX_YEAR) and not MIN_YEAR <= when.astimezone(dt.UTC).year <= MAX_YEAR:
+        return None
+    return when.timestamp()
+
+
+def plain_riders(value: object) -> PlainRiders | None:
+    """The parsed JSON ``riders`` of an epoch body read without a model per rider, when every item has the
+    common form ``{"id": printable ASCII text of 1..128 characters, "origin": {"node": a JSON integer in
+    int64}, "destination": the same, "requested_at": "YYYY-MM-DDTHH:MM:SS+HH:MM"}`` (an offset other than
+    +00:00 or -00:00, a real date whose UTC instant lies in the API's years): exactly what ``RiderIn``
+    accepts and keeps unchanged in that form. ``None`` for anything else, including every item ``RiderIn``
+    would refuse: the model then validates the riders and says what is wrong (``app.api.bodies``)."""
+    if type(value) is not list:
+        return None
+    ids: list[str] = []
+    origins: list[int] = []
+    destinations: list[int] = []
+    times: list[float] = []
+    parts: list[str] = []
+    for item in value:
+        if type(item) is not dict or item.keys() != _RIDER_KEYS:
+            return None
+        ident, text = item["id"], item["requested_at"]
+        origin, destination = _plain_node(item["origin"]), _plain_node(item["destination"])
+        time_s = _plain_time_s(text)
+        if origin is None or destination is None or time_s is None or type(ident) is not str:
+            return None
+        ids.append(ident)
+        origins.append(origin)
+        destinations.append(destination)
+        times.append(time_s)
+        parts.append(
+            f'{{"destination":{_location_json(destination)},"id":{encode_basestring_ascii(ident)},'
+            f'"origin":{_location_json(origin)},"requested_at":"{text}"}}'
+        )
+    if not _plain_ids(ids):
+        return None
+    return PlainRiders(
+        tuple(ids), tuple(origins), tuple(destinations), tuple(times), "[" + ",".join(parts) + "]"
     )
 
 
@@ -149,25 +244,25 @@ def _canonical(value: Any) -> str:
     return json.dumps(value, sort_keys=True, separators=(",", ":"))
 
 
-def body_hash(body: EpochIn, taxis: PlainTaxis | None = None) -> str:
+def body_hash(body: EpochIn, taxis: PlainTaxis | None = None, riders: PlainRiders | None = None) -> str:
     """sha256 of the canonical JSON of a validated epoch body: the model dumped in JSON mode, keys sorted,
     no spaces. Every committed epoch stores it and a replay must match it, so this never changes.
 
-    With ``taxis`` (the body's taxis read by ``plain_taxis``, ``body`` validated without them), their part
-    is ``taxis.canonical``: the same text the model's dump of them gives (tests/api/test_plain_taxis.py)."""
+    With ``taxis`` (``riders``), the body's taxis (riders) read by ``plain_taxis`` (``plain_riders``) and
+    ``body`` validated without them, their part is their ``canonical``: the same text the model's dump of
+    them gives (tests/api/test_plain_taxis.py, test_plain_riders.py)."""
     dump = body.model_dump(mode="json")
-    if taxis is None:
-        canonical = _canonical(dump)
-    else:
-        dump["taxis"] = None
-        canonical = (
-            "{"
-            + ",".join(
-                f"{_canonical(key)}:{taxis.canonical if key == 'taxis' else _canonical(dump[key])}"
-                for key in sorted(dump)
-            )
-            + "}"
-        )
+    if taxis is None and riders is None:
+        return hashlib.sha256(_canonical(dump).encode()).hexdigest()
+    plain = {
+        "taxis": None if taxis is None else taxis.canonical,
+        "riders": None if riders is None else riders.canonical,
+    }
+    canonical = (
+        "{"
+        + ",".join(f"{_canonical(key)}:{plain.get(key) or _canonical(dump[key])}" for key in sorted(dump))
+        + "}"
+    )
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.api.bodies import _epoch, _json, _validate
+from app.api.bodies import _json, _validate, epoch_post
 from app.api.inputs import Limits, epoch_command, snapshot_of
 from app.cities import CityRegistry
 from app.errors import ServiceError
@@ -28,13 +28,13 @@ LIMITS = Limits(max_riders=20, max_taxis=6, max_tasks=10)
 
 
 def former(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
-    """The epoch path before ``plain_taxis``: the model validates the whole body."""
+    """The epoch path without ``plain_taxis`` and ``plain_riders``: the model validates the whole body."""
     body = _json(("application/json", json.dumps(obj).encode()))
     if isinstance(body, dict):
         for key, limit in (("riders", limits.max_riders), ("taxis", limits.max_taxis)):
             if isinstance(body.get(key), list) and len(body[key]) > limit:
                 with pytest.raises(ServiceError):
-                    _epoch(("application/json", json.dumps(obj).encode()), limits)
+                    epoch_post(("application/json", json.dumps(obj).encode()), limits)
                 raise _Skip
     model = _validate(EpochIn, body)
     return EpochCommand(snapshot_of(city, model, limits), body_hash(model), model.time.isoformat())
@@ -46,8 +46,8 @@ class _Skip(Exception):
 
 def current(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
     """The epoch path as the route runs it."""
-    post = _epoch(("application/json", json.dumps(obj).encode()), limits)
-    return epoch_command(city, post.body, limits, post.taxis)
+    post = epoch_post(("application/json", json.dumps(obj).encode()), limits)
+    return epoch_command(city, post.body, limits, post.taxis, post.riders)
 
 
 def outcome(run: Any, city: City, obj: Any) -> Any:
@@ -175,15 +175,22 @@ def test_other_errors_with_common_taxis_are_the_models(city: City) -> None:
         assert isinstance(result, tuple) and result[0] == 422
 
 
+def draw(rng: random.Random, forms: list[Any], most: int, common: int = 8) -> list[Any]:
+    """1..``most`` items of ``forms``, mostly their first five (the common ones, ``common`` times as likely
+    as each other); one list in ten of two or more ends with a duplicate of its first item."""
+    n = rng.randint(1, most)
+    weights = [common if k < 5 else 1 for k in range(len(forms))]
+    items = [_instance(rng.choices(forms, weights)[0], i) for i in range(n)]
+    if rng.random() < 0.1 and n > 1:
+        items[-1] = json.loads(json.dumps(items[0]))  # a duplicate
+    return items
+
+
 def test_random_bodies(city: City) -> None:
     rng = random.Random(20261123)
     plain = 0
     for _ in range(400):
-        n = rng.randint(1, 5)
-        weights = [8 if k < 5 else 1 for k in range(len(FORMS))]  # mostly common taxis
-        taxis = [_instance(rng.choices(FORMS, weights)[0], i) for i in range(n)]
-        if rng.random() < 0.1 and n > 1:
-            taxis[-1] = json.loads(json.dumps(taxis[0]))  # a duplicate
+        taxis = draw(rng, FORMS, 5)
         obj = epoch(taxis=taxis)
         plain += plain_taxis(taxis) is not None
         same(city, obj)

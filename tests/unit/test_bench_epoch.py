@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -132,3 +134,30 @@ def test_a_tiny_run_of_the_heavy_grid_scenario() -> None:
     r = bench_epoch.run_inprocess(sc, 1)
     assert len(r["latency"]) == 1 and r["city_size"][0] == 22_500
     assert r["step3_taxis_median"] > 0
+
+
+@pytest.mark.slow
+def test_a_tiny_http_run_reports_the_api_and_the_whole_services_peak_memory() -> None:
+    """One timed paper epoch over HTTP on the real service, its fleet worker asked to solve after the first
+    epoch: the round trip, the server's solve and both peaks are reported, and the target lines say them."""
+    h = bench_epoch.run_http(bench_epoch.SCENARIOS["paper"], 1, worker=True, worker_wait_s=0.0)
+    assert len(h["latency"]) == len(h["server_solve"]) == 1 and len(h["digests"]) == 2
+    assert 100.0 < h["server_peak_rss_mb"] <= h["service_peak_rss_mb"]
+    assert h["worker_solved"]  # a bundled demo city is sized on its seeded synthetic history
+    r: dict[str, Any] = {"inprocess": {"p99_ms": 1.0}, "floor": {"p99_ms": 1.0}, "http": {"p99_ms": 1.0}}
+    r |= {"http_over_solve_pct": 1.0, "http_minus_solve": {"p50_ms": 1.0, "p99_ms": 1.0}}
+    r |= {
+        k: h[k]
+        for k in (
+            "server_peak_rss_mb",
+            "service_peak_rss_mb",
+            "worker",
+            "worker_solve_over",
+            "worker_solved",
+            "ready_s",
+        )
+    }
+    line = bench_epoch._facts("metro250k", r)
+    assert f"API process peak RSS {h['server_peak_rss_mb']:.0f} MB (target <= 1024 MB" in line
+    assert f"the whole service's peak RSS {h['service_peak_rss_mb']:.0f} MB (with the fleet worker" in line
+    assert "(target <= 1536 MB" in line

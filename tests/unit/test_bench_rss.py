@@ -1,0 +1,37 @@
+"""``bench.rss``: the peak resident memory of a process and of its whole tree, read from /proc."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+from bench.rss import TreePeak, descendants, hwm_mb
+
+# a child that starts a grandchild holding 200 MB (touched), waits for stdin, then exits with it
+_TREE = """
+import subprocess, sys
+hold = "import sys; b = b'x' * (200 << 20); print('held', flush=True); sys.stdin.read()"
+g = subprocess.Popen([sys.executable, "-c", hold], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+g.stdout.readline()
+print("ready", flush=True)
+sys.stdin.read()
+g.stdin.close()
+g.wait()
+"""
+
+
+def test_the_tree_peak_counts_a_grandchilds_memory_and_the_process_peak_does_not() -> None:
+    proc = subprocess.Popen([sys.executable, "-c", _TREE], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == b"ready"
+        with TreePeak(proc.pid, interval_s=0.01) as peak:
+            assert len(descendants(proc.pid)) == 1
+            time.sleep(0.1)
+        assert peak.process_mb == hwm_mb(proc.pid) < 100.0  # the child itself holds little
+        assert peak.tree_mb >= peak.process_mb + 200.0  # its grandchild's 200 MB are counted
+    finally:
+        assert proc.stdin is not None
+        proc.stdin.close()
+        proc.wait(timeout=30)
+    assert descendants(proc.pid) == [] and hwm_mb(proc.pid) == 0.0  # gone: nothing to read
