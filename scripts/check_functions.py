@@ -27,7 +27,6 @@ KNOWN: dict[str, tuple[int, int]] = {
     "services/routing/algorithm2.py:improve_routes": (84, 6),
     "services/sensing/gains.py:eval_tree": (100, 9),
     "app/main.py:create_app": (84, 8),
-    "services/fleet/dro/exact.py:solve_exact": (96, 4),
     "services/geojson.py:routes_geojson": (90, 6),
     "services/matching/assignment.py:_solve": (88, 6),
     "services/network/network.py:build_network": (117, 9),
