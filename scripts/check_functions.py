@@ -27,7 +27,6 @@ KNOWN: dict[str, tuple[int, int]] = {
     "services/routing/algorithm2.py:improve_routes": (84, 6),
     "services/sensing/gains.py:eval_tree": (100, 9),
     "app/main.py:create_app": (84, 8),
-    "services/sim/engine.py:simulate": (82, 9),
 }
 """Functions allowed over a limit, by ``path:name``, with the (lines, parameters) they may not exceed."""
 
