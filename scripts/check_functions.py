@@ -1,10 +1,11 @@
 """Print every function in ``services/`` and ``app/`` longer than MAX_LINES lines or taking more than
 MAX_PARAMS parameters; exit 1 when there is one.
 
-A function's length is the lines of its body (from the first statement after the signature and docstring to
-its last line); its parameters are all of them but ``self`` and ``cls``, keyword-only and
-``*args``/``**kwargs`` included. A function listed in ``KNOWN`` (with the reason) may stay over a limit at
-its recorded size, no more. Usage: ``python scripts/check_functions.py [DIR ...]`` (default: services app).
+A function's length is the lines from its ``def`` (decorators excluded) to its last line, signature,
+docstring, comments and blank lines inside it all counted; a nested function counts in its enclosing one and
+on its own. Its parameters are all of them but ``self`` and ``cls``, keyword-only and ``*args``/``**kwargs``
+included. A function listed in ``KNOWN`` (with the reason) may stay over a limit at its
+recorded size, no more. Usage: ``python scripts/check_functions.py [DIR ...]`` (default: services app).
 """
 
 from __future__ import annotations
@@ -17,7 +18,16 @@ MAX_LINES = 80
 MAX_PARAMS = 10
 ROOT = Path(__file__).resolve().parents[1]
 
-KNOWN: dict[str, tuple[int, int]] = {}
+KNOWN: dict[str, tuple[int, int]] = {
+    # Being split with the rest of their modules (the searches, the routing algorithms, the gains, the API's
+    # assembly); each leaves this list when its module is done.
+    "services/network/search.py:grow": (104, 8),
+    "services/network/search.py:guided": (97, 8),
+    "services/routing/algorithm1.py:plan_routes": (88, 5),
+    "services/routing/algorithm2.py:improve_routes": (84, 6),
+    "services/sensing/gains.py:eval_tree": (100, 9),
+    "app/main.py:create_app": (84, 8),
+}
 """Functions allowed over a limit, by ``path:name``, with the (lines, parameters) they may not exceed."""
 
 
@@ -28,18 +38,10 @@ def _params(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
     return len([n for n in names if n not in ("self", "cls")])
 
 
-def _body_lines(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
-    body = fn.body
-    first = body[0]
-    is_doc = (
-        isinstance(first, ast.Expr)
-        and isinstance(first.value, ast.Constant)
-        and isinstance(first.value.value, str)
-    )
-    if is_doc and len(body) > 1:
-        first = body[1]
+def _lines(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    """From the ``def`` line (``lineno`` skips the decorators) to the function's last line."""
     end = fn.end_lineno or fn.lineno
-    return end - first.lineno + 1
+    return end - fn.lineno + 1
 
 
 def offenders(paths: list[Path], known: list[str]) -> list[str]:
@@ -52,7 +54,7 @@ def offenders(paths: list[Path], known: list[str]) -> list[str]:
             for node in ast.walk(tree):
                 if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                     continue
-                lines, params = _body_lines(node), _params(node)
+                lines, params = _lines(node), _params(node)
                 if lines > MAX_LINES or params > MAX_PARAMS:
                     rel = file.relative_to(ROOT) if file.is_relative_to(ROOT) else file
                     text = f"{rel}:{node.lineno} {node.name}: {lines} lines, {params} parameters"

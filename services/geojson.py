@@ -192,6 +192,58 @@ def _path_geometry(network: Network, path: Sequence[int]) -> GeoJson:
     return {"type": "LineString", "coordinates": _positions(network, path)}
 
 
+def _rider_feature(network: Network, m: RiderMatch, time_s: float, timezone: str) -> GeoJson:
+    """A Step 1 or 2 match: the taxi's path to the pickup and on to the dropoff, departing at ``time_s``."""
+    props: dict[str, Any] = {
+        "kind": "rider",
+        "step": int(m.step),
+        "taxi_id": str(m.taxi_id),
+        "rider_id": str(m.rider_id),
+        "sensing_gain": _num(m.sensing_gain),
+        "pickup_m": _num(m.pickup_m),
+        "wait_s": _num(m.wait_s),
+        "trip_m": _num(m.trip_m),
+        "trip_time_s": _num(m.trip_time_s),
+        "depart_at": _local_time(time_s, timezone),
+        "pickup_at": _local_time(time_s + m.wait_s, timezone),
+        "dropoff_at": _local_time(time_s + (m.wait_s + m.trip_time_s), timezone),
+    }
+    return _feature(_path_geometry(network, m.path), props)
+
+
+def _poi_feature(network: Network, a: TaskAssignment, time_s: float, timezone: str) -> GeoJson:
+    """A Step 3 assignment: the instrumented taxi's route to its POI, departing at ``time_s``."""
+    props: dict[str, Any] = {
+        "kind": "poi",
+        "step": 3,
+        "taxi_id": str(a.taxi_id),
+        "task_id": str(a.task_id),
+        "sensing_gain": _num(a.sensing_gain),
+        "efficiency": _num(a.efficiency),
+        "length_m": _num(a.length_m),
+        "travel_time_s": _num(a.travel_time_s),
+        "cost_cny": _num(a.cost_cny),
+        "depart_at": _local_time(time_s, timezone),
+        "arrive_at": _local_time(time_s + a.travel_time_s, timezone),
+    }
+    return _feature(_path_geometry(network, a.path), props)
+
+
+def _task_feature(network: Network, t: Task, timezone: str) -> GeoJson:
+    """A task as a Point at its POI node, with its status."""
+    props: dict[str, Any] = {
+        "kind": "task",
+        "task_id": str(t.id),
+        "node": int(network.node_ids[t.node]),
+        "status": t.status,
+        "scheduled_at": _local_time(t.scheduled_at_s, timezone),
+        "completed_at": None if t.completed_at_s is None else _local_time(t.completed_at_s, timezone),
+        "taxi_id": None if t.taxi_id is None else str(t.taxi_id),
+        "mode": t.mode,
+    }
+    return _feature(_path_geometry(network, [t.node]), props)
+
+
 def routes_geojson(
     network: Network,
     time_s: float,
@@ -234,51 +286,7 @@ def routes_geojson(
         ``timezone``; a number or time that is not finite (not known) is written as null.
     """
 
-    def at(offset_s: float) -> str | None:
-        return _local_time(time_s + offset_s, timezone)
-
-    features: list[GeoJson] = []
-    for m in rider_matches:
-        props: dict[str, Any] = {
-            "kind": "rider",
-            "step": int(m.step),
-            "taxi_id": str(m.taxi_id),
-            "rider_id": str(m.rider_id),
-            "sensing_gain": _num(m.sensing_gain),
-            "pickup_m": _num(m.pickup_m),
-            "wait_s": _num(m.wait_s),
-            "trip_m": _num(m.trip_m),
-            "trip_time_s": _num(m.trip_time_s),
-            "depart_at": at(0.0),
-            "pickup_at": at(m.wait_s),
-            "dropoff_at": at(m.wait_s + m.trip_time_s),
-        }
-        features.append(_feature(_path_geometry(network, m.path), props))
-    for a in task_assignments:
-        props = {
-            "kind": "poi",
-            "step": 3,
-            "taxi_id": str(a.taxi_id),
-            "task_id": str(a.task_id),
-            "sensing_gain": _num(a.sensing_gain),
-            "efficiency": _num(a.efficiency),
-            "length_m": _num(a.length_m),
-            "travel_time_s": _num(a.travel_time_s),
-            "cost_cny": _num(a.cost_cny),
-            "depart_at": at(0.0),
-            "arrive_at": at(a.travel_time_s),
-        }
-        features.append(_feature(_path_geometry(network, a.path), props))
-    for t in tasks:
-        props = {
-            "kind": "task",
-            "task_id": str(t.id),
-            "node": int(network.node_ids[t.node]),
-            "status": t.status,
-            "scheduled_at": _local_time(t.scheduled_at_s, timezone),
-            "completed_at": None if t.completed_at_s is None else _local_time(t.completed_at_s, timezone),
-            "taxi_id": None if t.taxi_id is None else str(t.taxi_id),
-            "mode": t.mode,
-        }
-        features.append(_feature(_path_geometry(network, [t.node]), props))
+    features = [_rider_feature(network, m, time_s, timezone) for m in rider_matches]
+    features += [_poi_feature(network, a, time_s, timezone) for a in task_assignments]
+    features += [_task_feature(network, t, timezone) for t in tasks]
     return _collection(features)

@@ -188,9 +188,6 @@ def _reset(
     pos: NDArray[np.int64],
     touched: NDArray[np.int64],
     n_touched: int,
-    in_sr: NDArray[np.bool_],
-    sr_list: NDArray[np.int64],
-    n_sr: int,
 ) -> None:
     """Leave the search's labels as the next row's search expects them."""
     for t in range(n_touched):
@@ -199,8 +196,20 @@ def _reset(
         sp_b[jt] = 0
         settled[jt] = False
         pos[jt] = -1
-    for t in range(n_sr):
-        in_sr[sr_list[t]] = False
+
+
+@compiled_inline
+def _heap(
+    nc: int,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """An empty heap of labels ``(a, b, f)`` over ``nc`` columns: the entries' keys ``ka``, ``kb``, ``kf``
+    and columns ``node``, and each column's entry ``pos`` (-1: not in the heap)."""
+    ka = np.empty(nc, dtype=np.int64)
+    kb = np.empty(nc, dtype=np.int64)
+    kf = np.empty(nc, dtype=np.int64)
+    node = np.empty(nc, dtype=np.int64)
+    pos = np.full(nc, -1, dtype=np.int64)
+    return ka, kb, kf, node, pos
 
 
 @compiled
@@ -228,24 +237,14 @@ def _solve(
     path = np.full(nc, -1, dtype=np.int64)
     path_pair = np.full(nc, -1, dtype=np.int64)
     settled = np.zeros(nc, dtype=np.bool_)
-    in_sr = np.zeros(n_rows, dtype=np.bool_)
     touched = np.empty(nc, dtype=np.int64)
     sr_list = np.empty(n_rows, dtype=np.int64)
-    ka = np.empty(nc, dtype=np.int64)
-    kb = np.empty(nc, dtype=np.int64)
-    kf = np.empty(nc, dtype=np.int64)
-    node = np.empty(nc, dtype=np.int64)
-    pos = np.full(nc, -1, dtype=np.int64)
+    ka, kb, kf, node, pos = _heap(nc)
     for cur in range(n_rows):
-        n_touched = 0
-        n_sr = 0
-        size = 0
-        min_a = 0
-        min_b = 0
+        n_touched = n_sr = size = min_a = min_b = 0  # the search from row cur starts with no label
         i = cur
         sink = -1
         while sink < 0:
-            in_sr[i] = True
             sr_list[n_sr] = i
             n_sr += 1
             # the row's pairs, then its dummy column
@@ -290,7 +289,7 @@ def _solve(
         _row_duals(u_a, u_b, sp_a, sp_b, col4row, sr_list, n_sr, cur, min_a, min_b)
         _col_duals(v_a, v_b, sp_a, sp_b, settled, touched, n_touched, min_a, min_b)
         _augment(path, path_pair, row4col, col4row, pair4row, sink, cur)
-        _reset(sp_a, sp_b, settled, pos, touched, n_touched, in_sr, sr_list, n_sr)
+        _reset(sp_a, sp_b, settled, pos, touched, n_touched)
     return pair4row
 
 

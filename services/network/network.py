@@ -316,6 +316,93 @@ def _as_1d(name: str, values: ArrayLike, dtype: type) -> NDArray[Any]:
     return arr
 
 
+def _checked_nodes(
+    node_ids: ArrayLike | Sequence[int], lon: ArrayLike, lat: ArrayLike
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
+    """The nodes' ids, lon and lat as arrays, checked, and the order that sorts the ids (``ids[order]`` is
+    ascending)."""
+    ids = _as_1d("node_ids", node_ids, np.int64)
+    lon_a = _as_1d("lon", lon, np.float64)
+    lat_a = _as_1d("lat", lat, np.float64)
+    n = ids.size
+    if n == 0:
+        raise ValueError("a network needs at least one node")
+    if lon_a.size != n or lat_a.size != n:
+        raise ValueError("node_ids, lon and lat must have the same length")
+    if (np.abs(lon_a) > 180.0).any() or (np.abs(lat_a) > 90.0).any():
+        raise ValueError("lon must lie in [-180, 180] and lat in [-90, 90]")
+    order = np.argsort(ids, kind="stable")
+    sorted_ids = ids[order]
+    if n > 1 and (sorted_ids[1:] == sorted_ids[:-1]).any():
+        dup = int(sorted_ids[1:][sorted_ids[1:] == sorted_ids[:-1]][0])
+        raise ValueError(f"duplicate node id {dup}")
+    return ids, lon_a, lat_a, order
+
+
+_Edges = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
+"""Edges as arrays: tails, heads, lengths in metres, speeds in km/h."""
+
+
+def _checked_edges(
+    edge_u_ids: ArrayLike | Sequence[int],
+    edge_v_ids: ArrayLike | Sequence[int],
+    length_m: ArrayLike,
+    speed_kmh: ArrayLike | None,
+    default_speed_kmh: float,
+) -> _Edges:
+    """The edges' tail and head ids, lengths and speeds (the default where there is none) as arrays,
+    checked."""
+    eu = _as_1d("edge_u_ids", edge_u_ids, np.int64)
+    ev = _as_1d("edge_v_ids", edge_v_ids, np.int64)
+    length = _as_1d("length_m", length_m, np.float64)
+    m = eu.size
+    if ev.size != m or length.size != m:
+        raise ValueError("edge_u_ids, edge_v_ids and length_m must have the same length")
+    if (length < 0).any():
+        raise ValueError("edge lengths must be non-negative")
+    if not (np.isfinite(default_speed_kmh) and default_speed_kmh > 0):
+        raise ValueError("default_speed_kmh must be positive")
+    if speed_kmh is None:
+        return eu, ev, length, np.full(m, float(default_speed_kmh))
+    speed = np.asarray(speed_kmh, dtype=np.float64).ravel()
+    if speed.size != m:
+        raise ValueError("speed_kmh must have one entry per edge")
+    speed = np.where(np.isnan(speed), float(default_speed_kmh), speed)
+    if not (np.isfinite(speed) & (speed > 0)).all():
+        raise ValueError("edge speeds must be positive and finite")
+    return eu, ev, length, speed
+
+
+def _node_index(
+    ext: NDArray[np.int64], sorted_ids: NDArray[np.int64], order: NDArray[np.intp], what: str
+) -> NDArray[np.int64]:
+    """The node index of every external id in ``ext``, given the ids in ascending order and the order that
+    sorts them; ``what`` names ``ext`` in the error for an unknown id."""
+    pos = np.searchsorted(sorted_ids, ext)
+    ok = pos < sorted_ids.size
+    ok[ok] = sorted_ids[pos[ok]] == ext[ok]
+    if not ok.all():
+        raise ValueError(f"{what} names unknown node id {int(ext[~ok][0])}")
+    return order[pos].astype(np.int64)
+
+
+def _simple_edges(
+    u: NDArray[np.int64], v: NDArray[np.int64], length: NDArray[np.float64], speed: NDArray[np.float64]
+) -> _Edges:
+    """The edges ``(u, v, length, speed)`` without self-loops, the shortest of parallel ones kept, sorted
+    by (u, v)."""
+    keep = u != v
+    u, v, length, speed = u[keep], v[keep], length[keep], speed[keep]
+    # sort by (u, v, length): the first of each (u, v) run is the shortest parallel edge
+    srt = np.lexsort((length, v, u))
+    u, v, length, speed = u[srt], v[srt], length[srt], speed[srt]
+    if u.size:
+        first = np.ones(u.size, dtype=bool)
+        first[1:] = (u[1:] != u[:-1]) | (v[1:] != v[:-1])
+        u, v, length, speed = u[first], v[first], length[first], speed[first]
+    return u, v, length, speed
+
+
 def build_network(
     node_ids: ArrayLike | Sequence[int],
     lon: ArrayLike,
@@ -359,61 +446,13 @@ def build_network(
         On mismatched lengths, duplicate ids, non-finite or out-of-range coordinates, negative lengths,
         non-positive speeds or edges naming an unknown node.
     """
-    ids = _as_1d("node_ids", node_ids, np.int64)
-    lon_a = _as_1d("lon", lon, np.float64)
-    lat_a = _as_1d("lat", lat, np.float64)
-    n = ids.size
-    if n == 0:
-        raise ValueError("a network needs at least one node")
-    if lon_a.size != n or lat_a.size != n:
-        raise ValueError("node_ids, lon and lat must have the same length")
-    if (np.abs(lon_a) > 180.0).any() or (np.abs(lat_a) > 90.0).any():
-        raise ValueError("lon must lie in [-180, 180] and lat in [-90, 90]")
-    order = np.argsort(ids, kind="stable")
+    ids, lon_a, lat_a, order = _checked_nodes(node_ids, lon, lat)
+    eu, ev, length, speed = _checked_edges(edge_u_ids, edge_v_ids, length_m, speed_kmh, default_speed_kmh)
     sorted_ids = ids[order]
-    if n > 1 and (sorted_ids[1:] == sorted_ids[:-1]).any():
-        dup = int(sorted_ids[1:][sorted_ids[1:] == sorted_ids[:-1]][0])
-        raise ValueError(f"duplicate node id {dup}")
-
-    eu = _as_1d("edge_u_ids", edge_u_ids, np.int64)
-    ev = _as_1d("edge_v_ids", edge_v_ids, np.int64)
-    length = _as_1d("length_m", length_m, np.float64)
-    m = eu.size
-    if ev.size != m or length.size != m:
-        raise ValueError("edge_u_ids, edge_v_ids and length_m must have the same length")
-    if (length < 0).any():
-        raise ValueError("edge lengths must be non-negative")
-    if not (np.isfinite(default_speed_kmh) and default_speed_kmh > 0):
-        raise ValueError("default_speed_kmh must be positive")
-    if speed_kmh is None:
-        speed = np.full(m, float(default_speed_kmh))
-    else:
-        speed = np.asarray(speed_kmh, dtype=np.float64).ravel()
-        if speed.size != m:
-            raise ValueError("speed_kmh must have one entry per edge")
-        speed = np.where(np.isnan(speed), float(default_speed_kmh), speed)
-        if not (np.isfinite(speed) & (speed > 0)).all():
-            raise ValueError("edge speeds must be positive and finite")
-
-    def to_index(ext: NDArray[np.int64], what: str) -> NDArray[np.int64]:
-        pos = np.searchsorted(sorted_ids, ext)
-        ok = pos < n
-        ok[ok] = sorted_ids[pos[ok]] == ext[ok]
-        if not ok.all():
-            raise ValueError(f"{what} names unknown node id {int(ext[~ok][0])}")
-        return order[pos].astype(np.int64)
-
-    u = to_index(eu, "edge_u_ids")
-    v = to_index(ev, "edge_v_ids")
-    keep = u != v
-    u, v, length, speed = u[keep], v[keep], length[keep], speed[keep]
-    # sort by (u, v, length): the first of each (u, v) run is the shortest parallel edge
-    srt = np.lexsort((length, v, u))
-    u, v, length, speed = u[srt], v[srt], length[srt], speed[srt]
-    if u.size:
-        first = np.ones(u.size, dtype=bool)
-        first[1:] = (u[1:] != u[:-1]) | (v[1:] != v[:-1])
-        u, v, length, speed = u[first], v[first], length[first], speed[first]
+    u = _node_index(eu, sorted_ids, order, "edge_u_ids")
+    v = _node_index(ev, sorted_ids, order, "edge_v_ids")
+    u, v, length, speed = _simple_edges(u, v, length, speed)
+    n = ids.size
     indptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(u, minlength=n), out=indptr[1:])
 

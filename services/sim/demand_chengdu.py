@@ -48,7 +48,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from services.city import City
+from services.city import City, Horizon
 from services.sensing.grid import cells_of_points
 from services.sim.demand import DemandFileError, DemandSet, Request, demand_rng
 
@@ -339,6 +339,92 @@ class DemandShape:
     length_quantiles_km: Sequence[tuple[float, float]] = LENGTH_QUANTILES_KM
 
 
+def _checked_shape(shape: DemandShape, scenario: int, n_intervals: int) -> tuple[NDArray[np.float64], float]:
+    """The shape's profile as an array and the scenario's remote share, both checked."""
+    shares = SCENARIO_REMOTE_SHARE if shape.remote_shares is None else shape.remote_shares
+    if scenario not in shares:
+        raise ValueError(f"unknown scenario {scenario!r} (known: {sorted(shares)})")
+    share = float(shares[scenario])
+    prof = np.asarray(shape.profile, dtype=np.float64)
+    if prof.shape != (n_intervals,) or np.any(prof < 0) or prof.sum() <= 0:
+        raise ValueError(f"profile must hold {n_intervals} non-negative numbers, not all 0")
+    if not (
+        shape.rate_per_hour >= 0 and shape.volume_sd >= 0 and shape.jitter_sd >= 0 and 0.0 <= share <= 1.0
+    ):
+        raise ValueError("rate_per_hour, volume_sd, jitter_sd must be >= 0 and the remote share in [0, 1]")
+    return prof, share
+
+
+def _day_volume(
+    stream: np.random.SeedSequence, shape: DemandShape, horizon: Horizon, prof: NDArray[np.float64]
+) -> tuple[float, NDArray[np.float64], NDArray[np.int64]]:
+    """The day's volume factor, the expected requests per interval before it and the drawn counts."""
+    rng = np.random.default_rng(stream)
+    volume_sd = shape.volume_sd
+    factor = float(np.exp(volume_sd * rng.standard_normal() - 0.5 * volume_sd**2))
+    hours = horizon.interval_s / 3600.0
+    expected = shape.rate_per_hour * hours * horizon.n_intervals * prof / prof.sum()
+    counts: NDArray[np.int64] = rng.poisson(factor * expected)
+    return factor, expected, counts
+
+
+def _request_times(
+    stream: np.random.SeedSequence, horizon: Horizon, date: str, counts: NDArray[np.int64]
+) -> NDArray[np.int64]:
+    """``counts[k]`` request times in whole seconds, uniform within interval ``k``, ascending."""
+    rng = np.random.default_rng(stream)
+    start_s = horizon.start_s(date)
+    times = np.concatenate(
+        [
+            start_s + k * horizon.interval_s + rng.integers(0, horizon.interval_s, size=c)
+            for k, c in enumerate(counts)
+        ]
+    )
+    times.sort()
+    return times
+
+
+def _origins(
+    stream: np.random.SeedSequence, density: PoiDensity, jitter_sd: float, n: int
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The day's node weights (each POI's weight jittered) and ``n`` origins drawn from them."""
+    rng = np.random.default_rng(stream)
+    poi_factor = np.exp(jitter_sd * rng.standard_normal(density.n_pois) - 0.5 * jitter_sd**2)
+    w = density.weights(poi_factor)
+    origins: NDArray[np.int64] = np.asarray(rng.choice(w.shape[0], size=n, p=w), dtype=np.int64)
+    return w, origins
+
+
+def _destinations(
+    city: City,
+    density: PoiDensity,
+    w: NDArray[np.float64],
+    origins: NDArray[np.int64],
+    lengths: NDArray[np.float64],
+    streams: tuple[np.random.SeedSequence, np.random.SeedSequence],
+    share: float,
+) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Each request's destination by the length rule, and which of them were moved to a remote cell (the
+    request's uniform number below ``share``); ``streams`` draw the destinations and the moves."""
+    n = int(origins.shape[0])
+    u_dest: NDArray[np.float64] = np.random.default_rng(streams[0]).random(n)
+    rng = np.random.default_rng(streams[1])
+    u_move: NDArray[np.float64] = rng.random(n)
+    u_remote: NDArray[np.float64] = rng.random(n)
+    net = city.network
+    moved = u_move < share
+    dest = np.empty(n, dtype=np.int64)
+    keep = ~moved
+    dest[keep] = pick_destinations(net.x_m, net.y_m, origins[keep], lengths[keep], u_dest[keep], w)
+    if moved.any():
+        dest[moved] = pick_destinations(
+            net.x_m, net.y_m, origins[moved], lengths[moved], u_remote[moved], w, density.remote_node
+        )
+    if np.any(dest < 0):
+        raise ValueError("no remote node to move destinations to")
+    return dest, moved
+
+
 def chengdu_demand(
     city: City,
     pois: ArrayLike | PoiDensity,
@@ -375,58 +461,19 @@ def chengdu_demand(
         the drawn volume factor, the expected count per interval, the density settings and the number of
         requests whose destination was moved to a remote cell. Ids are ``d{day}-{i:05d}`` in time order.
     """
-    rate_per_hour, volume_sd, jitter_sd = shape.rate_per_hour, shape.volume_sd, shape.jitter_sd
-    profile, length_quantiles_km = shape.profile, shape.length_quantiles_km
-    shares = SCENARIO_REMOTE_SHARE if shape.remote_shares is None else shape.remote_shares
-    if scenario not in shares:
-        raise ValueError(f"unknown scenario {scenario!r} (known: {sorted(shares)})")
-    share = float(shares[scenario])
     hz = city.horizon
-    prof = np.asarray(profile, dtype=np.float64)
-    if prof.shape != (hz.n_intervals,) or np.any(prof < 0) or prof.sum() <= 0:
-        raise ValueError(f"profile must hold {hz.n_intervals} non-negative numbers, not all 0")
-    if not (rate_per_hour >= 0 and volume_sd >= 0 and jitter_sd >= 0 and 0.0 <= share <= 1.0):
-        raise ValueError("rate_per_hour, volume_sd, jitter_sd must be >= 0 and the remote share in [0, 1]")
+    prof, share = _checked_shape(shape, scenario, hz.n_intervals)
     density = pois if isinstance(pois, PoiDensity) else poi_density(city, pois)
     if density.node_weight.shape[0] != city.network.n_nodes:
         raise ValueError("the POI density was built for another network")
 
     s_volume, s_times, s_space, s_length, s_dest, s_remote = demand_rng(_STREAM, seed, day).spawn(6)
-    rng = np.random.default_rng(s_volume)
-    factor = float(np.exp(volume_sd * rng.standard_normal() - 0.5 * volume_sd**2))
-    hours = hz.interval_s / 3600.0
-    expected = rate_per_hour * hours * hz.n_intervals * prof / prof.sum()
-    counts = rng.poisson(factor * expected)
-
-    rng = np.random.default_rng(s_times)
-    start_s = hz.start_s(date)
-    times = np.concatenate(
-        [start_s + k * hz.interval_s + rng.integers(0, hz.interval_s, size=c) for k, c in enumerate(counts)]
-    )
-    times.sort()
+    factor, expected, counts = _day_volume(s_volume, shape, hz, prof)
+    times = _request_times(s_times, hz, date, counts)
     n = int(times.shape[0])
-
-    rng = np.random.default_rng(s_space)
-    poi_factor = np.exp(jitter_sd * rng.standard_normal(density.n_pois) - 0.5 * jitter_sd**2)
-    w = density.weights(poi_factor)
-    origins: NDArray[np.int64] = np.asarray(rng.choice(w.shape[0], size=n, p=w), dtype=np.int64)
-    lengths = length_quantile_m(np.random.default_rng(s_length).random(n), length_quantiles_km)
-    u_dest: NDArray[np.float64] = np.random.default_rng(s_dest).random(n)
-    rng = np.random.default_rng(s_remote)
-    u_move: NDArray[np.float64] = rng.random(n)
-    u_remote: NDArray[np.float64] = rng.random(n)
-
-    net = city.network
-    moved = u_move < share
-    dest = np.empty(n, dtype=np.int64)
-    keep = ~moved
-    dest[keep] = pick_destinations(net.x_m, net.y_m, origins[keep], lengths[keep], u_dest[keep], w)
-    if moved.any():
-        dest[moved] = pick_destinations(
-            net.x_m, net.y_m, origins[moved], lengths[moved], u_remote[moved], w, density.remote_node
-        )
-    if np.any(dest < 0):
-        raise ValueError("no remote node to move destinations to")
+    w, origins = _origins(s_space, density, shape.jitter_sd, n)
+    lengths = length_quantile_m(np.random.default_rng(s_length).random(n), shape.length_quantiles_km)
+    dest, moved = _destinations(city, density, w, origins, lengths, (s_dest, s_remote), share)
 
     requests = tuple(
         Request(f"d{day}-{i:05d}", float(t), int(o), int(d))
@@ -435,15 +482,15 @@ def chengdu_demand(
     params = {
         "scenario": int(scenario),
         "day": int(day),
-        "rate_per_hour": float(rate_per_hour),
+        "rate_per_hour": float(shape.rate_per_hour),
         "profile": [float(p) for p in prof],
-        "volume_sd": float(volume_sd),
+        "volume_sd": float(shape.volume_sd),
         "volume_factor": factor,
         "expected_per_interval": [float(e) for e in factor * expected],
-        "jitter_sd": float(jitter_sd),
+        "jitter_sd": float(shape.jitter_sd),
         "remote_share": share,
         "n_moved_remote": int(moved.sum()),
-        "length_quantiles_km": [[float(p), float(q)] for p, q in length_quantiles_km],
+        "length_quantiles_km": [[float(p), float(q)] for p, q in shape.length_quantiles_km],
         "bandwidth_m": density.bandwidth_m,
         "background": density.background,
         "remote_quantile": density.remote_quantile,

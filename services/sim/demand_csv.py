@@ -55,6 +55,10 @@ _TIME = re.compile(
 _INT = re.compile(r"[+-]?\d+")
 
 
+_Rows = list[tuple[int, dict[str, str]]]
+"""``(row number, {column: stripped text})`` of a file's data rows."""
+
+
 @contextmanager
 def _open_text(path: Path) -> Iterator[IO[str]]:
     """A text stream of a plain or gzip-compressed (``.gz``) UTF-8 file."""
@@ -66,9 +70,7 @@ def _open_text(path: Path) -> Iterator[IO[str]]:
             yield f
 
 
-def read_csv_rows(
-    path: Path | str, required: Sequence[str]
-) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
+def read_csv_rows(path: Path | str, required: Sequence[str]) -> tuple[list[str], _Rows]:
     """Header and ``(row number, {column: stripped text})`` of every non-blank data row of a CSV file.
 
     Plain or gzip-compressed (name ending ``.gz``). Rows are numbered from 1 after the header.
@@ -81,7 +83,7 @@ def read_csv_rows(
     """
     path = Path(path)
     name = path.name
-    rows: list[tuple[int, dict[str, str]]] = []
+    rows: _Rows = []
     header: list[str] | None = None
     try:
         with _open_text(path) as f:
@@ -160,6 +162,83 @@ def _coord(name: str, row: int, col: str, text: str, bound: float) -> float:
     return value
 
 
+def _columns(name: str, header: list[str]) -> tuple[str, ...]:
+    """The file's format from its header: :data:`NODE_COLUMNS` or :data:`LONLAT_COLUMNS`."""
+    has_node = any(c in header for c in NODE_COLUMNS[2:])
+    has_lonlat = any(c in header for c in LONLAT_COLUMNS[2:])
+    if has_node and has_lonlat:
+        raise DemandFileError(name, None, "give origin/destination as node ids or as lon/lat, not both")
+    columns = NODE_COLUMNS if has_node or not has_lonlat else LONLAT_COLUMNS
+    missing = [c for c in columns if c not in header]
+    if missing:
+        raise DemandFileError(name, None, f"missing column(s) {', '.join(missing)}")
+    return columns
+
+
+def _set_date(name: str, rows: _Rows, date: str | None, tz: ZoneInfo) -> dt.date:
+    """The set's local date: ``date`` when given, else the local date of the first data row's time."""
+    if date is not None:
+        return dt.date.fromisoformat(date)
+    if rows:
+        return _parse_time(name, rows[0][0], rows[0][1]["time"], tz)[1]
+    raise DemandFileError(name, None, "no data rows, and no date given")
+
+
+def _read_rows(
+    name: str, rows: _Rows, columns: tuple[str, ...], city: City, set_date: dt.date
+) -> tuple[list[int], list[tuple[Any, ...]]]:
+    """Every row's time (POSIX seconds, inside the horizon of ``set_date``) and its two ends (node indices,
+    or origin and destination lon/lat), ids checked unique and non-empty."""
+    hz = city.horizon
+    tz = ZoneInfo(hz.timezone)
+    start_s = hz.start_s(set_date)
+    end_s = start_s + hz.length_s
+    first_row: dict[str, int] = {}
+    times: list[int] = []
+    ends: list[tuple[Any, ...]] = []
+    for row, rec in rows:
+        rid = rec["request_id"]
+        if not rid:
+            raise DemandFileError(name, row, "empty request_id")
+        if rid in first_row:
+            raise DemandFileError(name, row, f"duplicate request_id {rid!r} (first at row {first_row[rid]})")
+        first_row[rid] = row
+        t, _ = _parse_time(name, row, rec["time"], tz)
+        if not start_s <= t < end_s:
+            window = f"{set_date} {hz.start:%H:%M} + {hz.length_s // 3600} h {hz.timezone}"
+            raise DemandFileError(name, row, f"time {rec['time']!r} is outside the horizon ({window})")
+        times.append(t)
+        if columns is NODE_COLUMNS:
+            ends.append(tuple(_node(name, row, c, rec[c], city) for c in NODE_COLUMNS[2:]))
+        else:
+            ends.append(
+                tuple(
+                    _coord(name, row, c, rec[c], 180.0 if c.endswith("lon") else 90.0)
+                    for c in LONLAT_COLUMNS[2:]
+                )
+            )
+    return times, ends
+
+
+def _snapped_ends(
+    name: str, rows: _Rows, ends: list[tuple[Any, ...]], city: City
+) -> tuple[list[int], list[int], dict[str, float]]:
+    """The origin and destination nodes of lon/lat ends, each within the city's snap limit, and the limit
+    and the largest snap distance for the set's params."""
+    limit = city.params.snap_limit_m
+    arr = np.array(ends, dtype=np.float64).reshape(-1, 4)
+    o_nodes, o_dist = city.network.snap_many(arr[:, 0], arr[:, 1], np.inf)
+    d_nodes, d_dist = city.network.snap_many(arr[:, 2], arr[:, 3], np.inf)
+    for k, (row, _) in enumerate(rows):
+        for which, dist in (("origin", o_dist[k]), ("destination", d_dist[k])):
+            if dist > limit:
+                raise DemandFileError(
+                    name, row, f"{which} is {dist:.0f} m from the nearest node (limit {limit:.0f} m)"
+                )
+    max_snap_m = float(max(o_dist.max(initial=0.0), d_dist.max(initial=0.0)))
+    return o_nodes.tolist(), d_nodes.tolist(), {"snap_limit_m": float(limit), "max_snap_m": max_snap_m}
+
+
 def read_demand_csv(city: City, path: Path | str, *, date: str | None = None) -> DemandSet:
     """Read a user's demand file (format in the module docstring) into a :class:`DemandSet`.
 
@@ -187,50 +266,9 @@ def read_demand_csv(city: City, path: Path | str, *, date: str | None = None) ->
     path = Path(path)
     name = path.name
     header, rows = read_csv_rows(path, ("request_id", "time"))
-    has_node = any(c in header for c in NODE_COLUMNS[2:])
-    has_lonlat = any(c in header for c in LONLAT_COLUMNS[2:])
-    if has_node and has_lonlat:
-        raise DemandFileError(name, None, "give origin/destination as node ids or as lon/lat, not both")
-    columns = NODE_COLUMNS if has_node or not has_lonlat else LONLAT_COLUMNS
-    missing = [c for c in columns if c not in header]
-    if missing:
-        raise DemandFileError(name, None, f"missing column(s) {', '.join(missing)}")
-    tz = ZoneInfo(city.horizon.timezone)
-    hz = city.horizon
-    if date is not None:
-        set_date = dt.date.fromisoformat(date)
-    elif rows:
-        set_date = _parse_time(name, rows[0][0], rows[0][1]["time"], tz)[1]
-    else:
-        raise DemandFileError(name, None, "no data rows, and no date given")
-    start_s = hz.start_s(set_date)
-    end_s = start_s + hz.length_s
-
-    first_row: dict[str, int] = {}
-    times: list[int] = []
-    ends: list[tuple[Any, ...]] = []
-    for row, rec in rows:
-        rid = rec["request_id"]
-        if not rid:
-            raise DemandFileError(name, row, "empty request_id")
-        if rid in first_row:
-            raise DemandFileError(name, row, f"duplicate request_id {rid!r} (first at row {first_row[rid]})")
-        first_row[rid] = row
-        t, _ = _parse_time(name, row, rec["time"], tz)
-        if not start_s <= t < end_s:
-            window = f"{set_date} {hz.start:%H:%M} + {hz.length_s // 3600} h {hz.timezone}"
-            raise DemandFileError(name, row, f"time {rec['time']!r} is outside the horizon ({window})")
-        times.append(t)
-        if columns is NODE_COLUMNS:
-            ends.append(tuple(_node(name, row, c, rec[c], city) for c in NODE_COLUMNS[2:]))
-        else:
-            ends.append(
-                tuple(
-                    _coord(name, row, c, rec[c], 180.0 if c.endswith("lon") else 90.0)
-                    for c in LONLAT_COLUMNS[2:]
-                )
-            )
-
+    columns = _columns(name, header)
+    set_date = _set_date(name, rows, date, ZoneInfo(city.horizon.timezone))
+    times, ends = _read_rows(name, rows, columns, city, set_date)
     params: dict[str, Any] = {
         "file": name,
         "format": "node" if columns is NODE_COLUMNS else "lonlat",
@@ -240,19 +278,8 @@ def read_demand_csv(city: City, path: Path | str, *, date: str | None = None) ->
         origins = [int(e[0]) for e in ends]
         dests = [int(e[1]) for e in ends]
     else:
-        limit = city.params.snap_limit_m
-        arr = np.array(ends, dtype=np.float64).reshape(-1, 4)
-        o_nodes, o_dist = city.network.snap_many(arr[:, 0], arr[:, 1], np.inf)
-        d_nodes, d_dist = city.network.snap_many(arr[:, 2], arr[:, 3], np.inf)
-        for k, (row, _) in enumerate(rows):
-            for which, dist in (("origin", o_dist[k]), ("destination", d_dist[k])):
-                if dist > limit:
-                    raise DemandFileError(
-                        name, row, f"{which} is {dist:.0f} m from the nearest node (limit {limit:.0f} m)"
-                    )
-        origins, dests = o_nodes.tolist(), d_nodes.tolist()
-        params["snap_limit_m"] = float(limit)
-        params["max_snap_m"] = float(max(o_dist.max(initial=0.0), d_dist.max(initial=0.0)))
+        origins, dests, snap = _snapped_ends(name, rows, ends, city)
+        params.update(snap)
     requests = sorted(
         (
             Request(rec["request_id"], float(t), o, d)

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from services.city import City
+from services.city import City, Horizon
 from services.sim.demand import DemandFileError, DemandSet, Request, demand_rng
 from services.sim.demand_csv import read_csv_rows
 
@@ -131,6 +131,82 @@ def thinned_counts(counts: NDArray[np.int64], total: int) -> NDArray[np.int64]:
     return out
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class _Snapped:
+    """The records inside a day's horizon whose origin and destination snap onto the network.
+
+    Attributes
+    ----------
+    idx : int64 (k,)              their positions in the records
+    o_nodes, d_nodes : int64 (k,)  origin and destination nodes
+    times : float64 (k,)          POSIX seconds (whole)
+    interval : int64 (k,)         the horizon's interval each falls in
+    start_s : float               POSIX seconds of the horizon's start
+    n_in_horizon : int            records inside the horizon, those off the network included
+    n_dropped : int               records inside the horizon but off the network
+    """
+
+    idx: NDArray[np.int64]
+    o_nodes: NDArray[np.int64]
+    d_nodes: NDArray[np.int64]
+    times: NDArray[np.float64]
+    interval: NDArray[np.int64]
+    start_s: float
+    n_in_horizon: int
+    n_dropped: int
+
+
+def _snapped(city: City, records: TripRecords, date: str) -> _Snapped:
+    """The records of ``date``'s horizon on the city's network (those farther than the snap limit
+    dropped)."""
+    hz = city.horizon
+    local_start = np.datetime64(dt.datetime.combine(dt.date.fromisoformat(date), hz.start), "s")
+    offset = (records.local_time - local_start).astype(np.int64)  # seconds after the local start
+    inside = (offset >= 0) & (offset < hz.length_s)
+    idx = np.flatnonzero(inside)
+    if idx.size == 0:
+        raise ValueError(f"no {records.source} record between {date} {hz.start:%H:%M} and the horizon's end")
+    net, limit = city.network, city.params.snap_limit_m
+    o_nodes, o_dist = net.snap_many(records.o_lon[idx], records.o_lat[idx], np.inf)
+    d_nodes, d_dist = net.snap_many(records.d_lon[idx], records.d_lat[idx], np.inf)
+    on_net = (o_dist <= limit) & (d_dist <= limit)
+    idx, o_nodes, d_nodes = idx[on_net], o_nodes[on_net], d_nodes[on_net]
+    # whole POSIX seconds at the UTC offset of the horizon start (clock changes happen at night)
+    start_s = hz.start_s(date)
+    return _Snapped(
+        idx=idx,
+        o_nodes=o_nodes,
+        d_nodes=d_nodes,
+        times=np.asarray(start_s + offset[idx], dtype=np.float64),
+        interval=offset[idx] // hz.interval_s,
+        start_s=start_s,
+        n_in_horizon=int(inside.sum()),
+        n_dropped=int((~on_net).sum()),
+    )
+
+
+def _drawn(
+    rng: np.random.Generator | None, day: int, real: _Snapped, counts: NDArray[np.int64], horizon: Horizon
+) -> tuple[NDArray[np.int64], NDArray[np.float64] | None]:
+    """The records each interval keeps (positions in ``real``): all of them without ``rng``, ``counts[k]``
+    without replacement on day 0, with replacement on a bootstrap day; and a bootstrap day's re-drawn
+    times (None on day 0)."""
+    chosen: list[NDArray[np.int64]] = []
+    new_times: list[NDArray[np.float64]] = []
+    for k in range(horizon.n_intervals):
+        pool = np.flatnonzero(real.interval == k)
+        if rng is None:  # the real day as it is
+            chosen.append(pool)
+        elif day == 0:
+            chosen.append(np.sort(rng.choice(pool, int(counts[k]), replace=False)))
+        else:
+            chosen.append(rng.choice(pool, int(counts[k]), replace=True))
+            offsets = rng.integers(0, horizon.interval_s, int(counts[k])).astype(np.float64)
+            new_times.append(real.start_s + k * horizon.interval_s + offsets)
+    sel = np.concatenate(chosen).astype(np.int64)
+    return sel, (np.concatenate(new_times) if day > 0 else None)
+
+
 def manhattan_demand(
     city: City,
     records: TripRecords,
@@ -167,67 +243,42 @@ def manhattan_demand(
     if (day > 0 or rate_per_hour is not None) and seed is None:
         raise ValueError("a seed is needed to thin or bootstrap the NYC day")
     hz = city.horizon
-    local_start = np.datetime64(dt.datetime.combine(dt.date.fromisoformat(date), hz.start), "s")
-    offset = (records.local_time - local_start).astype(np.int64)  # seconds after the local start
-    inside = (offset >= 0) & (offset < hz.length_s)
-    idx = np.flatnonzero(inside)
-    if idx.size == 0:
-        raise ValueError(f"no {records.source} record between {date} {hz.start:%H:%M} and the horizon's end")
-    net, limit = city.network, city.params.snap_limit_m
-    o_nodes, o_dist = net.snap_many(records.o_lon[idx], records.o_lat[idx], np.inf)
-    d_nodes, d_dist = net.snap_many(records.d_lon[idx], records.d_lat[idx], np.inf)
-    on_net = (o_dist <= limit) & (d_dist <= limit)
-    idx, o_nodes, d_nodes = idx[on_net], o_nodes[on_net], d_nodes[on_net]
-    # whole POSIX seconds at the UTC offset of the horizon start (clock changes happen at night)
-    start_s = hz.start_s(date)
-    times = start_s + offset[idx]
-    interval = offset[idx] // hz.interval_s
-    real_counts = np.bincount(interval, minlength=hz.n_intervals).astype(np.int64)
-
+    real = _snapped(city, records, date)
+    real_counts = np.bincount(real.interval, minlength=hz.n_intervals).astype(np.int64)
     params: dict[str, Any] = {
         "source": records.source,
         "day": int(day),
-        "n_in_horizon": int(inside.sum()),
-        "n_dropped_off_network": int((~on_net).sum()),
-        "snap_limit_m": float(limit),
+        "n_in_horizon": real.n_in_horizon,
+        "n_dropped_off_network": real.n_dropped,
+        "snap_limit_m": float(city.params.snap_limit_m),
         "real_per_interval": real_counts.tolist(),
         "rate_per_hour": None if rate_per_hour is None else float(rate_per_hour),
     }
     counts = real_counts
-    rng = None
-    if seed is not None:
-        rng = np.random.default_rng(demand_rng(_STREAM, seed, day))
+    rng = None if seed is None else np.random.default_rng(demand_rng(_STREAM, seed, day))
     if rate_per_hour is not None:
         if not (math.isfinite(rate_per_hour) and rate_per_hour >= 0):
             raise ValueError("rate_per_hour must be a non-negative number")
         counts = thinned_counts(real_counts, round(rate_per_hour * hz.length_s / 3600.0))
     params["per_interval"] = counts.tolist()
 
-    chosen: list[NDArray[np.int64]] = []
-    new_times: list[NDArray[np.float64]] = []
-    for k in range(hz.n_intervals):
-        pool = np.flatnonzero(interval == k)
-        if rng is None:  # the real day as it is
-            chosen.append(pool)
-        elif day == 0:
-            chosen.append(np.sort(rng.choice(pool, int(counts[k]), replace=False)))
-        else:
-            chosen.append(rng.choice(pool, int(counts[k]), replace=True))
-            offsets = rng.integers(0, hz.interval_s, int(counts[k])).astype(np.float64)
-            new_times.append(start_s + k * hz.interval_s + offsets)
-    sel = np.concatenate(chosen).astype(np.int64)
-    if day == 0:
+    sel, t_all = _drawn(rng, day, real, counts, hz)
+    if t_all is None:
         requests = [
-            Request(records.request_id[idx[j]], float(times[j]), int(o_nodes[j]), int(d_nodes[j]))
+            Request(
+                records.request_id[real.idx[j]],
+                float(real.times[j]),
+                int(real.o_nodes[j]),
+                int(real.d_nodes[j]),
+            )
             for j in sel
         ]
         requests.sort(key=lambda r: (r.time_s, r.id))
         return DemandSet(city.name, date, tuple(requests), f"nyc-{date}", seed=seed, params=params)
-    t_all = np.concatenate(new_times)
     order = np.argsort(t_all, kind="stable")
     params["times"] = "re-drawn uniformly within the hour"
     requests = [
-        Request(f"b{day}-{i:05d}", float(t_all[j]), int(o_nodes[sel[j]]), int(d_nodes[sel[j]]))
+        Request(f"b{day}-{i:05d}", float(t_all[j]), int(real.o_nodes[sel[j]]), int(real.d_nodes[sel[j]]))
         for i, j in enumerate(order)
     ]
     return DemandSet(city.name, date, tuple(requests), "nyc-bootstrap", seed=seed, params=params)

@@ -245,14 +245,7 @@ def simulate(
         # 2. new requests
         nxt = _post(books, posted, nxt, now, config.id_prefix, dm)
         # 3. decide
-        snapshot = Snapshot(
-            epoch_id=f"{config.id_prefix}{demand.date}-{e:03d}",
-            time_s=now,
-            riders=tuple(books.waiting.values()),
-            taxis=tuple(
-                Taxi(t.id, t.node, t.instrumented and not config.wait_only, t.job is None) for t in taxis
-            ),
-        )
+        snapshot = _snapshot(f"{config.id_prefix}{demand.date}-{e:03d}", now, books, taxis, config)
         out = dispatcher.epoch(snapshot)
         # 4. apply
         _apply(city, books, by_id, out, now)
@@ -290,6 +283,21 @@ class _Books:
     assignments: list[tuple[float, TaskAssignment]] = field(default_factory=list)
     epochs: list[EpochRecord] = field(default_factory=list)
     recent: deque[tuple[float, int]] = field(default_factory=deque)
+
+
+def _snapshot(
+    epoch_id: str, now: float, books: _Books, taxis: Sequence[_TaxiState], config: SimConfig
+) -> Snapshot:
+    """What the platform posts at ``now``: the riders waiting and every taxi's node and state (a
+    ``wait_only`` run posts its instrumented taxis as ordinary ones)."""
+    return Snapshot(
+        epoch_id=epoch_id,
+        time_s=now,
+        riders=tuple(books.waiting.values()),
+        taxis=tuple(
+            Taxi(t.id, t.node, t.instrumented and not config.wait_only, t.job is None) for t in taxis
+        ),
+    )
 
 
 def _epochs(hz: Horizon, start_s: float, n_epochs: int | None) -> tuple[int, float]:

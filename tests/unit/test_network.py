@@ -78,6 +78,38 @@ def test_build_rejects_bad_input() -> None:
         build_network([1, 2], [0.0, 0.0], [0.0, 0.0], [1], [2], [1.0], speed_kmh=[0.0])
 
 
+def test_missing_speeds_take_the_default() -> None:
+    net = square(speed_kmh=[36.0, 72.0, np.nan, 36.0, np.nan, 36.0], default_speed_kmh=18.0)
+    # kept: 40->10 the 90 m edge at the default 18 km/h (5 m/s), 10->30 110 m at 20 m/s, 30->20 120 m at
+    # the default, 20->40 130 m at 10 m/s
+    assert net.edge_time_s.tolist() == pytest.approx([18.0, 5.5, 24.0, 13.0])
+
+
+@pytest.mark.parametrize(
+    ("args", "kw", "problem"),
+    [
+        (([], [], [], [], [], []), {}, "at least one node"),
+        (([1, 2], [0.0], [0.0, 0.0], [], [], []), {}, "node_ids, lon and lat must have the same length"),
+        (([1.5], [0.0], [0.0], [], [], []), {}, "node_ids must hold integers"),
+        (([1, 2], [0.0, 0.0], [0.0, 0.0], [1], [2, 1], [1.0]), {}, "edge_u_ids, edge_v_ids and length_m"),
+        (([1, 2], [0.0, 0.0], [0.0, 0.0], [1], [2], [1.0]), {"default_speed_kmh": 0.0}, "default_speed_kmh"),
+        (
+            ([1, 2], [0.0, 0.0], [0.0, 0.0], [1], [2], [1.0]),
+            {"speed_kmh": [30.0, 30.0]},
+            "one entry per edge",
+        ),
+        (([1, 2], [0.0, 0.0], [0.0, 0.0], [1], [2], [1.0]), {"speed_kmh": [np.inf]}, "positive and finite"),
+        (([1, 2], [0.0, 0.0], [0.0, 0.0], [99], [2], [1.0]), {}, "edge_u_ids names unknown node id 99"),
+        (([1, 2], [0.0, 0.0], [0.0, 0.0], [1], [98], [1.0]), {}, "edge_v_ids names unknown node id 98"),
+    ],
+)
+def test_build_names_the_bad_input(
+    args: tuple[list[float], ...], kw: dict[str, object], problem: str
+) -> None:
+    with pytest.raises(ValueError, match=problem):
+        build_network(*args, **kw)  # type: ignore[arg-type]
+
+
 def test_index_of_unknown_raises_snap_error() -> None:
     with pytest.raises(SnapError, match="unknown node id 11"):
         square().index_of(11)

@@ -9,6 +9,7 @@ given cells. :func:`dual_objective` evaluates the convex dual, so a returned ``(
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -16,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 from services.fleet.dro.divergences import Divergence, divergence_value, get_divergence
 from services.fleet.dro.inputs import DroInputError, check_rho
 from services.fleet.dro.result import Status, WorstCase
-from services.fleet.dro.solvers import SOLVERS, Reduced, Unbracketed
+from services.fleet.dro.solvers import SOLVERS, Reduced, ReducedSolution, Unbracketed
 
 __all__ = ["check_problem", "solve_exact", "dual_objective"]
 
@@ -65,15 +66,90 @@ def _popped(v: FloatArray, full: NDArray[np.bool_], uniq: FloatArray, div: Diver
     return None
 
 
-def _all_on_top(v: FloatArray, qv: FloatArray, top: float, pop: int | None) -> FloatArray:
-    """All mass on the top: on the popped cell, else on the top value's data cells as ``q`` weighs them."""
-    p_top = np.zeros_like(qv)
-    if pop is not None:
-        p_top[pop] = 1.0
-    else:
-        at_top = (qv > 0) & (v == top)
-        p_top[at_top] = qv[at_top] / float(qv[at_top].sum())
-    return p_top
+@dataclass(frozen=True, slots=True)
+class _Ball:
+    """The checked problem with equal values merged: what the worst case can reach and where it starts."""
+
+    div: Divergence
+    v: FloatArray
+    qv: FloatArray
+    rho: float
+    full: NDArray[np.bool_]  # the cells the data filled (q > 0)
+    uniq: FloatArray  # their distinct values, ascending
+    inverse: NDArray[np.intp]  # each filled cell's index in uniq
+    group_q: FloatArray  # the merged probabilities of uniq
+    pop: int | None  # the empty cell mass may pop to
+    top: float  # the highest reachable value
+    scale: float  # top minus the lowest data value
+    mean: float  # Σ q f
+
+    def worst_case(
+        self, p: FloatArray, status: Status, value: float, eta: float, lam: float, note: str
+    ) -> WorstCase:
+        """The result with worst-case distribution ``p`` and certificate ``(η, λ)``."""
+        i_p = divergence_value(p, self.qv, self.div)
+        return WorstCase(
+            value,
+            self.mean,
+            self.rho,
+            int(self.v.size),
+            self.v,
+            self.qv,
+            p,
+            status,
+            self.div.name,
+            "exact",
+            eta,
+            lam,
+            i_p,
+            note,
+        )
+
+    def all_on_top(self) -> FloatArray:
+        """All mass on the top: the popped cell, else the top value's data cells as ``q`` weighs them."""
+        p_top = np.zeros_like(self.qv)
+        if self.pop is not None:
+            p_top[self.pop] = 1.0
+        else:
+            at_top = (self.qv > 0) & (self.v == self.top)
+            p_top[at_top] = self.qv[at_top] / float(self.qv[at_top].sum())
+        return p_top
+
+    def top_divergence(self) -> float:
+        """``I_φ`` of all mass on the top: every data cell loses its mass (φ(0) each), the top gains it."""
+        div = self.div
+        if self.pop is not None:
+            return div.phi_at_zero + div.slope_at_infinity
+        q_top = float(self.group_q[-1])
+        return q_top * float(div.phi(np.array([1.0 / q_top]))[0]) + (1.0 - q_top) * div.phi_at_zero
+
+
+def _ball(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | Divergence) -> _Ball:
+    """Check the inputs, merge equal data values and find the top the ball can reach."""
+    div = get_divergence(divergence)
+    v, qv = check_problem(values, q)
+    r = check_rho(rho)
+    full = qv > 0
+    uniq, inverse, group_q = _merged(v[full], qv[full])
+    pop = _popped(v, full, uniq, div)
+    top = float(v[pop]) if pop is not None else float(uniq[-1])
+    scale = top - float(uniq[0])
+    mean = float(uniq[0]) if scale == 0.0 else float(np.dot(qv, v))
+    return _Ball(div, v, qv, r, full, uniq, inverse, group_q, pop, top, scale, mean)
+
+
+def _mapped_back(ball: _Ball, sol: ReducedSolution) -> WorstCase:
+    """The reduced solution spread over the given cells (``q``-proportionally within a merged value)."""
+    qv, full, inverse, group_q = ball.qv, ball.full, ball.inverse, ball.group_q
+    p = np.zeros_like(qv)
+    p[full] = sol.p[inverse] * qv[full] / group_q[inverse]
+    if ball.pop is not None:
+        p[ball.pop] = sol.p_pop
+    p = np.maximum(p, 0.0)
+    p /= p.sum()
+    note = sol.note if ball.pop is None or sol.p_pop == 0.0 else f"{sol.note}; {sol.p_pop:.6g} popped"
+    value = float(np.dot(p, ball.v))
+    return ball.worst_case(p, "optimal", value, ball.mean + ball.scale * sol.eta, ball.scale * sol.lam, note)
 
 
 def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | Divergence) -> WorstCase:
@@ -106,72 +182,36 @@ def solve_exact(values: ArrayLike, q: ArrayLike, rho: float, divergence: str | D
     highest empty cell above every data value can be worth it (a unit of mass costs ``L`` on any empty cell).
     Values are normalized to mean 0 and range 1 before any root finding.
     """
-    div = get_divergence(divergence)
-    v, qv = check_problem(values, q)
-    r = check_rho(rho)
-    full = qv > 0
-    uniq, inverse, group_q = _merged(v[full], qv[full])
-    pop = _popped(v, full, uniq, div)
-    top = float(v[pop]) if pop is not None else float(uniq[-1])
-    scale = top - float(uniq[0])
-    mean = float(uniq[0]) if scale == 0.0 else float(np.dot(qv, v))
-
-    def done(p: FloatArray, status: Status, value: float, eta: float, lam: float, note: str) -> WorstCase:
-        i_p = divergence_value(p, qv, div)
-        return WorstCase(
-            value, mean, r, int(v.size), v, qv, p, status, div.name, "exact", eta, lam, i_p, note
+    ball = _ball(values, q, rho, divergence)
+    mean, top, r = ball.mean, ball.top, ball.rho
+    if ball.scale == 0.0:
+        return ball.worst_case(
+            ball.qv.copy(), "degenerate", mean, mean, 0.0, "one reachable value: the worst case for every rho"
         )
-
-    def all_on_top() -> FloatArray:
-        return _all_on_top(v, qv, top, pop)
-
-    if scale == 0.0:
-        return done(
-            qv.copy(), "degenerate", mean, mean, 0.0, "one reachable value: the worst case for every rho"
-        )
-    # I_φ of all mass on the top: every data cell loses its mass (φ(0) each), the top gains it
-    if pop is not None:
-        i_top = div.phi_at_zero + div.slope_at_infinity
-    else:
-        q_top = float(group_q[-1])
-        i_top = q_top * float(div.phi(np.array([1.0 / q_top]))[0]) + (1.0 - q_top) * div.phi_at_zero
+    i_top = ball.top_divergence()
     if i_top <= r * (1.0 + _SATURATION_RTOL):
-        return done(
-            all_on_top(), "saturated", top, top, 0.0, f"rho >= I(top, q) = {i_top:.6g}: all mass on the top"
-        )
+        note = f"rho >= I(top, q) = {i_top:.6g}: all mass on the top"
+        return ball.worst_case(ball.all_on_top(), "saturated", top, top, 0.0, note)
     if r == 0.0:
-        return done(qv.copy(), "optimal", mean, mean, math.inf, "rho = 0: the empirical distribution")
+        return ball.worst_case(
+            ball.qv.copy(), "optimal", mean, mean, math.inf, "rho = 0: the empirical distribution"
+        )
 
     reduced = Reduced(
-        f=(uniq - mean) / scale,
-        q=group_q,
-        pop=(float(v[pop]) - mean) / scale if pop is not None else None,
+        f=(ball.uniq - mean) / ball.scale,
+        q=ball.group_q,
+        pop=(float(ball.v[ball.pop]) - mean) / ball.scale if ball.pop is not None else None,
         rho=r,
     )
     try:
-        sol = SOLVERS[div.name](reduced)
+        sol = SOLVERS[ball.div.name](reduced)
     except Unbracketed as edge:
         if edge.side == "above":
-            return done(
-                all_on_top(),
-                "saturated",
-                top,
-                top,
-                0.0,
-                "rho within rounding of saturation: all mass on the top",
-            )
-        return done(
-            qv.copy(), "optimal", mean, mean, math.inf, "rho within rounding of 0: the empirical distribution"
-        )
-
-    p = np.zeros_like(qv)
-    p[full] = sol.p[inverse] * qv[full] / group_q[inverse]
-    if pop is not None:
-        p[pop] = sol.p_pop
-    p = np.maximum(p, 0.0)
-    p /= p.sum()
-    note = sol.note if pop is None or sol.p_pop == 0.0 else f"{sol.note}; {sol.p_pop:.6g} popped"
-    return done(p, "optimal", float(np.dot(p, v)), mean + scale * sol.eta, scale * sol.lam, note)
+            note = "rho within rounding of saturation: all mass on the top"
+            return ball.worst_case(ball.all_on_top(), "saturated", top, top, 0.0, note)
+        note = "rho within rounding of 0: the empirical distribution"
+        return ball.worst_case(ball.qv.copy(), "optimal", mean, mean, math.inf, note)
+    return _mapped_back(ball, sol)
 
 
 def dual_objective(
