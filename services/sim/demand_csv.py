@@ -138,6 +138,8 @@ def _parse_time(name: str, row: int, text: str, tz: ZoneInfo) -> tuple[int, dt.d
         else:
             zone = dt.UTC if offset.upper() == "Z" else dt.datetime.strptime(offset, "%z").tzinfo
             utc = naive.replace(tzinfo=zone).astimezone(dt.UTC)
+    except DemandFileError:
+        raise
     except ValueError as exc:
         raise DemandFileError(name, row, f"time {text!r}: {exc}") from None
     return int(utc.timestamp()), utc.astimezone(tz).date()

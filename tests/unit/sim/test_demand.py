@@ -481,3 +481,16 @@ def test_csv_empty_file_needs_a_date(chengdu: City, tmp_path: Path) -> None:
     assert read_demand_csv(chengdu, p, date="2016-11-02").requests == ()
     with pytest.raises(DemandFileError, match="no data rows"):
         read_demand_csv(chengdu, p)
+
+
+def test_a_local_time_a_clock_change_skips_is_named_once(manhattan: City, tmp_path: Path) -> None:
+    """New York skips 02:00-03:00 on 8 March 2026: a local time in that hour is an error naming the file and
+    row once."""
+    p = tmp_path / "gap.csv"
+    ids = manhattan.network.node_ids
+    p.write_text(NODE_HEAD + f"x,2026-03-08 02:30:00,{ids[0]},{ids[1]}\n", encoding="utf-8")
+    with pytest.raises(DemandFileError) as err:
+        read_demand_csv(manhattan, p)
+    assert str(err.value) == (
+        "gap.csv, row 1: local time '2026-03-08 02:30:00' does not exist in America/New_York (clock change)"
+    )
