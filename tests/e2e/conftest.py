@@ -16,8 +16,11 @@ if TYPE_CHECKING:
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Browser]:
     """Debian's chromium, headless, for one test module (a missing chromium fails the test)."""
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
+    # What the page shows waits on the service's answers: seconds on a machine kept busy by other work,
+    # so a check waits up to 30 s for it (the checks themselves are unchanged).
+    expect.set_options(timeout=30_000)
     if not CHROMIUM.exists():
         pytest.fail(MISSING)
     with sync_playwright() as pw:
