@@ -26,7 +26,7 @@ KNOWN: dict[str, tuple[int, int]] = {
     "services/routing/algorithm1.py:plan_routes": (88, 5),
     "services/routing/algorithm2.py:improve_routes": (84, 6),
     "services/sensing/gains.py:eval_tree": (100, 9),
-    "app/main.py:create_app": (84, 8),
+    "app/bootstrap.py:create_app": (84, 8),
 }
 """Functions allowed over a limit, by ``path:name``, with the (lines, parameters) they may not exceed."""
 

@@ -1,4 +1,4 @@
-"""The served cities, as the use cases see them: a catalog by name (``app.cities.CityRegistry``)."""
+"""The served cities, as the use cases see them: a catalog by name (``app.adapters.cities.CityRegistry``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ __all__ = ["CityCatalog"]
 
 
 class CityCatalog(Protocol):
-    """The served cities (implemented by ``app.cities.CityRegistry``)."""
+    """The served cities (implemented by ``app.adapters.cities.CityRegistry``)."""
 
     def names(self) -> list[str]:
         """The served cities' names, sorted."""

@@ -81,7 +81,8 @@ def lock_name(interval: int) -> str:
 
 
 class BundleCatalog(CityCatalog, Protocol):
-    """The served cities and where each one's bundle lies (the runs read it; ``app.cities.CityRegistry``)."""
+    """The served cities and where each one's bundle lies (the runs read it;
+    ``app.adapters.cities.CityRegistry``)."""
 
     def bundle_dir(self, name: str) -> Path:
         """The directory of the city's bundle."""

@@ -8,7 +8,7 @@ import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from app.cities import CityRegistry
+from app.adapters.cities import CityRegistry
 from app.ports import Store
 from app.runs import ProcessExecutor, Progress, ResultCache, RunCache, Runner, make_executor
 from app.runs.executor import Foreground

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 
-from app.cities import CityRegistry
+from app.adapters.cities import CityRegistry
 from app.ports import Store
 from app.runs.executor import Foreground
 from app.settings import Settings

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from app import cli
-from app.demo import DemoConfig, run_demo
+from app.entrypoints import cli
+from app.entrypoints.demo import DemoConfig, run_demo
 from app.settings import Settings
 
 

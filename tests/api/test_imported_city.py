@@ -10,9 +10,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from app import cli
 from app.adapters.memory_store import MemoryStore
-from app.main import create_app
+from app.bootstrap import create_app
+from app.entrypoints import cli
 from app.settings import Settings
 
 TOKEN = "import-token-0001"

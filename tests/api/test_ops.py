@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from app.adapters import RedisStore
-from app.cities import CityRegistry
-from app.main import GC_THRESHOLD, create_app
+from app.adapters.cities import CityRegistry
+from app.bootstrap import GC_THRESHOLD, create_app
 from services.city import City
 from tests.api import payloads
 from tests.api.conftest import CITY, MakeClient, auth, settings

@@ -19,7 +19,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters.memory_store import MemoryStore
-from app.main import create_app
+from app.bootstrap import create_app
 from app.settings import Settings
 from services.citydata import load_city
 from tests.e2e.service import ROOT, start_service, stop, wait_ready

@@ -18,7 +18,8 @@ import pytest
 from pydantic import ValidationError
 
 from app.adapters import MemoryStore
-from app.cities import CityRegistry
+from app.adapters.cities import CityRegistry
+from app.entrypoints.worker import parser, settings_from_args
 from app.ports import EpochCommit, SolveRequest, local_day
 from app.runs import (
     RunCache,
@@ -61,7 +62,6 @@ from app.usecases.fleet_solve import (
     TaskSet,
     observed_today,
 )
-from app.worker.cli import parser, settings_from_args
 from app.worker.schedule import coming_interval, due_interval
 from services.city import City, FleetParams, Horizon
 from services.fleet.dro import DIVERGENCE_NAMES

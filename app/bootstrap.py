@@ -18,12 +18,12 @@ from fastapi.routing import APIRoute
 from starlette.types import ASGIApp
 
 from app.adapters.bounded import BoundedStore
+from app.adapters.cities import CityRegistry
 from app.api import admin, cities, dashboard, dispatch, dro, epochs, fleet, ops
 from app.api.bodies import openapi_components
 from app.api.handlers import error_response, install_error_handlers
 from app.api.inputs import Limits
 from app.api.limits import BodyLimit
-from app.cities import CityRegistry
 from app.errors import ServiceError
 from app.metrics import Metrics
 from app.ports import Store
@@ -234,7 +234,7 @@ def _compile_apart(registry: CityCatalog) -> str | None:
     bundles = [registry.bundle_dir(name) for name in registry.names()]
     smallest = min(bundles, key=lambda d: (d / "network.npz").stat().st_size)
     began = time.perf_counter()
-    code = f"from app.main import _warm_bundle; _warm_bundle({str(smallest)!r})"
+    code = f"from app.bootstrap import _warm_bundle; _warm_bundle({str(smallest)!r})"
     child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     if child.returncode != 0:
         log.warning(

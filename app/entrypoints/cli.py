@@ -21,7 +21,7 @@ __all__ = [
 ]
 
 _MOVED = ("experiment", "fleet-experiment")  # now `python -m research ...`
-OPENAPI_PATH = Path(__file__).resolve().parent.parent / "openapi" / "openapi.json"
+OPENAPI_PATH = Path(__file__).resolve().parents[2] / "openapi" / "openapi.json"
 _LOOPBACK = {"127.0.0.1", "localhost", "::1"}
 
 
@@ -43,7 +43,7 @@ def dev_settings(settings: Settings) -> tuple[Settings, str | None]:
 def openapi_document() -> str:
     """The OpenAPI document of the app, as committed in ``openapi/openapi.json``."""
     from app.adapters.memory_store import MemoryStore
-    from app.main import create_app
+    from app.bootstrap import create_app
 
     app = create_app(Settings(tokens={}, store="memory"), store=MemoryStore())
     return json.dumps(app.openapi(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
@@ -61,9 +61,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
+    from app.bootstrap import create_app
+    from app.entrypoints.server import server_config, tune_allocator
     from app.logs import log_config
-    from app.main import create_app
-    from app.server import server_config, tune_allocator
 
     tune_allocator()
     settings = Settings()
@@ -97,7 +97,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from app.demo import DemoConfig, run_demo
+    from app.entrypoints.demo import DemoConfig, run_demo
 
     config = DemoConfig(
         city=args.city,
@@ -168,15 +168,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m app`` and ``sensedispatch``; returns the exit code."""
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] == "import-city":
-        from app.cities import import_city_cli
+        from app.entrypoints.import_city import import_city_cli
 
         return import_city_cli(args_list[1:], default_out=Settings().cities_dir)
     if args_list and args_list[0] == "replay":
-        from app.replay_cli import replay_main
+        from app.entrypoints.replay import replay_main
 
         return replay_main(args_list[1:])
     if args_list and args_list[0] == "worker":
-        from app.worker import main as worker_main
+        from app.entrypoints.worker import main as worker_main
 
         return worker_main(args_list[1:])
     if args_list and args_list[0] in _MOVED:

@@ -12,7 +12,7 @@ from typing import Any, get_args
 
 from pydantic import ValidationError
 
-from app.cities import CityRegistry
+from app.adapters.cities import CityRegistry
 from app.settings import DivergenceName, Settings
 from app.worker.assembly import assemble_worker, worker_cities
 
@@ -144,7 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         log.warning("SD_STORE=memory: this solve's recommendation lives in this process only")
 
-    from app.main import make_store
+    from app.bootstrap import make_store
 
     store = make_store(settings)
     parts = assemble_worker(settings, store, registry, cities, embedded=False)
