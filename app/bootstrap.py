@@ -1,16 +1,24 @@
-"""Composition root: ``create_app(settings, registry=None, store=None)`` wires cities, store and API."""
+"""The composition root: every process's parts built from the settings, here and nowhere else.
+
+- ``make_store``: the store the settings ask for (memory or Redis);
+- ``create_app``: the API (use cases over the store, routers, error handlers, body limits), with the cities
+  warmed in its lifespan (``app.api.warmup``) and, when asked, the fleet worker embedded;
+- ``build_worker``: the fleet worker (runner with its run cache and executor, the solve use case, loop,
+  metrics, heartbeat), for ``python -m app worker`` and for the worker the API embeds (``embedded_worker``).
+
+The entry points (``app.entrypoints``) read their options and ask for these; nothing else wires a store to
+a use case.
+"""
 
 from __future__ import annotations
 
 import functools
 import gc
 import logging
-import subprocess
-import sys
 import threading
 import time
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager, nullcontext
+from collections.abc import AsyncIterator, Callable, Sequence
+from contextlib import AbstractAsyncContextManager, asynccontextmanager, nullcontext
 from typing import Any
 
 from fastapi import FastAPI
@@ -24,15 +32,30 @@ from app.api.bodies import openapi_components
 from app.api.handlers import error_response, install_error_handlers
 from app.api.inputs import Limits
 from app.api.limits import BodyLimit
+from app.api.warmup import GC_THRESHOLD, warm
 from app.errors import ServiceError
 from app.metrics import Metrics
 from app.ports import Store
+from app.runs import ProcessExecutor, Progress, ResultCache, RunCache, Runner, make_executor
 from app.runs.executor import Foreground
 from app.schemas.dispatch import read_epoch, render_epoch
+from app.schemas.fleet import render_recommendation
 from app.settings import Settings
 from app.usecases import CityCatalog, DecideFn, EpochLimits, SizingConfig, UseCases
+from app.usecases.fleet_solve import FleetSolver
+from app.worker.embedded import EmbeddedWorker
+from app.worker.heartbeat import Heartbeat, WorkerStatus
+from app.worker.service import AssembledWorker, FleetWorker, WorkerMetrics
 
-__all__ = ["create_app", "make_store", "API_VERSION"]
+__all__ = [
+    "API_VERSION",
+    "create_app",
+    "make_store",
+    "make_runner",
+    "worker_cities",
+    "build_worker",
+    "embedded_worker",
+]
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +85,9 @@ def make_store(settings: Settings) -> Store:
     from app.adapters.memory_store import MemoryStore
 
     return MemoryStore()
+
+
+# -- the API ---------------------------------------------------------------------------------------------
 
 
 def _default_decide(workers: int) -> DecideFn:
@@ -116,10 +142,10 @@ def create_app(
     the fleet worker's heartbeats. ``tune_gc`` (the ``run`` command's: the process is the service's alone)
     sets the garbage collector for a long-lived heap (``GC_THRESHOLD``, and start-up's objects frozen once
     the cities are warm). ``embed_worker`` runs the fleet worker in this process for the app's lifetime,
-    on the same store (``app.worker.embedded``; its first pass waits for the warm-up). ``compile_apart`` (the
-    ``run`` command's too) compiles the kernels in a child process before the warm-up (``_compile_apart``)."""
+    on the same store (``embedded_worker``; its first pass waits for the warm-up). ``compile_apart`` (the
+    ``run`` command's too) compiles the kernels in a child process before the warm-up
+    (``app.api.warmup.compile_apart``)."""
     settings = settings or Settings()
-    owns_store = store is None
     raw_store = store if store is not None else make_store(settings)
     the_store = BoundedStore(raw_store, settings.store_concurrency, settings.store_queue_s)
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
@@ -127,39 +153,26 @@ def create_app(
     foreground = Foreground() if embed_worker else None  # epochs pause the embedded worker's runs
     use_cases = _use_cases(settings, the_registry, the_store, decide, clock, foreground)
 
-    @asynccontextmanager
-    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
-        # load and warm the cities in the background; /readyz answers 503 until that has finished, so a
-        # balancer sends no epoch that would wait for the kernels to compile
+    def start(warmed: threading.Event) -> EmbeddedWorker | None:
+        """Warm the cities on a thread; start the embedded worker (it waits for ``warmed``)."""
         if tune_gc:
             gc.set_threshold(*GC_THRESHOLD)
-        warmed = threading.Event()
         use_cases.readiness.warming = warmed
         threading.Thread(
-            target=_warm,
+            target=warm,
             args=(the_registry, tune_gc, warmed, compile_apart),
             name="warm-cities",
             daemon=True,
         ).start()
-        worker = None
-        if embed_worker:
-            from app.worker.embedded import EmbeddedWorker
-
-            worker = EmbeddedWorker(settings, raw_store, the_registry, ready=warmed, foreground=foreground)
-            worker.start()
-        try:
-            yield
-        finally:
-            if worker is not None:
-                worker.stop()
-            if owns_store:
-                the_store.close()
+        if not embed_worker:
+            return None
+        return embedded_worker(settings, raw_store, the_registry, ready=warmed, foreground=foreground)
 
     app = FastAPI(
         title="sensedispatch",
         version=API_VERSION,
         description=_DESCRIPTION,
-        lifespan=lifespan,
+        lifespan=_lifespan(start, the_store if store is None else None),
         generate_unique_id_function=_operation_id,
     )
     app.state.settings = settings
@@ -173,17 +186,32 @@ def create_app(
     app.add_middleware(
         BodyLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s, render=render
     )
-    app.include_router(ops.router)
-    app.include_router(cities.router)
-    app.include_router(dispatch.router)
-    app.include_router(dro.router)
-    app.include_router(fleet.router)
-    app.include_router(epochs.router)
-    app.include_router(admin.router)
-    app.include_router(dashboard.router)
+    for router in (ops, cities, dispatch, dro, fleet, epochs, admin, dashboard):
+        app.include_router(router.router)
     dashboard.mount_assets(app)
     _declare_request_bodies(app, Limits.from_settings(settings))
     return app
+
+
+def _lifespan(
+    start: Callable[[threading.Event], EmbeddedWorker | None], owned: BoundedStore | None
+) -> Callable[[FastAPI], AbstractAsyncContextManager[None]]:
+    """The app's lifespan: ``start`` (the warm-up in the background: /readyz answers 503 until it has
+    finished, so a balancer sends no epoch that would wait for the kernels to compile; the embedded worker)
+    at start-up; at shutdown the worker stopped and the ``owned`` store closed."""
+
+    @asynccontextmanager
+    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        worker = start(threading.Event())
+        try:
+            yield
+        finally:
+            if worker is not None:
+                worker.stop()
+            if owned is not None:
+                owned.close()
+
+    return lifespan
 
 
 def _declare_request_bodies(app: FastAPI, limits: Limits) -> None:
@@ -206,78 +234,115 @@ def _operation_id(route: APIRoute) -> str:
     return route.name
 
 
-GC_THRESHOLD = (10_000, 10, 10)
-"""The collector's thresholds in the service process (Python's default is (700, 10, 10)). An epoch allocates
-hundreds of thousands of short-lived objects (a Manhattan epoch's response alone is 0.5 MB of JSON built from
-dicts), so at 700 the young generations were collected ~45 times an epoch and the whole heap every few
-epochs; docs/DESIGN.md ("Speed without changing a decision") and docs/PERFORMANCE.md have the measurements."""
+# -- the fleet worker ------------------------------------------------------------------------------------
 
 
-def _warm_bundle(directory: str) -> None:
-    """In a child process: warm up the city bundle in ``directory`` (``_compile_apart``)."""
-    from services.citydata import load_city
-    from services.dispatch import warm_up
+def make_runner(settings: Settings, *, in_process: bool = True) -> Runner:
+    """The runner the settings describe: its run cache (disk or Redis) and its executor. With
+    ``in_process`` False the runs never execute in this process (one local process at least): the API's
+    embedded worker keeps the simulations out of the process that answers epochs."""
+    cache: ResultCache
+    if settings.run_cache_kind() == "redis":
+        from app.adapters.redis_client import redis_client
+        from app.adapters.run_cache import RedisRunCache
 
-    warm_up(load_city(directory))
+        client = redis_client(settings.redis_url)
+        cache = RedisRunCache(client, settings.redis_prefix, ttl_s=settings.retention_s)
+    else:
+        cache = RunCache(settings.var_dir / "fleet-runs")
+    executor = make_executor(
+        settings.worker_jobs,
+        settings.worker_executor,
+        scheduler=settings.dask_scheduler,
+        timeout_s=settings.dask_timeout_s,
+        nice=settings.worker_nice,
+        in_process=in_process,
+    )
+    return Runner(cache, executor)
 
 
-def _compile_apart(registry: CityCatalog) -> str | None:
-    """Compile every kernel an epoch calls in a child process, by warming the smallest served city there:
-    numba writes what it compiles to its on-disk cache, and this process's warm-up then loads the kernels
-    from there. Compiling (LLVM) holds memory that the process keeps for its lifetime: about 360 MB more
-    than loading the same kernels from the cache (docs/PERFORMANCE.md, "Memory of the service"), which a
-    fresh install would otherwise carry in the service for good. With the cache already filled the child
-    only reads it (a few seconds). A child that fails is logged; the warm-up then compiles here. The name
-    of the city warmed in the child, ``None`` when it failed or no bundle is served."""
-    if not isinstance(registry, CityRegistry) or not registry.names():
-        return None
-    bundles = [registry.bundle_dir(name) for name in registry.names()]
-    smallest = min(bundles, key=lambda d: (d / "network.npz").stat().st_size)
-    began = time.perf_counter()
-    code = f"from app.bootstrap import _warm_bundle; _warm_bundle({str(smallest)!r})"
-    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
-    if child.returncode != 0:
-        log.warning(
-            "compiling the kernels in a child process failed (exit %s): %s",
-            child.returncode,
-            child.stderr[-2000:],
+def worker_cities(settings: Settings, registry: CityCatalog) -> tuple[list[str], list[str]]:
+    """The cities the worker sizes (``SD_WORKER_CITIES``, default every served city) and, sorted, those of
+    them the registry does not serve (a worker is not started with any)."""
+    known = registry.names()
+    cities = settings.worker_cities or known
+    return cities, sorted(set(cities) - set(known))
+
+
+def build_worker(
+    settings: Settings,
+    store: Store,
+    registry: CityRegistry,
+    cities: Sequence[str],
+    *,
+    embedded: bool,
+    foreground: Foreground | None = None,
+) -> AssembledWorker:
+    """The worker of ``cities`` on ``store``, as the settings configure it (``embedded``: inside the API
+    process, its runs on local processes whatever ``SD_WORKER_JOBS`` says, paused by ``foreground`` while
+    the API solves an epoch)."""
+    runner = make_runner(settings, in_process=not embedded)
+    if foreground is not None and isinstance(runner.executor, ProcessExecutor):
+        foreground.add(runner.executor)
+    metrics = WorkerMetrics()
+    status = WorkerStatus(embedded=embedded, poll_s=settings.worker_poll_s)
+
+    def progress(p: Progress) -> None:
+        metrics.progress(p)
+        status.progress(p)
+
+    sizing = FleetSolver(
+        store,
+        runner,
+        SizingConfig.from_settings(settings),
+        render=render_recommendation,
+        cities=registry,
+        progress=progress,
+        history_limit=settings.worker_history,
+        lock_ttl_s=float(settings.worker_lock_ttl_s),
+    )
+    worker = FleetWorker(
+        sizing,
+        cities,
+        lead_s=settings.worker_lead_s,
+        poll_s=settings.worker_poll_s,
+        metrics=metrics,
+        status=status,
+    )
+    heartbeat = Heartbeat(sizing, status, cities, interval_s=settings.worker_heartbeat_s)
+    return AssembledWorker(worker, heartbeat, runner, metrics)
+
+
+def embedded_worker(
+    settings: Settings,
+    store: Store,
+    registry: CityCatalog,
+    *,
+    ready: threading.Event | None = None,
+    foreground: Foreground | None = None,
+) -> EmbeddedWorker | None:
+    """The fleet worker inside the API process, started: beating at once, solving once ``ready`` is set
+    (the warm-up is over), its runs paused by ``foreground`` while an epoch is solved. ``registry`` serves
+    the cities (a ``CityRegistry`` also gives the bundles the runs read; any other catalog is replaced by
+    the settings' registry). An unknown city in SD_WORKER_CITIES is logged and no worker starts (``None``:
+    the API then answers solve requests with 503 no_worker)."""
+    bundles = registry if isinstance(registry, CityRegistry) else CityRegistry.from_settings(settings)
+    cities, unknown = worker_cities(settings, bundles)
+    if unknown:
+        log.error(
+            "fleet worker not started: unknown cities %s in SD_WORKER_CITIES; served: %s",
+            unknown,
+            bundles.names(),
         )
         return None
-    log.info("kernels compiled apart (warming %s) in %.1f s", smallest.name, time.perf_counter() - began)
-    return smallest.name
-
-
-def _warm(
-    registry: CityCatalog,
-    freeze: bool = False,
-    done: threading.Event | None = None,
-    compile_apart: bool = False,
-) -> None:
-    """Load every city once and warm it up (``services.dispatch.warm_up``), so that every kernel is compiled
-    (or loaded from cache) and each city's search structures (road graph, landmark table) built before its
-    first epoch arrives (errors surface later, per request and in /readyz). With ``freeze``, what start-up
-    built (the cities, the app, the compiled kernels' Python objects) is then moved out of the collector's
-    reach (``gc.freeze``): it lives as long as the process, and scanning it made each full collection
-    ~100 ms at Manhattan scale. ``done`` is set at the end, whatever happened (a city that failed to load
-    is /readyz's to report). With ``compile_apart`` the kernels are compiled in a child first."""
-    from services.dispatch import warm_up
-
-    began = time.perf_counter()
-    try:
-        if compile_apart:
-            try:
-                _compile_apart(registry)
-            except Exception:
-                log.exception("compiling the kernels in a child process failed")
-        for name in registry.names():
-            try:
-                warm_up(registry.get(name))
-            except Exception:
-                log.exception("city %s failed to load", name)
-        log.info("warm-up finished in %.1f s: ready", time.perf_counter() - began)
-        if freeze:
-            gc.collect()
-            gc.freeze()
-    finally:
-        if done is not None:
-            done.set()
+    parts = build_worker(settings, store, bundles, cities, embedded=True, foreground=foreground)
+    worker = EmbeddedWorker(parts, ready=ready)
+    worker.start()
+    log.info(
+        "fleet worker running in this process for %s (simulation runs on %d local process(es) at "
+        "niceness +%d)",
+        ", ".join(cities),
+        max(1, settings.worker_jobs),
+        settings.worker_nice,
+    )
+    return worker

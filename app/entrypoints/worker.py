@@ -13,8 +13,8 @@ from typing import Any, get_args
 from pydantic import ValidationError
 
 from app.adapters.cities import CityRegistry
+from app.bootstrap import build_worker, make_store, worker_cities
 from app.settings import DivergenceName, Settings
-from app.worker.assembly import assemble_worker, worker_cities
 
 __all__ = ["main", "parser", "settings_from_args"]
 
@@ -144,10 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         log.warning("SD_STORE=memory: this solve's recommendation lives in this process only")
 
-    from app.bootstrap import make_store
-
     store = make_store(settings)
-    parts = assemble_worker(settings, store, registry, cities, embedded=False)
+    parts = build_worker(settings, store, registry, cities, embedded=False)
     worker = parts.worker
     if settings.worker_executor == "dask":
         log.info("simulation runs go to the Dask scheduler at %s", settings.dask_scheduler)

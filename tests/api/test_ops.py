@@ -11,7 +11,8 @@ import pytest
 
 from app.adapters import RedisStore
 from app.adapters.cities import CityRegistry
-from app.bootstrap import GC_THRESHOLD, create_app
+from app.api.warmup import GC_THRESHOLD
+from app.bootstrap import create_app
 from services.city import City
 from tests.api import payloads
 from tests.api.conftest import CITY, MakeClient, auth, settings

@@ -623,14 +623,12 @@ def test_the_service_embeds_the_worker_on_the_memory_store_unless_told() -> None
 def test_an_embedded_worker_with_an_unknown_city_does_not_start(
     tiny_cities: CityRegistry, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from app.worker.embedded import EmbeddedWorker
+    from app.bootstrap import embedded_worker
 
-    worker = EmbeddedWorker(Settings(worker_cities=[CITY, "atlantis"]), MemoryStore(), tiny_cities)
     with caplog.at_level(logging.ERROR):
-        worker.start()
-    assert worker.parts is None
+        worker = embedded_worker(Settings(worker_cities=[CITY, "atlantis"]), MemoryStore(), tiny_cities)
+    assert worker is None
     assert "unknown cities ['atlantis'] in SD_WORKER_CITIES; served: ['tiny']" in caplog.text
-    worker.stop()
 
 
 def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
