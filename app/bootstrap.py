@@ -73,14 +73,14 @@ Errors always have the shape `{"error": kind, "detail": text, "fields": [{"loc",
 
 def make_store(settings: Settings) -> Store:
     """The store the settings ask for."""
-    if settings.store == "redis":
+    if settings.store.kind == "redis":
         from app.adapters.redis_store import RedisStore
 
         return RedisStore(
-            settings.redis_url,
-            prefix=settings.redis_prefix,
-            socket_timeout_s=settings.store_timeout_s,
-            mode=settings.redis_mode,
+            settings.store.redis_url,
+            prefix=settings.store.redis_prefix,
+            socket_timeout_s=settings.store.timeout_s,
+            mode=settings.store.redis_mode,
         )
     from app.adapters.memory_store import MemoryStore
 
@@ -106,21 +106,21 @@ def _use_cases(
 ) -> UseCases:
     """The use cases over ``store``, with the settings' limits (``foreground``: the embedded worker's)."""
     limits = EpochLimits(
-        retention_s=settings.retention_s,
-        commit_attempts=settings.commit_attempts,
-        max_solves=settings.max_solves,
-        solve_queue_s=settings.solve_queue_s,
-        max_ahead_s=settings.epoch_max_ahead_s,
+        retention_s=settings.store.retention_s,
+        commit_attempts=settings.dispatch.commit_attempts,
+        max_solves=settings.dispatch.max_solves,
+        solve_queue_s=settings.dispatch.solve_queue_s,
+        max_ahead_s=settings.dispatch.epoch_max_ahead_s,
     )
     return UseCases.over(
         registry,
         store,
-        decide or _default_decide(settings.dispatch_workers),
+        decide or _default_decide(settings.dispatch.workers),
         render_epoch=render_epoch,
         read_epoch=read_epoch,
         limits=limits,
-        worker_stale_s=settings.worker_stale_s,
-        sizing=SizingConfig.from_settings(settings),
+        worker_stale_s=settings.worker.stale_s,
+        sizing=SizingConfig.from_settings(settings.sizing, settings.store.retention_s),
         clock=time.time if clock is None else clock,
         foreground=nullcontext if foreground is None else foreground.epoch,
     )
@@ -147,7 +147,7 @@ def create_app(
     (``app.api.warmup.compile_apart``)."""
     settings = settings or Settings()
     raw_store = store if store is not None else make_store(settings)
-    the_store = BoundedStore(raw_store, settings.store_concurrency, settings.store_queue_s)
+    the_store = BoundedStore(raw_store, settings.store.concurrency, settings.store.queue_s)
     the_registry = registry if registry is not None else CityRegistry.from_settings(settings)
     metrics = Metrics()
     foreground = Foreground() if embed_worker else None  # epochs pause the embedded worker's runs
@@ -184,7 +184,10 @@ def create_app(
         return error_response(err, metrics)
 
     app.add_middleware(
-        BodyLimit, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s, render=render
+        BodyLimit,
+        max_bytes=settings.server.max_body_bytes,
+        timeout_s=settings.server.body_timeout_s,
+        render=render,
     )
     for router in (ops, cities, dispatch, dro, fleet, epochs, admin, dashboard):
         app.include_router(router.router)
@@ -246,16 +249,16 @@ def make_runner(settings: Settings, *, in_process: bool = True) -> Runner:
         from app.adapters.redis_client import redis_client
         from app.adapters.run_cache import RedisRunCache
 
-        client = redis_client(settings.redis_url)
-        cache = RedisRunCache(client, settings.redis_prefix, ttl_s=settings.retention_s)
+        client = redis_client(settings.store.redis_url)
+        cache = RedisRunCache(client, settings.store.redis_prefix, ttl_s=settings.store.retention_s)
     else:
-        cache = RunCache(settings.var_dir / "fleet-runs")
+        cache = RunCache(settings.runs.var_dir / "fleet-runs")
     executor = make_executor(
-        settings.worker_jobs,
-        settings.worker_executor,
-        scheduler=settings.dask_scheduler,
-        timeout_s=settings.dask_timeout_s,
-        nice=settings.worker_nice,
+        settings.runs.jobs,
+        settings.runs.executor,
+        scheduler=settings.runs.dask_scheduler,
+        timeout_s=settings.runs.dask_timeout_s,
+        nice=settings.runs.nice,
         in_process=in_process,
     )
     return Runner(cache, executor)
@@ -265,7 +268,7 @@ def worker_cities(settings: Settings, registry: CityCatalog) -> tuple[list[str],
     """The cities the worker sizes (``SD_WORKER_CITIES``, default every served city) and, sorted, those of
     them the registry does not serve (a worker is not started with any)."""
     known = registry.names()
-    cities = settings.worker_cities or known
+    cities = settings.worker.cities or known
     return cities, sorted(set(cities) - set(known))
 
 
@@ -285,7 +288,7 @@ def build_worker(
     if foreground is not None and isinstance(runner.executor, ProcessExecutor):
         foreground.add(runner.executor)
     metrics = WorkerMetrics()
-    status = WorkerStatus(embedded=embedded, poll_s=settings.worker_poll_s)
+    status = WorkerStatus(embedded=embedded, poll_s=settings.worker.poll_s)
 
     def progress(p: Progress) -> None:
         metrics.progress(p)
@@ -294,22 +297,22 @@ def build_worker(
     sizing = FleetSolver(
         store,
         runner,
-        SizingConfig.from_settings(settings),
+        SizingConfig.from_settings(settings.sizing, settings.store.retention_s),
         render=render_recommendation,
         cities=registry,
         progress=progress,
-        history_limit=settings.worker_history,
-        lock_ttl_s=float(settings.worker_lock_ttl_s),
+        history_limit=settings.worker.history,
+        lock_ttl_s=float(settings.worker.lock_ttl_s),
     )
     worker = FleetWorker(
         sizing,
         cities,
-        lead_s=settings.worker_lead_s,
-        poll_s=settings.worker_poll_s,
+        lead_s=settings.worker.lead_s,
+        poll_s=settings.worker.poll_s,
         metrics=metrics,
         status=status,
     )
-    heartbeat = Heartbeat(sizing, status, cities, interval_s=settings.worker_heartbeat_s)
+    heartbeat = Heartbeat(sizing, status, cities, interval_s=settings.worker.heartbeat_s)
     return AssembledWorker(worker, heartbeat, runner, metrics)
 
 
@@ -342,7 +345,7 @@ def embedded_worker(
         "fleet worker running in this process for %s (simulation runs on %d local process(es) at "
         "niceness +%d)",
         ", ".join(cities),
-        max(1, settings.worker_jobs),
-        settings.worker_nice,
+        max(1, settings.runs.jobs),
+        settings.runs.nice,
     )
     return worker

@@ -201,7 +201,7 @@ class RequestTimeout(ServiceError):
 
 
 class PayloadTooLarge(ServiceError):
-    """The body exceeds ``settings.max_body_bytes``."""
+    """The body exceeds ``settings.server.max_body_bytes`` (``SD_MAX_BODY_BYTES``)."""
 
     status = 413
     kind = "payload_too_large"

@@ -69,7 +69,7 @@ class CityRegistry:
     def from_settings(cls, settings: Settings) -> CityRegistry:
         """The one registry of a deployment: bundled cities (``SD_BUNDLED_CITIES_DIR``, default the
         package's) and imported ones (``SD_CITIES_DIR``). The API, the worker and the CLIs all use it."""
-        return cls(settings.bundled_cities_dir or BUNDLED_DIR, settings.cities_dir)
+        return cls(settings.cities.bundled_dir or BUNDLED_DIR, settings.cities.user_dir)
 
     def _roots(self) -> list[Path]:
         # the user directory first: it shadows bundled cities

@@ -137,7 +137,7 @@ async def _principal(
         raise Unauthorized("missing bearer token (Authorization: Bearer <token>)")
     given = credentials.credentials.encode()
     match: list[Scope] | None = None
-    for token, scopes in settings.tokens.items():
+    for token, scopes in settings.auth.tokens.items():
         if hmac.compare_digest(token.encode(), given):
             match = scopes
     if match is None:

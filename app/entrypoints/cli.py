@@ -32,12 +32,10 @@ def new_token() -> str:
 
 def dev_settings(settings: Settings) -> tuple[Settings, str | None]:
     """With no configured tokens: add a random token with every scope and bind loopback only."""
-    if settings.tokens:
+    if settings.auth.tokens:
         return settings, None
     token = new_token()
-    return settings.model_copy(
-        update={"tokens": {token: ["read", "dispatch", "admin"]}, "host": "127.0.0.1"}
-    ), token
+    return settings.with_values(tokens={token: ["read", "dispatch", "admin"]}, host="127.0.0.1"), token
 
 
 def openapi_document() -> str:
@@ -45,7 +43,7 @@ def openapi_document() -> str:
     from app.adapters.memory_store import MemoryStore
     from app.bootstrap import create_app
 
-    app = create_app(Settings(tokens={}, store="memory"), store=MemoryStore())
+    app = create_app(Settings().with_values(tokens={}, store="memory"), store=MemoryStore())
     return json.dumps(app.openapi(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
 
 
@@ -68,10 +66,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     tune_allocator()
     settings = Settings()
     if args.host is not None or args.port is not None:
-        settings = settings.model_copy(
-            update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
-        )
-    requested_host = settings.host
+        given = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
+        settings = settings.with_values(**given)
+    requested_host = settings.server.host
     settings, token = dev_settings(settings)
     logging.config.dictConfig(log_config(settings.log_level))
     if token is not None:
@@ -81,7 +78,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             )
         print(f"development token (scopes read, dispatch, admin): {token}", flush=True)
         print(
-            f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.port}/v1/cities",
+            f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.server.port}/v1/cities",
             flush=True,
         )
     embed = settings.embeds_worker()
@@ -170,7 +167,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args_list and args_list[0] == "import-city":
         from app.entrypoints.import_city import import_city_cli
 
-        return import_city_cli(args_list[1:], default_out=Settings().cities_dir)
+        return import_city_cli(args_list[1:], default_out=Settings().cities.user_dir)
     if args_list and args_list[0] == "replay":
         from app.entrypoints.replay import replay_main
 

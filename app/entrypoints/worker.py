@@ -125,15 +125,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         print(f"python -m app worker: unknown cities {unknown}; served: {registry.names()}", file=sys.stderr)
         return 2
-    kept_days = settings.retention_s // 86400
-    if kept_days < settings.worker_days:
+    kept_days = settings.store.retention_s // 86400
+    if kept_days < settings.sizing.days:
         log.warning(
             "recorded demand is kept %d day(s) (SD_RETENTION_S) but a solve needs M = %d days "
             "(SD_WORKER_DAYS): solves will use the seeded synthetic history",
             kept_days,
-            settings.worker_days,
+            settings.sizing.days,
         )
-    if settings.store == "memory":
+    if settings.store.kind == "memory":
         if not args.once:
             print(
                 "python -m app worker: SD_STORE=memory: no API could read this worker's results. On the "
@@ -147,12 +147,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     store = make_store(settings)
     parts = build_worker(settings, store, registry, cities, embedded=False)
     worker = parts.worker
-    if settings.worker_executor == "dask":
-        log.info("simulation runs go to the Dask scheduler at %s", settings.dask_scheduler)
-    if settings.worker_metrics_port is not None and not args.once:
+    if settings.runs.executor == "dask":
+        log.info("simulation runs go to the Dask scheduler at %s", settings.runs.dask_scheduler)
+    if settings.worker.metrics_port is not None and not args.once:
         from prometheus_client import start_http_server
 
-        start_http_server(settings.worker_metrics_port, registry=parts.metrics.registry)
+        start_http_server(settings.worker.metrics_port, registry=parts.metrics.registry)
     try:
         if args.once:
             ok = True

@@ -59,7 +59,9 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
         ]
     )
     assert rc == 0
-    app = create_app(Settings(tokens={TOKEN: ["read", "dispatch"]}, cities_dir=out), store=MemoryStore())
+    app = create_app(
+        Settings().with_values(tokens={TOKEN: ["read", "dispatch"]}, cities_dir=out), store=MemoryStore()
+    )
     with TestClient(app) as c:
         yield c
 

@@ -37,7 +37,9 @@ def run_schemathesis(max_examples: int) -> tuple[int, str]:
     """Run ``st run`` against a fresh in-thread service; its exit code and output."""
     binary = shutil.which("st", path=str(Path(sys.executable).parent))
     assert binary is not None, "schemathesis is a dev dependency: pip install -e '.[dev]'"
-    settings = Settings(tokens={TOKEN: ["read", "dispatch", "admin"]}, store="memory", log_level="error")
+    settings = Settings().with_values(
+        tokens={TOKEN: ["read", "dispatch", "admin"]}, store="memory", log_level="error"
+    )
     store = MemoryStore()
     app = create_app(settings, store=store)
     # a fleet worker's heartbeat (it never solves): a solve request is queued, as a deployment answers it

@@ -108,7 +108,7 @@ def worker(
 
 
 def client_for(store: Store, clock: Callable[[], float] | None = None) -> TestClient:
-    settings = Settings(tokens={TOKEN: ["read"], ADMIN: ["admin"]})
+    settings = Settings().with_values(tokens={TOKEN: ["read"], ADMIN: ["admin"]})
     return TestClient(create_app(settings, store=store, clock=clock))
 
 
