@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal
 
-from app.errors import UnknownCityError
+from app.errors import UnknownCity
 from app.settings import Settings
 from services.city import City
 from services.citydata import CityDataError, CityMeta, load_city, save_bundle, sha256_of, validate_city_name
@@ -21,7 +21,6 @@ from services.importers import ImportResult, read_csv_network, read_osm
 
 __all__ = [
     "BUNDLED_DIR",
-    "UnknownCity",
     "CityRegistry",
     "ImportKind",
     "import_city",
@@ -32,13 +31,6 @@ BUNDLED_DIR = Path(__file__).resolve().parents[1] / "data" / "cities"
 """Bundled city bundles shipped with the package."""
 
 ImportKind = Literal["osm", "csv"]
-
-
-class UnknownCity(UnknownCityError, KeyError):
-    """No city of that name is served (a ``KeyError`` and a 404 ``unknown_city``)."""
-
-    def __str__(self) -> str:
-        return self.detail
 
 
 def _is_bundle(path: Path) -> bool:

@@ -17,4 +17,4 @@ class CityCatalog(Protocol):
         ...
 
     def get(self, name: str) -> City:
-        """The city; raises ``app.errors.UnknownCityError`` (or a subclass) when not served."""
+        """The city; raises ``app.errors.UnknownCity`` when not served."""

@@ -292,7 +292,7 @@ class FleetSolver:
         return self.history.defaults
 
     def load_city(self, name: str) -> City:
-        """The city (``UnknownCity`` when the catalog does not serve it)."""
+        """The city (``app.errors.UnknownCity`` when the catalog does not serve it)."""
         return self.cities.get(name)
 
     # ------------------------------------------------------------------ requests and heartbeat
