@@ -26,7 +26,7 @@ from fastapi.routing import APIRoute
 from starlette.types import ASGIApp
 
 from app.adapters.bounded import BoundedStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.api import admin, cities, dashboard, dispatch, dro, epochs, fleet, ops
 from app.api.bodies import openapi_components
 from app.api.handlers import error_response, install_error_handlers

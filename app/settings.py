@@ -124,7 +124,7 @@ class AuthSettings(_Group):
 
 
 class CitySettings(_Group):
-    """Where the cities' bundles are (``app.adapters.cities.CityRegistry``)."""
+    """Where the cities' bundles are (``app.adapters.city_registry.CityRegistry``)."""
 
     user_dir: Annotated[Path, Env("cities_dir")] = Field(
         default=Path("var/cities"), description="Directory of user-imported cities."

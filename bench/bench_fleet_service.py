@@ -32,7 +32,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.entrypoints.replay_client import HttpDispatcher
 from app.runs import RunSpec, demand_for, open_bundle, tasks_for
 from bench.report import ROOT, stamp, write_section

@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 @runtime_checkable
 class _Bundles(Protocol):
-    """A catalog whose cities are bundles on disk (``app.adapters.cities.CityRegistry``)."""
+    """A catalog whose cities are bundles on disk (``app.adapters.city_registry.CityRegistry``)."""
 
     def names(self) -> list[str]: ...
 

@@ -19,7 +19,7 @@ import httpx
 import numpy as np
 from numpy.typing import NDArray
 
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.entrypoints.replay_client import HttpDispatcher, ReplayError, service_client
 from app.runs import RunSpec, demand_for, open_bundle
 from app.settings import Settings

@@ -1,5 +1,5 @@
 """``python -m app import-city``: build a city bundle from OSM XML or CSV
-(``app.adapters.cities.import_city``) into the settings' user cities directory."""
+(``app.adapters.city_registry.import_city``) into the settings' user cities directory."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from app.adapters.cities import ImportKind, build_city_bundle
+from app.adapters.city_registry import ImportKind, build_city_bundle
 from services.citydata import CityDataError, CityMeta
 
 __all__ = ["import_city_cli"]

@@ -13,7 +13,7 @@ from typing import TextIO
 
 from tqdm import tqdm
 
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import RunSpec, demand_for, open_bundle, tasks_for
 from app.settings import Settings
 from services.city import City

@@ -12,7 +12,7 @@ from typing import Any, get_args
 
 from pydantic import ValidationError
 
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.bootstrap import build_worker, make_store, worker_cities
 from app.settings import DivergenceName, Settings
 

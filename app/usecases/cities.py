@@ -1,4 +1,5 @@
-"""The served cities, as the use cases see them: a catalog by name (``app.adapters.cities.CityRegistry``)."""
+"""The served cities, as the use cases see them: a catalog by name
+(``app.adapters.city_registry.CityRegistry``)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ __all__ = ["CityCatalog"]
 
 
 class CityCatalog(Protocol):
-    """The served cities (implemented by ``app.adapters.cities.CityRegistry``)."""
+    """The served cities (implemented by ``app.adapters.city_registry.CityRegistry``)."""
 
     def names(self) -> list[str]:
         """The served cities' names, sorted."""

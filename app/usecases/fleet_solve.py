@@ -82,7 +82,7 @@ def lock_name(interval: int) -> str:
 
 class BundleCatalog(CityCatalog, Protocol):
     """The served cities and where each one's bundle lies (the runs read it;
-    ``app.adapters.cities.CityRegistry``)."""
+    ``app.adapters.city_registry.CityRegistry``)."""
 
     def bundle_dir(self, name: str) -> Path:
         """The directory of the city's bundle."""

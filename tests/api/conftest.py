@@ -10,7 +10,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters import MemoryStore, RedisStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.bootstrap import create_app
 from app.ports import Store
 from app.settings import Settings

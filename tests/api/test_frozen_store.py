@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 import httpx
 
 from app.adapters import MemoryStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.bootstrap import create_app
 from app.entrypoints.serve import serve_app_in_thread
 from app.ports import CityState

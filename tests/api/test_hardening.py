@@ -20,7 +20,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters import MemoryStore, RedisStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.api.handlers import MAX_FIELDS
 from app.bootstrap import create_app
 from app.ports import CommitResult, EpochCommit, Store

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from app.adapters import RedisStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.api.warmup import GC_THRESHOLD
 from app.bootstrap import create_app
 from services.city import City

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.api.bodies import _json, _validate, epoch_post
 from app.api.inputs import Limits, epoch_command, snapshot_of
 from app.errors import ServiceError

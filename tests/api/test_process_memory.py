@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from app.adapters.cities import BUNDLED_DIR, CityRegistry
+from app.adapters.city_registry import BUNDLED_DIR, CityRegistry
 from app.api.warmup import compile_apart
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -69,7 +69,7 @@ def test_after_compiling_apart_the_warm_up_only_reads_the_cache() -> None:
     network file is the smaller), then every bundled city warmed up here with no kernel compiled (every
     signature read from numba's cache)."""
     code = (
-        "import json; from app.adapters.cities import CityRegistry; "
+        "import json; from app.adapters.city_registry import CityRegistry; "
         "from app.api.warmup import compile_apart; "
         "from services.dispatch import warm_up; from tests.unit.test_warm_up import compiled_functions; "
         "reg = CityRegistry(); warmed = compile_apart(reg); [warm_up(reg.get(n)) for n in reg.names()]; "

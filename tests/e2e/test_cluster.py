@@ -16,7 +16,7 @@ import httpx
 import pytest
 
 from app.adapters import MemoryStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.entrypoints.worker import main as worker_main
 from app.runs import Event, Executor, Progress, RunCache, RunJob, Runner, RunResult, Started
 from app.runs.dask_executor import DaskExecutor

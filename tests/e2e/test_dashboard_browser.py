@@ -26,7 +26,7 @@ import numpy as np
 from PIL import Image
 from playwright.sync_api import Browser, ConsoleMessage, Page, Response, expect
 
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.adapters.redis_store import RedisStore
 from app.entrypoints.replay_client import HttpDispatcher
 from app.runs import RunCache, Runner

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.entrypoints.replay import replay_main
 from app.runs import RunJob, RunResult, runner
 from research.cli import experiment_main, fleet_experiment_main, main

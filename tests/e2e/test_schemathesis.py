@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 from app.adapters import MemoryStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.bootstrap import create_app
 from app.entrypoints.serve import serve_app_in_thread
 from app.runs import RunCache, Runner

@@ -19,7 +19,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters import MemoryStore, RedisStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.bootstrap import create_app
 from app.entrypoints.worker import main as worker_main
 from app.ports import EpochCommit, SolveRequest, Store, local_day

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.adapters.cities import BUNDLED_DIR, CityRegistry, import_city
+from app.adapters.city_registry import BUNDLED_DIR, CityRegistry, import_city
 from app.entrypoints.import_city import import_city_cli
 from app.errors import UnknownCity
 from services.city import FleetParams

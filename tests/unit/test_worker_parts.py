@@ -18,7 +18,7 @@ import pytest
 from pydantic import ValidationError
 
 from app.adapters import MemoryStore
-from app.adapters.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.entrypoints.worker import parser, settings_from_args
 from app.ports import EpochCommit, SolveRequest, local_day
 from app.runs import (

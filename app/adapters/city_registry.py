@@ -168,7 +168,7 @@ def build_city_bundle(
         params=dict(meta.params),
         fleet=dict(meta.fleet),
         built_with={
-            "script": f"app.adapters.cities.import_city(kind={kind!r})",
+            "script": f"app.adapters.city_registry.import_city(kind={kind!r})",
             "input": paths[0].name if len(paths) == 1 else [p.name for p in paths],
             "sha256": (
                 (sha256_of(paths[0]) if len(paths) == 1 else [sha256_of(p) for p in paths])
