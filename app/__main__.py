@@ -1,5 +1,5 @@
-"""``python -m app``: see ``app.cli``."""
+"""``python -m app``: see ``app.entrypoints.cli``."""
 
-from app.cli import main
+from app.entrypoints.cli import main
 
 raise SystemExit(main())

@@ -14,7 +14,7 @@ __all__ = [
     "Unauthorized",
     "Forbidden",
     "NotFound",
-    "UnknownCityError",
+    "UnknownCity",
     "NoData",
     "UnknownEpoch",
     "MethodNotAllowed",
@@ -26,7 +26,7 @@ __all__ = [
     "PayloadTooLarge",
     "UnsupportedMediaType",
     "Unavailable",
-    "StoreUnavailableError",
+    "StoreUnavailable",
     "Busy",
     "NoWorker",
     "InternalError",
@@ -119,10 +119,13 @@ class NotFound(ServiceError):
     kind = "not_found"
 
 
-class UnknownCityError(NotFound):
-    """The city is not served."""
+class UnknownCity(NotFound, KeyError):
+    """No city of that name is served (a 404 ``unknown_city``, and a ``KeyError`` for a lookup by name)."""
 
     kind = "unknown_city"
+
+    def __str__(self) -> str:
+        return self.detail
 
 
 class NoData(NotFound):
@@ -201,7 +204,7 @@ class RequestTimeout(ServiceError):
 
 
 class PayloadTooLarge(ServiceError):
-    """The body exceeds ``settings.max_body_bytes``."""
+    """The body exceeds ``settings.server.max_body_bytes`` (``SD_MAX_BODY_BYTES``)."""
 
     status = 413
     kind = "payload_too_large"
@@ -221,8 +224,9 @@ class Unavailable(ServiceError):
     kind = "unavailable"
 
 
-class StoreUnavailableError(Unavailable):
-    """The backing store cannot be reached."""
+class StoreUnavailable(Unavailable, RuntimeError):
+    """The backing store cannot be reached: raised by the store adapters (``app.ports``), naming where and
+    why for the log; the API answers 503 ``store_unavailable`` without either."""
 
     kind = "store_unavailable"
 

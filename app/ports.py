@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Literal, Protocol
 from zoneinfo import ZoneInfo
 
+from app.errors import StoreUnavailable
 from services.model import IntervalKey, Task, TaskId, TaxiId, Visit
 
 __all__ = [
@@ -38,10 +39,6 @@ def local_day(time_s: float, timezone: str) -> str:
     """The calendar day of a POSIX time in ``timezone`` as ``YYYYMMDD``: the day an epoch's demand is
     recorded under (``EpochCommit.demand_day``, ``EpochStore.recorded_demand``)."""
     return dt.datetime.fromtimestamp(time_s, tz=ZoneInfo(timezone)).strftime("%Y%m%d")
-
-
-class StoreUnavailable(RuntimeError):
-    """The backing store cannot be reached (rendered as HTTP 503)."""
 
 
 @dataclass(frozen=True, slots=True)

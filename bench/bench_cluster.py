@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from app.adapters import MemoryStore
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import Executor, Finished, ProcessExecutor, RunCache, Runner, open_bundle
 from app.runs.dask_executor import DaskExecutor
 from app.runs.localcluster import LocalCluster

@@ -32,8 +32,8 @@ from typing import Any
 import httpx
 import numpy as np
 
-from app.cities import CityRegistry
-from app.replay import HttpDispatcher
+from app.adapters.city_registry import CityRegistry
+from app.entrypoints.replay_client import HttpDispatcher
 from app.runs import RunSpec, demand_for, open_bundle, tasks_for
 from bench.report import ROOT, stamp, write_section
 from services.sim.demand import demand_on_date

@@ -246,8 +246,8 @@ def probe_cluster() -> dict[str, Any]:
     import numpy as np
 
     from app.adapters.redis_store import RedisStore
-    from app.replay import HttpDispatcher
-    from app.serve import serve_in_thread
+    from app.entrypoints.replay_client import HttpDispatcher
+    from app.entrypoints.serve import serve_in_thread
     from services.citydata import load_city
     from services.sim.local import LocalDispatcher
     from tests.conftest import _start_cluster, _stop

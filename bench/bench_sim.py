@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import RunSpec, open_bundle, simulate_spec
 from bench.report import ROOT, stamp, write_section
 

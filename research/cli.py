@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.settings import Settings
 from research.experiment import run_experiment
 from research.reference import ExperimentConfig

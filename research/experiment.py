@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from research import figures, report
 from research.reference import ExperimentConfig, rows, specs
 from research.runs import city_of, run_all, versions

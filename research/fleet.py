@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import RunResult, RunSpec
 from app.runs.outcomes import day_outcomes, hourly_volumes
 from research.fleet_config import DEFAULT_ZETAS, FleetExperimentConfig, Variant

@@ -14,7 +14,7 @@ import numpy
 import scipy
 from tqdm import tqdm
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import (
     ExecutorUnavailable,
     Progress,

@@ -49,70 +49,70 @@ def _use_cases(request: Request) -> UseCases:
     return use_cases
 
 
-async def get_cities(request: Request) -> CityCatalog:
+async def cities_catalog(request: Request) -> CityCatalog:
     """The served cities."""
     return _use_cases(request).cities
 
 
-async def get_epochs(request: Request) -> EpochService:
+async def epoch_service(request: Request) -> EpochService:
     """The epoch use cases."""
     return _use_cases(request).epochs
 
 
-async def get_tasks(request: Request) -> TaskService:
+async def task_service(request: Request) -> TaskService:
     """The task use cases."""
     return _use_cases(request).tasks
 
 
-async def get_admin(request: Request) -> AdminService:
+async def admin_service(request: Request) -> AdminService:
     """The admin use cases."""
     return _use_cases(request).admin
 
 
-async def get_coverage(request: Request) -> CoverageService:
+async def coverage_service(request: Request) -> CoverageService:
     """The coverage use case."""
     return _use_cases(request).coverage
 
 
-async def get_readiness(request: Request) -> ReadinessService:
+async def readiness_service(request: Request) -> ReadinessService:
     """The readiness use case."""
     return _use_cases(request).readiness
 
 
-async def get_fleet(request: Request) -> FleetService:
+async def fleet_service(request: Request) -> FleetService:
     """The fleet-sizing use cases."""
     return _use_cases(request).fleet
 
 
-async def get_metrics(request: Request) -> Metrics:
+async def app_metrics(request: Request) -> Metrics:
     """The app's metrics."""
     metrics: Metrics = request.app.state.metrics
     return metrics
 
 
-async def get_settings(request: Request) -> Settings:
+async def app_settings(request: Request) -> Settings:
     """The app's settings."""
     settings: Settings = request.app.state.settings
     return settings
 
 
-CitiesDep = Annotated[CityCatalog, Depends(get_cities)]
-EpochsDep = Annotated[EpochService, Depends(get_epochs)]
-TasksDep = Annotated[TaskService, Depends(get_tasks)]
-AdminDep = Annotated[AdminService, Depends(get_admin)]
-CoverageDep = Annotated[CoverageService, Depends(get_coverage)]
-ReadinessDep = Annotated[ReadinessService, Depends(get_readiness)]
-FleetDep = Annotated[FleetService, Depends(get_fleet)]
-MetricsDep = Annotated[Metrics, Depends(get_metrics)]
-SettingsDep = Annotated[Settings, Depends(get_settings)]
+CitiesDep = Annotated[CityCatalog, Depends(cities_catalog)]
+EpochsDep = Annotated[EpochService, Depends(epoch_service)]
+TasksDep = Annotated[TaskService, Depends(task_service)]
+AdminDep = Annotated[AdminService, Depends(admin_service)]
+CoverageDep = Annotated[CoverageService, Depends(coverage_service)]
+ReadinessDep = Annotated[ReadinessService, Depends(readiness_service)]
+FleetDep = Annotated[FleetService, Depends(fleet_service)]
+MetricsDep = Annotated[Metrics, Depends(app_metrics)]
+SettingsDep = Annotated[Settings, Depends(app_settings)]
 
 
-async def get_limits(settings: SettingsDep) -> Limits:
+async def request_limits(settings: SettingsDep) -> Limits:
     """Items per request, from the settings."""
     return Limits.from_settings(settings)
 
 
-LimitsDep = Annotated[Limits, Depends(get_limits)]
+LimitsDep = Annotated[Limits, Depends(request_limits)]
 
 _bearer = HTTPBearer(
     auto_error=False,
@@ -137,7 +137,7 @@ async def _principal(
         raise Unauthorized("missing bearer token (Authorization: Bearer <token>)")
     given = credentials.credentials.encode()
     match: list[Scope] | None = None
-    for token, scopes in settings.tokens.items():
+    for token, scopes in settings.auth.tokens.items():
         if hmac.compare_digest(token.encode(), given):
             match = scopes
     if match is None:

@@ -11,7 +11,6 @@ from app.api.deps import CitiesDep, CityName, DispatchAccess, EpochsDep, LimitsD
 from app.api.inputs import epoch_command, tasks_of
 from app.api.responses import WRITE_ERRORS
 from app.errors import ServiceError
-from app.ports import StoreUnavailable
 from app.schemas.dispatch import EpochIn, EpochOut
 from app.schemas.tasks import TasksPutOut
 
@@ -70,11 +69,8 @@ def post_epoch(
     try:
         command = epoch_command(catalog.get(city), epoch.body, limits, epoch.taxis, epoch.riders)
         outcome = epochs.submit_epoch(city, command)
-    except ServiceError as err:
+    except ServiceError as err:  # StoreUnavailable included: its kind is store_unavailable
         metrics.epochs.labels(outcome=err.kind).inc()
-        raise
-    except StoreUnavailable:
-        metrics.epochs.labels(outcome="store_unavailable").inc()
         raise
     except Exception:
         metrics.epochs.labels(outcome="error").inc()

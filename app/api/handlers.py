@@ -21,12 +21,11 @@ from app.errors import (
     MethodNotAllowed,
     NotFound,
     ServiceError,
-    StoreUnavailableError,
+    StoreUnavailable,
     UnsupportedMediaType,
     format_loc,
 )
 from app.metrics import Metrics
-from app.ports import StoreUnavailable
 
 __all__ = ["install_error_handlers", "error_response", "from_validation_errors", "MAX_FIELDS"]
 
@@ -131,7 +130,7 @@ def install_error_handlers(app: FastAPI, metrics: Metrics) -> None:
     async def store_unavailable(request: Request, exc: Exception) -> JSONResponse:
         # where the store is (host, port) and why it failed is for the log, never for the client
         log.warning("store unreachable on %s %s: %s", request.method, request.url.path, exc)
-        return error_response(StoreUnavailableError("store unreachable"), metrics)
+        return error_response(StoreUnavailable("store unreachable"), metrics)
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)

@@ -45,7 +45,7 @@ class Limits:
     @classmethod
     def from_settings(cls, settings: Settings) -> Limits:
         """The limits the settings set."""
-        return cls(settings.max_riders, settings.max_taxis, settings.max_tasks)
+        return cls(settings.limits.max_riders, settings.limits.max_taxis, settings.limits.max_tasks)
 
 
 Snapped = dict[int, tuple[int, float]]

@@ -36,7 +36,7 @@ def readyz(readiness: ReadinessDep, settings: SettingsDep) -> ReadyOut:
     """Readiness: start-up's warm-up has finished (every city loaded and the routing kernels compiled or
     read from their cache), the store answers a ping and every city loads (503 otherwise; the error says
     only "store unreachable", never where the store is)."""
-    return ReadyOut(status="ready", store=settings.store, cities=readiness.ready())
+    return ReadyOut(status="ready", store=settings.store.kind, cities=readiness.ready())
 
 
 @router.get(

@@ -7,6 +7,7 @@ from typing import Annotated, Literal, cast
 from pydantic import BeforeValidator, Field, Strict, ValidationInfo, field_validator
 
 from app.schemas.common import RequestModel, ResponseModel, integral
+from app.settings import DivergenceName
 from services.fleet.dro import WorstCase
 
 __all__ = ["MAX_SAMPLES", "MAX_BINS", "WorstCaseIn", "WorstCaseOut"]
@@ -14,7 +15,6 @@ __all__ = ["MAX_SAMPLES", "MAX_BINS", "WorstCaseIn", "WorstCaseOut"]
 MAX_SAMPLES = 100_000
 MAX_BINS = 1_000
 
-DivergenceName = Literal["kl", "burg", "j", "chi2", "modified_chi2", "hellinger", "variation"]
 FiniteFloat = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 
 

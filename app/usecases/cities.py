@@ -1,4 +1,5 @@
-"""The served cities, as the use cases see them: a catalog by name (``app.cities.CityRegistry``)."""
+"""The served cities, as the use cases see them: a catalog by name
+(``app.adapters.city_registry.CityRegistry``)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,11 @@ __all__ = ["CityCatalog"]
 
 
 class CityCatalog(Protocol):
-    """The served cities (implemented by ``app.cities.CityRegistry``)."""
+    """The served cities (implemented by ``app.adapters.city_registry.CityRegistry``)."""
 
     def names(self) -> list[str]:
         """The served cities' names, sorted."""
         ...
 
     def get(self, name: str) -> City:
-        """The city; raises ``app.errors.UnknownCityError`` (or a subclass) when not served."""
+        """The city; raises ``app.errors.UnknownCity`` when not served."""

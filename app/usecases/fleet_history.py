@@ -30,7 +30,7 @@ from services.network.network import SnapError
 from services.sim.demand import DemandSet, Request
 
 if TYPE_CHECKING:
-    from app.settings import Settings
+    from app.settings import SizingSettings
 
 __all__ = [
     "DemandLog",
@@ -355,23 +355,16 @@ class SizingConfig:
             raise ValueError(f"days must be at least 2 (M samples per size), got {self.days}")
 
     @classmethod
-    def from_settings(cls, s: Settings) -> SizingConfig:
-        """The configuration the settings describe; recorded demand is looked for as far back as kept."""
+    def from_settings(cls, sizing: SizingSettings, retention_s: int) -> SizingConfig:
+        """The configuration the sizing settings describe (the group's fields are this class's, but for
+        the four of the ambiguity set); recorded demand is looked for as far back as it is kept
+        (``retention_s``)."""
+        values = sizing.model_dump(exclude={"divergence", "alpha", "support", "bins"})
+        values.update(sizes=tuple(sorted(sizing.sizes)), subsidy_sweep=tuple(sizing.subsidy_sweep))
         return cls(
-            sizes=tuple(sorted(s.worker_sizes)),
-            days=s.worker_days,
-            ambiguity=Ambiguity(s.worker_divergence, s.worker_alpha, s.worker_support, s.worker_bins),
-            completion_target=s.worker_completion_target,
-            subsidy_cny_per_vehicle_hour=s.worker_subsidy_cny_per_vehicle_hour,
-            subsidy_sweep=tuple(s.worker_subsidy_sweep),
-            rolling_days=s.worker_rolling_days,
-            reach_s=s.worker_reach_s,
-            vary_tasks=s.worker_vary_tasks,
-            n0=s.worker_n0,
-            n_tasks=s.worker_tasks,
-            rate_per_hour=s.worker_rate_per_hour,
-            seed=s.worker_seed,
-            lookback_days=max(1, s.retention_s // 86400 + 1),
+            **values,
+            ambiguity=Ambiguity(sizing.divergence, sizing.alpha, sizing.support, sizing.bins),
+            lookback_days=max(1, retention_s // 86400 + 1),
         )
 
     def for_city(self, params: FleetParams) -> SizingConfig:

@@ -81,7 +81,8 @@ def lock_name(interval: int) -> str:
 
 
 class BundleCatalog(CityCatalog, Protocol):
-    """The served cities and where each one's bundle lies (the runs read it; ``app.cities.CityRegistry``)."""
+    """The served cities and where each one's bundle lies (the runs read it;
+    ``app.adapters.city_registry.CityRegistry``)."""
 
     def bundle_dir(self, name: str) -> Path:
         """The directory of the city's bundle."""
@@ -291,7 +292,7 @@ class FleetSolver:
         return self.history.defaults
 
     def load_city(self, name: str) -> City:
-        """The city (``UnknownCity`` when the catalog does not serve it)."""
+        """The city (``app.errors.UnknownCity`` when the catalog does not serve it)."""
         return self.cities.get(name)
 
     # ------------------------------------------------------------------ requests and heartbeat

@@ -16,19 +16,20 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
+from dataclasses import dataclass
 from typing import Literal
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
 from app.ports import StoreUnavailable
-from app.runs import Progress
+from app.runs import Progress, Runner
 from app.usecases.fleet_solve import FleetSolver, SolveOutcome
-from app.worker.heartbeat import WorkerStatus
+from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.schedule import coming_interval, due_interval
 from services.city import Horizon
 from services.model import IntervalKey
 
-__all__ = ["WorkerMetrics", "FleetWorker"]
+__all__ = ["WorkerMetrics", "FleetWorker", "AssembledWorker"]
 
 log = logging.getLogger(__name__)
 
@@ -200,3 +201,22 @@ class FleetWorker:
             except Exception:
                 log.exception("fleet worker: a pass failed; next pass in %.0f s", self.poll_s)
             stop.wait(self.poll_s)
+
+
+@dataclass(frozen=True, slots=True)
+class AssembledWorker:
+    """A worker's parts (``app.bootstrap.build_worker``): the loop, its heartbeat (not started), the runner
+    to close, its metrics."""
+
+    worker: FleetWorker
+    heartbeat: Heartbeat
+    runner: Runner
+    metrics: WorkerMetrics
+
+    def serve(self, stop: threading.Event) -> None:
+        """Beat and run the loop until ``stop`` is set; then stop beating (the runner stays open)."""
+        self.heartbeat.start()
+        try:
+            self.worker.run(stop)
+        finally:
+            self.heartbeat.stop()

@@ -6,8 +6,8 @@ and state), asks a ``Dispatcher`` for the decision and applies it: matched taxis
 network speed (busy until the drop-off), Step 3 taxis drive to their POI (vacant again from the epoch after
 arrival), unmatched riders wait until their patience runs out, and vacant taxis with no job drift toward
 cells of high recent request density. The dispatcher is the core in-process (``LocalDispatcher``) or a
-running service over HTTP (``app.replay``): the simulator cannot tell them apart, so for the same seed
-both give the same run.
+running service over HTTP (``app.entrypoints.replay_client``): the simulator cannot tell them apart, so
+for the same seed both give the same run.
 """
 
 from __future__ import annotations

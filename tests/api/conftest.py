@@ -10,8 +10,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters import MemoryStore, RedisStore
-from app.cities import CityRegistry
-from app.main import create_app
+from app.adapters.city_registry import CityRegistry
+from app.bootstrap import create_app
 from app.ports import Store
 from app.settings import Settings
 from app.usecases import DecideFn

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from app import cli
-from app.demo import DemoConfig, run_demo
+from app.entrypoints import cli
+from app.entrypoints.demo import DemoConfig, run_demo
 from app.settings import Settings
 
 
@@ -28,9 +28,13 @@ def test_openapi_writes_the_document(tmp_path: Path) -> None:
 
 
 def test_dev_settings_make_a_token_and_bind_loopback() -> None:
-    s, token = cli.dev_settings(Settings(tokens={}, host="0.0.0.0"))
-    assert token is not None and s.tokens == {token: ["read", "dispatch", "admin"]} and s.host == "127.0.0.1"
-    configured = Settings(tokens={"abcdefgh123": ["read"]}, host="0.0.0.0")
+    s, token = cli.dev_settings(Settings().with_values(tokens={}, host="0.0.0.0"))
+    assert (
+        token is not None
+        and s.auth.tokens == {token: ["read", "dispatch", "admin"]}
+        and s.server.host == "127.0.0.1"
+    )
+    configured = Settings().with_values(tokens={"abcdefgh123": ["read"]}, host="0.0.0.0")
     assert cli.dev_settings(configured) == (configured, None)
 
 
@@ -40,9 +44,9 @@ def test_settings_from_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("SD_MAX_BODY_BYTES", "2048")
     s = Settings()
     assert (
-        s.tokens == {"tok1-abcdefgh": ["read", "dispatch"]}
-        and s.store == "redis"
-        and s.max_body_bytes == 2048
+        s.auth.tokens == {"tok1-abcdefgh": ["read", "dispatch"]}
+        and s.store.kind == "redis"
+        and s.server.max_body_bytes == 2048
     )
     monkeypatch.setenv("SD_TOKENS", '{"tok1-abcdefgh": ["root"]}')
     with pytest.raises(ValueError):

@@ -11,7 +11,7 @@ from zoneinfo import ZoneInfo
 import pytest
 from fastapi.testclient import TestClient
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.ports import (
     EpochCommit,
     FleetRecord,

@@ -12,10 +12,10 @@ from collections.abc import Callable, Sequence
 import httpx
 
 from app.adapters import MemoryStore
-from app.cities import CityRegistry
-from app.main import create_app
+from app.adapters.city_registry import CityRegistry
+from app.bootstrap import create_app
+from app.entrypoints.serve import serve_app_in_thread
 from app.ports import CityState
-from app.serve import serve_app_in_thread
 from services.model import IntervalKey, TaxiId
 from tests.api.conftest import CITY, READ, auth, settings
 from tests.api.fakes import FakeDecide

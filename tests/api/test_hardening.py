@@ -20,9 +20,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters import MemoryStore, RedisStore
+from app.adapters.city_registry import CityRegistry
 from app.api.handlers import MAX_FIELDS
-from app.cities import CityRegistry
-from app.main import create_app
+from app.bootstrap import create_app
 from app.ports import CommitResult, EpochCommit, Store
 from tests.api import payloads
 from tests.api.conftest import CITY, TOKENS, auth, fingerprint

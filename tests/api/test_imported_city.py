@@ -10,9 +10,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from app import cli
 from app.adapters.memory_store import MemoryStore
-from app.main import create_app
+from app.bootstrap import create_app
+from app.entrypoints import cli
 from app.settings import Settings
 
 TOKEN = "import-token-0001"
@@ -59,7 +59,9 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
         ]
     )
     assert rc == 0
-    app = create_app(Settings(tokens={TOKEN: ["read", "dispatch"]}, cities_dir=out), store=MemoryStore())
+    app = create_app(
+        Settings().with_values(tokens={TOKEN: ["read", "dispatch"]}, cities_dir=out), store=MemoryStore()
+    )
     with TestClient(app) as c:
         yield c
 

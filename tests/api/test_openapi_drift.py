@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from app.cli import OPENAPI_PATH, openapi_document
+from app.entrypoints.cli import OPENAPI_PATH, openapi_document
 
 
 def test_committed_openapi_matches_the_app() -> None:

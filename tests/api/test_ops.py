@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 
 from app.adapters import RedisStore
-from app.cities import CityRegistry
-from app.main import GC_THRESHOLD, create_app
+from app.adapters.city_registry import CityRegistry
+from app.api.warmup import GC_THRESHOLD
+from app.bootstrap import create_app
 from services.city import City
 from tests.api import payloads
 from tests.api.conftest import CITY, MakeClient, auth, settings

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from app.adapters.city_registry import CityRegistry
 from app.api.bodies import _json, _validate, epoch_post
 from app.api.inputs import Limits, epoch_command, snapshot_of
-from app.cities import CityRegistry
 from app.errors import ServiceError
 from app.schemas.dispatch import EpochIn, body_hash, plain_taxis
 from app.usecases import EpochCommand

@@ -1,6 +1,6 @@
 """What the service process (``python -m app run``) does for its memory: glibc's mmap threshold fixed
-(``app.server.tune_allocator``), and the kernels compiled in a child process (``app.main._compile_apart``).
-Each check runs in a fresh process: both act on the whole process."""
+(``app.entrypoints.server.tune_allocator``), and the kernels compiled in a child process
+(``app.api.warmup.compile_apart``). Each check runs in a fresh process: both act on the whole process."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from app.cities import BUNDLED_DIR, CityRegistry
-from app.main import _compile_apart
+from app.adapters.city_registry import BUNDLED_DIR, CityRegistry
+from app.api.warmup import compile_apart
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -25,7 +25,7 @@ libc.malloc.restype = ctypes.c_void_p
 libc.malloc.argtypes = [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
 if sys.argv[1] == "tuned":
-    from app.server import tune_allocator
+    from app.entrypoints.server import tune_allocator
     assert tune_allocator()
 
 def rss_mb():
@@ -69,9 +69,10 @@ def test_after_compiling_apart_the_warm_up_only_reads_the_cache() -> None:
     network file is the smaller), then every bundled city warmed up here with no kernel compiled (every
     signature read from numba's cache)."""
     code = (
-        "import json; from app.cities import CityRegistry; from app.main import _compile_apart; "
+        "import json; from app.adapters.city_registry import CityRegistry; "
+        "from app.api.warmup import compile_apart; "
         "from services.dispatch import warm_up; from tests.unit.test_warm_up import compiled_functions; "
-        "reg = CityRegistry(); warmed = _compile_apart(reg); [warm_up(reg.get(n)) for n in reg.names()]; "
+        "reg = CityRegistry(); warmed = compile_apart(reg); [warm_up(reg.get(n)) for n in reg.names()]; "
         "fs = compiled_functions().values(); "
         "print(json.dumps([warmed, sum(sum(f.stats.cache_misses.values()) for f in fs), "
         "sum(sum(f.stats.cache_hits.values()) for f in fs)]))"
@@ -95,6 +96,6 @@ def test_a_child_that_fails_is_logged_and_the_warm_up_goes_on(
     meta = json.loads((broken / "city.json").read_text())
     meta["name"] = "tiny"
     (broken / "city.json").write_text(json.dumps(meta))
-    with caplog.at_level(logging.WARNING, logger="app.main"):
-        assert _compile_apart(CityRegistry(user_dir=tmp_path)) is None
+    with caplog.at_level(logging.WARNING, logger="app.api.warmup"):
+        assert compile_apart(CityRegistry(user_dir=tmp_path)) is None
     assert "compiling the kernels in a child process failed" in caplog.text

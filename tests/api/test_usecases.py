@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from app.adapters import MemoryStore
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.errors import EpochConflict, NoData, TaskConflict, UnknownEpoch
 from app.schemas.dispatch import EpochIn, body_hash
 from app.usecases import EpochCommand, EpochResult, StoredDecision, UseCases

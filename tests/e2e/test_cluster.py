@@ -16,14 +16,14 @@ import httpx
 import pytest
 
 from app.adapters import MemoryStore
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
+from app.entrypoints.worker import main as worker_main
 from app.runs import Event, Executor, Progress, RunCache, RunJob, Runner, RunResult, Started
 from app.runs.dask_executor import DaskExecutor
 from app.runs.localcluster import LocalCluster, free_port
 from app.runs.workload import open_bundle
 from app.schemas.fleet import render_recommendation
 from app.usecases.fleet_solve import FleetSolver
-from app.worker import main as worker_main
 from app.worker.service import WorkerMetrics
 from services.model import IntervalKey
 from tests.e2e.cluster_tasks import where_opened

@@ -26,9 +26,9 @@ import numpy as np
 from PIL import Image
 from playwright.sync_api import Browser, ConsoleMessage, Page, Response, expect
 
+from app.adapters.city_registry import CityRegistry
 from app.adapters.redis_store import RedisStore
-from app.cities import CityRegistry
-from app.replay import HttpDispatcher
+from app.entrypoints.replay_client import HttpDispatcher
 from app.runs import RunCache, Runner
 from app.schemas.fleet import render_recommendation
 from app.usecases.fleet_history import SizingConfig

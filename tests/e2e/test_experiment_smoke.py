@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cities import CityRegistry
-from app.replay_cli import replay_main
+from app.adapters.city_registry import CityRegistry
+from app.entrypoints.replay import replay_main
 from app.runs import RunJob, RunResult, runner
 from research.cli import experiment_main, fleet_experiment_main, main
 from research.reference import ExperimentConfig, specs

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from app.adapters.redis_store import RedisStore
-from app.replay import HttpDispatcher
-from app.serve import serve_in_thread
+from app.entrypoints.replay_client import HttpDispatcher
+from app.entrypoints.serve import serve_in_thread
 from services.city import City
 from services.citydata import load_city
 from services.sim.demand import DemandSet, Request

@@ -1,7 +1,7 @@
 """A bounded, seeded schemathesis run of every operation of the OpenAPI document against the real service
-(bundled cities, the real dispatch core, an in-memory store, ``app.server``'s uvicorn), with every check
-schemathesis has but one: no server error (5xx), and every response conforming to the document (status
-codes, content types, headers, schemas), schema-invalid requests refused.
+(bundled cities, the real dispatch core, an in-memory store, ``app.entrypoints.server``'s uvicorn), with
+every check schemathesis has but one: no server error (5xx), and every response conforming to the document
+(status codes, content types, headers, schemas), schema-invalid requests refused.
 
 The check left out is ``positive_data_acceptance`` ("a schema-valid request must be accepted"): a few rules
 cannot be written in JSON Schema, and the server rightly answers 422 to them: ids unique within a request,
@@ -19,11 +19,11 @@ import tempfile
 from pathlib import Path
 
 from app.adapters import MemoryStore
-from app.cities import CityRegistry
-from app.main import create_app
+from app.adapters.city_registry import CityRegistry
+from app.bootstrap import create_app
+from app.entrypoints.serve import serve_app_in_thread
 from app.runs import RunCache, Runner
 from app.schemas.fleet import render_recommendation
-from app.serve import serve_app_in_thread
 from app.settings import Settings
 from app.usecases.fleet_history import SizingConfig
 from app.usecases.fleet_solve import FleetSolver
@@ -37,7 +37,9 @@ def run_schemathesis(max_examples: int) -> tuple[int, str]:
     """Run ``st run`` against a fresh in-thread service; its exit code and output."""
     binary = shutil.which("st", path=str(Path(sys.executable).parent))
     assert binary is not None, "schemathesis is a dev dependency: pip install -e '.[dev]'"
-    settings = Settings(tokens={TOKEN: ["read", "dispatch", "admin"]}, store="memory", log_level="error")
+    settings = Settings().with_values(
+        tokens={TOKEN: ["read", "dispatch", "admin"]}, store="memory", log_level="error"
+    )
     store = MemoryStore()
     app = create_app(settings, store=store)
     # a fleet worker's heartbeat (it never solves): a solve request is queued, as a deployment answers it

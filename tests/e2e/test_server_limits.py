@@ -12,7 +12,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from app.serve import serve_in_thread
+from app.entrypoints.serve import serve_in_thread
 from tests.e2e.service import start_process, stop, wait_ready
 
 CAP = 8

@@ -19,7 +19,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters.memory_store import MemoryStore
-from app.main import create_app
+from app.bootstrap import create_app
 from app.settings import Settings
 from services.citydata import load_city
 from tests.e2e.service import ROOT, start_service, stop, wait_ready
@@ -134,7 +134,7 @@ def test_two_processes_count_like_one(two_services: tuple[str, str]) -> None:
             two = _coverage(ca, labels)
 
     # the same epochs, once each, to one in-process service
-    one_app = create_app(Settings(tokens={TOKEN: ["read", "dispatch"]}), store=MemoryStore())
+    one_app = create_app(Settings().with_values(tokens={TOKEN: ["read", "dispatch"]}), store=MemoryStore())
     with TestClient(one_app) as one:
         assert one.post(f"/v1/cities/{CITY}/tasks", json=tasks, headers=AUTH).status_code in (200, 201)
         want = []

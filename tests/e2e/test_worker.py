@@ -19,8 +19,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.adapters import MemoryStore, RedisStore
-from app.cities import CityRegistry
-from app.main import create_app
+from app.adapters.city_registry import CityRegistry
+from app.bootstrap import create_app
+from app.entrypoints.worker import main as worker_main
 from app.ports import EpochCommit, SolveRequest, Store, local_day
 from app.runs import (
     ProcessExecutor,
@@ -39,7 +40,6 @@ from app.schemas.fleet import render_recommendation
 from app.settings import Settings
 from app.usecases.fleet_history import SizingConfig
 from app.usecases.fleet_solve import FleetSolver, SolveOutcome
-from app.worker import main as worker_main
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import FleetWorker
 from services.sim.demand import DemandSet, Request
@@ -108,7 +108,7 @@ def worker(
 
 
 def client_for(store: Store, clock: Callable[[], float] | None = None) -> TestClient:
-    settings = Settings(tokens={TOKEN: ["read"], ADMIN: ["admin"]})
+    settings = Settings().with_values(tokens={TOKEN: ["read"], ADMIN: ["admin"]})
     return TestClient(create_app(settings, store=store, clock=clock))
 
 

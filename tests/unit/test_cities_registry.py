@@ -10,7 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cities import BUNDLED_DIR, CityRegistry, UnknownCity, import_city, import_city_cli
+from app.adapters.city_registry import BUNDLED_DIR, CityRegistry, import_city
+from app.entrypoints.import_city import import_city_cli
+from app.errors import UnknownCity
 from services.city import FleetParams
 from services.citydata import CityDataError, CityMeta, load_city
 from services.network.network import SnapError

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from pyproj import Geod, Transformer
 
-from app.cities import BUNDLED_DIR, CityRegistry
+from app.adapters.city_registry import BUNDLED_DIR, CityRegistry
 from services.city import City
 from services.geojson import DECIMALS, cell_rings, grid_geojson, network_geojson, routes_geojson
 from services.model import RiderId, RiderMatch, Task, TaskAssignment, TaskId, TaxiId

@@ -82,13 +82,8 @@ STORE_PARTS = {
     "WorkerStore",
 }
 """The store port's protocols (``app.ports``): what a use case takes (its records and errors are free)."""
-COMPOSITION = {"app/worker/assembly.py", "app/worker/embedded.py", "app/worker/cli.py"}
-"""Where the worker is put together: they hand the store to the use cases."""
-CALLERS = sorted(
-    p
-    for p in [*(APP / "api").glob("*.py"), *(APP / "worker").glob("*.py")]
-    if str(p.relative_to(APP.parent)) not in COMPOSITION
-)
+CALLERS = sorted([*(APP / "api").glob("*.py"), *(APP / "worker").glob("*.py")])
+"""The API and the worker; the composition root (``app/bootstrap.py``) hands them the store's use cases."""
 
 
 def _store_imports(path: Path) -> list[str]:

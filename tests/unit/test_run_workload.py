@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cities import BUNDLED_DIR
+from app.adapters.city_registry import BUNDLED_DIR
 from app.runs.spec import RunJob, RunSpec
 from app.runs.workload import NoDemandSource, check_demand_source, run_job
 from services.citydata import CityDataError

@@ -18,7 +18,8 @@ import pytest
 from pydantic import ValidationError
 
 from app.adapters import MemoryStore
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
+from app.entrypoints.worker import parser, settings_from_args
 from app.ports import EpochCommit, SolveRequest, local_day
 from app.runs import (
     RunCache,
@@ -61,7 +62,6 @@ from app.usecases.fleet_solve import (
     TaskSet,
     observed_today,
 )
-from app.worker.cli import parser, settings_from_args
 from app.worker.schedule import coming_interval, due_interval
 from services.city import City, FleetParams, Horizon
 from services.fleet.dro import DIVERGENCE_NAMES
@@ -588,14 +588,16 @@ def test_divergence_names_match_the_engine() -> None:
 
 
 def test_settings_and_config() -> None:
-    s = Settings(worker_sizes=[40, 20], worker_days=3, worker_divergence="burg", retention_s=3 * 86400)
-    cfg = SizingConfig.from_settings(s)
+    s = Settings().with_values(
+        worker_sizes=[40, 20], worker_days=3, worker_divergence="burg", retention_s=3 * 86400
+    )
+    cfg = SizingConfig.from_settings(s.sizing, s.store.retention_s)
     assert cfg.sizes == (20, 40) and cfg.days == 3 and cfg.ambiguity.divergence == "burg"
     assert cfg.lookback_days == 4 and cfg.completion_target is None
     assert cfg.subsidy_cny_per_vehicle_hour == SUBSIDY_DEFAULT_CNY_PER_VEHICLE_HOUR > 0.0
     assert cfg.subsidy_sweep == SUBSIDY_SWEEP_DEFAULT and cfg.rolling_days == 7 and not cfg.vary_tasks
-    assert Settings(worker_subsidy_sweep=[2.0, 0.5, 2.0]).worker_subsidy_sweep == [0.5, 2.0]
-    assert Settings(tokens={"abcdefgh12": ["admin"]}).tokens == {"abcdefgh12": ["admin"]}
+    assert Settings().with_values(worker_subsidy_sweep=[2.0, 0.5, 2.0]).sizing.subsidy_sweep == [0.5, 2.0]
+    assert Settings().with_values(tokens={"abcdefgh12": ["admin"]}).auth.tokens == {"abcdefgh12": ["admin"]}
     bad_settings: list[dict[str, Any]] = [
         {"worker_sizes": [10, 10]},
         {"worker_sizes": [0]},
@@ -615,22 +617,22 @@ def test_settings_and_config() -> None:
 
 
 def test_the_service_embeds_the_worker_on_the_memory_store_unless_told() -> None:
-    assert Settings().embeds_worker() and not Settings(store="redis").embeds_worker()
-    assert Settings(store="redis", worker_embedded="on").embeds_worker()
-    assert not Settings(worker_embedded="off").embeds_worker()
+    assert Settings().embeds_worker() and not Settings().with_values(store="redis").embeds_worker()
+    assert Settings().with_values(store="redis", worker_embedded="on").embeds_worker()
+    assert not Settings().with_values(worker_embedded="off").embeds_worker()
 
 
 def test_an_embedded_worker_with_an_unknown_city_does_not_start(
     tiny_cities: CityRegistry, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from app.worker.embedded import EmbeddedWorker
+    from app.bootstrap import embedded_worker
 
-    worker = EmbeddedWorker(Settings(worker_cities=[CITY, "atlantis"]), MemoryStore(), tiny_cities)
     with caplog.at_level(logging.ERROR):
-        worker.start()
-    assert worker.parts is None
+        worker = embedded_worker(
+            Settings().with_values(worker_cities=[CITY, "atlantis"]), MemoryStore(), tiny_cities
+        )
+    assert worker is None
     assert "unknown cities ['atlantis'] in SD_WORKER_CITIES; served: ['tiny']" in caplog.text
-    worker.stop()
 
 
 def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -652,11 +654,11 @@ def test_options_override_the_environment(monkeypatch: pytest.MonkeyPatch) -> No
     ]
     args = parser().parse_args(options)
     s = settings_from_args(args)
-    assert s.worker_sizes == [2, 4] and s.worker_completion_target == 0.9 and s.worker_cities == ["chengdu"]
-    assert s.worker_subsidy_cny_per_vehicle_hour == 0.5
-    assert s.worker_divergence == "chi2" and s.worker_jobs == 1 and s.worker_days == 7
-    assert settings_from_args(parser().parse_args([])).worker_completion_target is None
-    assert settings_from_args(parser().parse_args(["--target", "off"])).worker_completion_target is None
+    assert s.sizing.sizes == [2, 4] and s.sizing.completion_target == 0.9 and s.worker.cities == ["chengdu"]
+    assert s.sizing.subsidy_cny_per_vehicle_hour == 0.5
+    assert s.sizing.divergence == "chi2" and s.runs.jobs == 1 and s.sizing.days == 7
+    assert settings_from_args(parser().parse_args([])).sizing.completion_target is None
+    assert settings_from_args(parser().parse_args(["--target", "off"])).sizing.completion_target is None
     with pytest.raises(SystemExit):
         parser().parse_args(["--sizes", "two"])
     with pytest.raises(ValidationError):

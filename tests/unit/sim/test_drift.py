@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse.csgraph as cg
 from numpy.typing import NDArray
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import RunSpec, open_bundle
 from app.runs.workload import demand_for, tasks_for
 from services.city import City, Horizon

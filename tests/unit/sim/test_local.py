@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import RunSpec, open_bundle
 from app.runs.workload import demand_for, tasks_for
 from services.ledger import ledger_view

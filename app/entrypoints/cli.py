@@ -21,7 +21,7 @@ __all__ = [
 ]
 
 _MOVED = ("experiment", "fleet-experiment")  # now `python -m research ...`
-OPENAPI_PATH = Path(__file__).resolve().parent.parent / "openapi" / "openapi.json"
+OPENAPI_PATH = Path(__file__).resolve().parents[2] / "openapi" / "openapi.json"
 _LOOPBACK = {"127.0.0.1", "localhost", "::1"}
 
 
@@ -32,20 +32,18 @@ def new_token() -> str:
 
 def dev_settings(settings: Settings) -> tuple[Settings, str | None]:
     """With no configured tokens: add a random token with every scope and bind loopback only."""
-    if settings.tokens:
+    if settings.auth.tokens:
         return settings, None
     token = new_token()
-    return settings.model_copy(
-        update={"tokens": {token: ["read", "dispatch", "admin"]}, "host": "127.0.0.1"}
-    ), token
+    return settings.with_values(tokens={token: ["read", "dispatch", "admin"]}, host="127.0.0.1"), token
 
 
 def openapi_document() -> str:
     """The OpenAPI document of the app, as committed in ``openapi/openapi.json``."""
     from app.adapters.memory_store import MemoryStore
-    from app.main import create_app
+    from app.bootstrap import create_app
 
-    app = create_app(Settings(tokens={}, store="memory"), store=MemoryStore())
+    app = create_app(Settings().with_values(tokens={}, store="memory"), store=MemoryStore())
     return json.dumps(app.openapi(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
 
 
@@ -61,17 +59,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
+    from app.bootstrap import create_app
+    from app.entrypoints.server import server_config, tune_allocator
     from app.logs import log_config
-    from app.main import create_app
-    from app.server import server_config, tune_allocator
 
     tune_allocator()
     settings = Settings()
     if args.host is not None or args.port is not None:
-        settings = settings.model_copy(
-            update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
-        )
-    requested_host = settings.host
+        given = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
+        settings = settings.with_values(**given)
+    requested_host = settings.server.host
     settings, token = dev_settings(settings)
     logging.config.dictConfig(log_config(settings.log_level))
     if token is not None:
@@ -81,7 +78,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             )
         print(f"development token (scopes read, dispatch, admin): {token}", flush=True)
         print(
-            f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.port}/v1/cities",
+            f"  try: curl -H 'Authorization: Bearer {token}' http://127.0.0.1:{settings.server.port}/v1/cities",
             flush=True,
         )
     embed = settings.embeds_worker()
@@ -97,7 +94,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from app.demo import DemoConfig, run_demo
+    from app.entrypoints.demo import DemoConfig, run_demo
 
     config = DemoConfig(
         city=args.city,
@@ -168,15 +165,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m app`` and ``sensedispatch``; returns the exit code."""
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] == "import-city":
-        from app.cities import import_city_cli
+        from app.entrypoints.import_city import import_city_cli
 
-        return import_city_cli(args_list[1:], default_out=Settings().cities_dir)
+        return import_city_cli(args_list[1:], default_out=Settings().cities.user_dir)
     if args_list and args_list[0] == "replay":
-        from app.replay_cli import replay_main
+        from app.entrypoints.replay import replay_main
 
         return replay_main(args_list[1:])
     if args_list and args_list[0] == "worker":
-        from app.worker import main as worker_main
+        from app.entrypoints.worker import main as worker_main
 
         return worker_main(args_list[1:])
     if args_list and args_list[0] in _MOVED:

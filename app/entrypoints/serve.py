@@ -22,10 +22,11 @@ def serve_in_thread(
     """Start uvicorn on 127.0.0.1 (free port) in a background thread; yield ``(url, token)``.
 
     ``store`` defaults to a fresh in-memory store; the token has scopes ``read`` and ``dispatch``; the
-    server is ``app.server``'s (header deadline, connection cap), ``settings_overrides`` go to ``Settings``.
+    server is ``app.entrypoints.server``'s (header deadline, connection cap), ``settings_overrides`` go to
+    ``Settings``.
     """
     from app.adapters.memory_store import MemoryStore
-    from app.main import create_app
+    from app.bootstrap import create_app
     from app.settings import Settings
 
     token = "sd_" + secrets.token_urlsafe(24)
@@ -38,10 +39,11 @@ def serve_in_thread(
 
 @contextmanager
 def serve_app_in_thread(app: Any, settings: Settings, timeout_s: float = 60.0) -> Iterator[str]:
-    """Serve ``app`` with ``app.server``'s uvicorn on a free loopback port in a thread; yield its URL."""
+    """Serve ``app`` with ``app.entrypoints.server``'s uvicorn on a free loopback port in a thread; yield
+    its URL."""
     import uvicorn
 
-    from app.server import server_config
+    from app.entrypoints.server import server_config
 
     # the process's logging is the caller's (pytest's, the demo's): no dictConfig from a thread
     config = server_config(app, settings, host="127.0.0.1", port=0, log_level="warning", log_config=None)

@@ -172,7 +172,7 @@ def service_client(url: str | None, token: str | None, log: TextIO) -> Iterator[
         with httpx.Client(base_url=url.rstrip("/"), headers=headers, timeout=300.0) as client:
             yield client
         return
-    from app.serve import serve_in_thread
+    from app.entrypoints.serve import serve_in_thread
 
     with serve_in_thread() as (local_url, local_token):
         print(f"started the service in-process at {local_url} (memory store)", file=log, flush=True)

@@ -12,9 +12,9 @@ from typing import Any, get_args
 
 from pydantic import ValidationError
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
+from app.bootstrap import build_worker, make_store, worker_cities
 from app.settings import DivergenceName, Settings
-from app.worker.assembly import assemble_worker, worker_cities
 
 __all__ = ["main", "parser", "settings_from_args"]
 
@@ -125,15 +125,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         print(f"python -m app worker: unknown cities {unknown}; served: {registry.names()}", file=sys.stderr)
         return 2
-    kept_days = settings.retention_s // 86400
-    if kept_days < settings.worker_days:
+    kept_days = settings.store.retention_s // 86400
+    if kept_days < settings.sizing.days:
         log.warning(
             "recorded demand is kept %d day(s) (SD_RETENTION_S) but a solve needs M = %d days "
             "(SD_WORKER_DAYS): solves will use the seeded synthetic history",
             kept_days,
-            settings.worker_days,
+            settings.sizing.days,
         )
-    if settings.store == "memory":
+    if settings.store.kind == "memory":
         if not args.once:
             print(
                 "python -m app worker: SD_STORE=memory: no API could read this worker's results. On the "
@@ -144,17 +144,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         log.warning("SD_STORE=memory: this solve's recommendation lives in this process only")
 
-    from app.main import make_store
-
     store = make_store(settings)
-    parts = assemble_worker(settings, store, registry, cities, embedded=False)
+    parts = build_worker(settings, store, registry, cities, embedded=False)
     worker = parts.worker
-    if settings.worker_executor == "dask":
-        log.info("simulation runs go to the Dask scheduler at %s", settings.dask_scheduler)
-    if settings.worker_metrics_port is not None and not args.once:
+    if settings.runs.executor == "dask":
+        log.info("simulation runs go to the Dask scheduler at %s", settings.runs.dask_scheduler)
+    if settings.worker.metrics_port is not None and not args.once:
         from prometheus_client import start_http_server
 
-        start_http_server(settings.worker_metrics_port, registry=parts.metrics.registry)
+        start_http_server(settings.worker.metrics_port, registry=parts.metrics.registry)
     try:
         if args.once:
             ok = True

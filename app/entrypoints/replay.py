@@ -13,7 +13,7 @@ from typing import TextIO
 
 from tqdm import tqdm
 
-from app.cities import CityRegistry
+from app.adapters.city_registry import CityRegistry
 from app.runs import RunSpec, demand_for, open_bundle, tasks_for
 from app.settings import Settings
 from services.city import City
@@ -134,7 +134,7 @@ def _replay(
     config: SimConfig,
     tick: Callable[[int, int], None],
 ) -> RunTrace | None:
-    from app.replay import HttpDispatcher, ReplayError, service_client
+    from app.entrypoints.replay_client import HttpDispatcher, ReplayError, service_client
 
     if args.inprocess:
         c = city

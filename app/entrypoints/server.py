@@ -130,11 +130,11 @@ def guarded_protocol(header_timeout_s: float, max_connections: int) -> type[Guar
 
 def server_config(app: Any, settings: Settings, **overrides: Any) -> uvicorn.Config:
     """uvicorn's configuration for ``app`` under ``settings`` (``overrides`` win, e.g. ``port=0``)."""
-    max_connections = settings.max_connections or default_max_connections()
+    max_connections = settings.server.max_connections or default_max_connections()
     options: dict[str, Any] = {
-        "host": settings.host,
-        "port": settings.port,
-        "http": guarded_protocol(settings.header_timeout_s, max_connections),
+        "host": settings.server.host,
+        "port": settings.server.port,
+        "http": guarded_protocol(settings.server.header_timeout_s, max_connections),
         "log_config": log_config(settings.log_level),
         "log_level": settings.log_level,
         "timeout_keep_alive": 5,

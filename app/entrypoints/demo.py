@@ -2,8 +2,8 @@
 in this process, or ``--url``), each decision printed as it comes back.
 
 The demo is a short replay: the simulator (``services.sim.engine.simulate``) drives the service through the
-replay client (``app.replay.HttpDispatcher``) on the city's demand generator; ``Narrator`` only prints what
-passes between them.
+replay client (``app.entrypoints.replay_client.HttpDispatcher``) on the city's demand generator;
+``Narrator`` only prints what passes between them.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import httpx
 import numpy as np
 from numpy.typing import NDArray
 
-from app.cities import CityRegistry
-from app.replay import HttpDispatcher, ReplayError, service_client
+from app.adapters.city_registry import CityRegistry
+from app.entrypoints.replay_client import HttpDispatcher, ReplayError, service_client
 from app.runs import RunSpec, demand_for, open_bundle
 from app.settings import Settings
 from services.city import City
