@@ -14,11 +14,12 @@ import pytest
 from app.adapters import RedisStore
 from app.ports import CityState, Store
 from services.ledger import Ledger, apply_decision
-from services.model import IntervalKey, Task, TaskId, TaxiId, Visit
+from services.model import IntervalKey, Task, TaskId, TaskStatus, TaxiId, Visit
 
 from .conftest import StoreCase
 from .test_store_contract import CITY, T0, commit, task
 
+STATUSES: tuple[TaskStatus, ...] = ("assigned", "completed", "expired")
 KS = [IntervalKey(480 + i) for i in range(4)]
 TAXIS = [TaxiId(f"taxi-{i}") for i in range(5)]
 
@@ -51,7 +52,7 @@ def _epoch(store: Store, ledger: Ledger, rng: random.Random, n: int, at: float) 
     visits = [Visit(rng.choice(taxis), rng.choice(ks), rng.randrange(6)) for _ in range(rng.randint(0, 6))]
     updates: list[Task] = []
     for t in rng.sample(state.tasks, min(len(state.tasks), rng.randint(0, 2))):
-        status = rng.choice(["assigned", "completed", "expired"])
+        status = rng.choice(STATUSES)
         updates.append(dataclasses.replace(t, status=status, taxi_id=rng.choice(taxis)))
     c = commit(f"e{n}", version=state.version, time_s=at, visits=visits, tasks=updates)
     out = store.commit_epoch(CITY, dataclasses.replace(c, nonce=f"n{n}"))
