@@ -376,19 +376,24 @@ class _Service:
 
 @contextlib.contextmanager
 def _service(
-    sc: Scenario, city: City, redis_url: str | None, worker: bool, port: int | None
+    sc: Scenario, city: City, redis_url: str | None, worker: bool, port: int | None, root: Path = ROOT
 ) -> Iterator[_Service]:
     """The real service (uvicorn; in-memory store, or Redis at ``redis_url`` under a fresh key prefix,
     deleted afterwards), ready; stopped with its whole process group on the way out. With ``worker`` the
     fleet worker runs inside it as ``make run`` runs it (its simulation runs on child processes), with a
-    fresh run cache."""
+    fresh run cache. ``root``: the checkout whose service runs (another one: the previous code)."""
     import httpx
 
     port = port or _free_port()
     token = "bench-token-0123456789"
     prefix = f"bench{os.getpid()}x{port}"
     with tempfile.TemporaryDirectory() as tmp:
-        env = {**os.environ, "SD_PORT": str(port), "SD_VAR_DIR": str(Path(tmp) / "var")}
+        env = {
+            **os.environ,
+            "SD_PORT": str(port),
+            "SD_VAR_DIR": str(Path(tmp) / "var"),
+            "PYTHONPATH": str(root),
+        }
         env["SD_TOKENS"] = json.dumps({token: ["read", "dispatch", "admin"]})
         env["SD_WORKER_EMBEDDED"] = "on" if worker else "off"
         if redis_url is not None:
@@ -402,7 +407,7 @@ def _service(
         proc = subprocess.Popen(
             [sys.executable, "-m", "app", "run"],
             env=env,
-            cwd=ROOT,
+            cwd=root,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
             start_new_session=True,  # its own process group: the worker's processes stop with it
@@ -483,12 +488,13 @@ def run_http(
     worker: bool = True,
     port: int | None = None,
     worker_wait_s: float = WORKER_WAIT_S,
+    root: Path = ROOT,
 ) -> dict[str, Any]:
     """Post the scenario's epochs to the real service over HTTP (``_service``), sampling the resident memory
     of the API process and of the service's whole process tree (``bench.rss``). With ``worker``, a fleet
     solve of the city is requested after the untimed first epoch, so that the timed epochs run beside the
     worker's simulation runs as on a platform at the top of an hour; its memory is sampled until that solve
-    is over, for at most ``worker_wait_s`` after the last epoch."""
+    is over, for at most ``worker_wait_s`` after the last epoch. ``root``: the checkout whose service runs."""
     from app.schemas.dispatch import decision_of
 
     city = load_city(sc)
@@ -497,7 +503,7 @@ def run_http(
     solve: list[float] = []  # the server's own solve time of each epoch (its response's stats.solve_ms)
     digests: list[str] = []
     solving = False  # a fleet solve was accepted (a city without its M days of history gets none)
-    with _service(sc, city, redis_url, worker, port) as svc, TreePeak(svc.proc.pid) as peak:
+    with _service(sc, city, redis_url, worker, port, root) as svc, TreePeak(svc.proc.pid) as peak:
         for e in range(n + 1):
             snap, tasks = epochs.next()
             took, doc = _post_epoch(svc, city, snap, tasks)
@@ -651,6 +657,7 @@ def main(argv: list[str] | None = None) -> int:
             args.epochs,
             not args.no_write,
             args.port,
+            args.baseline,
         )
     results: dict[str, dict[str, Any]] = {}
     for name in args.scenario or list(SCENARIOS):
@@ -666,41 +673,68 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _redis_main(url: str, names: list[str], epochs: int | None, write: bool, port: int | None = None) -> int:
-    """The HTTP path with the service on Redis, against the server's own solve of each epoch."""
+def _redis_main(
+    url: str,
+    names: list[str],
+    epochs: int | None,
+    write: bool,
+    port: int | None = None,
+    baseline: Path | None = None,
+) -> int:
+    """The HTTP path with the service on Redis, against the server's own solve of each epoch (and the same
+    epochs posted to the ``baseline`` checkout's service, one after the other, decisions checked equal)."""
     rows = []
     for name in names:
         sc = SCENARIOS[name]
         n = epochs or sc.epochs
-        print(f"[{name}] over HTTP on Redis, {n} epochs ...", flush=True)
-        h = run_http(sc, n, redis_url=url, worker=False, port=port)
-        rows.append((name, n, summary(h["latency"]), *over_solve(h), h["server_peak_rss_mb"]))
-        print(
-            f"  {name}: round trip p50 {rows[-1][2]['p50_ms']:.0f} ms, over the solve {rows[-1][4]:+.1f} %",
-            flush=True,
-        )
-    if write:
-        lines = [
-            "## Epoch latency on Redis",
-            "",
-            stamp(f"python -m bench.bench_epoch --redis-url {url}"),
-            "",
-            "The HTTP path of `Epoch latency`'s scenarios (the same epochs) with the service on Redis",
-            "(`SD_STORE=redis`, a local redis-server, a fresh key prefix), as a deployment runs it: the round",
-            "trip, and the round trip minus the server's own solve of the same epoch (`stats.solve_ms`), which is",
-            "the cost of validation, the state load and the commit on Redis, and the response (target: at most",
-            "+15 % over the solve).",
-            "",
-            "| scale | epochs | HTTP p50 ms | HTTP p99 ms | round trip - solve, p50 / p99 ms | over the solve (median) | server peak RSS MB |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for name, n, lat_s, extra, pct, rss in rows:
-            lines.append(
-                f"| {name} | {n} | {lat_s['p50_ms']:.1f} | {lat_s['p99_ms']:.1f} | "
-                f"{extra['p50_ms']:.1f} / {extra['p99_ms']:.1f} | {pct:+.1f} % | {rss:.0f} |"
+        runs = [("this code", ROOT)] + ([] if baseline is None else [("previous code", baseline.resolve())])
+        digests = []
+        for label, root in runs:
+            print(f"[{name}] over HTTP on Redis ({label}), {n} epochs ...", flush=True)
+            h = run_http(sc, n, redis_url=url, worker=False, port=port, root=root)
+            digests.append(h["digests"])
+            rows.append((name, label, n, summary(h["latency"]), *over_solve(h), h["server_peak_rss_mb"]))
+            print(
+                f"  {name} ({label}): round trip p50 {rows[-1][3]['p50_ms']:.0f} ms, over the solve "
+                f"{rows[-1][5]:+.1f} %, {rows[-1][4]['p50_ms']:.1f} ms",
+                flush=True,
             )
-        write_section("epoch-redis", "\n".join(lines))
+        if any(d != digests[0] for d in digests):
+            raise AssertionError(f"{name}: the previous code's service decided other epochs")
+    if write:
+        _write_redis(url, rows, baseline)
     return 0
+
+
+def _write_redis(url: str, rows: list[tuple[Any, ...]], baseline: Path | None) -> None:
+    """The section ``epoch-redis`` of the report."""
+    how = "" if baseline is None else f" --baseline {baseline}"
+    lines = [
+        "## Epoch latency on Redis",
+        "",
+        stamp(f"python -m bench.bench_epoch --redis-url {url}{how}"),
+        "",
+        "The HTTP path of `Epoch latency`'s scenarios (the same epochs) with the service on Redis",
+        "(`SD_STORE=redis`, a local redis-server, a fresh key prefix), as a deployment runs it: the round",
+        "trip, and the round trip minus the server's own solve of the same epoch (`stats.solve_ms`), which is",
+        "the cost of validation, the state load and the commit on Redis, and the response (target: at most",
+        "+15 % over the solve). With `--baseline DIR` the same epochs are posted, one run after the other, to",
+        "the service of the checkout at DIR (the previous code), decisions checked equal.",
+        "",
+        "| scale | code | epochs | HTTP p50 ms | HTTP p99 ms | round trip - solve, p50 / p99 ms | over the solve (median) | server peak RSS MB |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, label, n, lat_s, extra, pct, rss in rows:
+        lines.append(
+            f"| {name} | {label} | {n} | {lat_s['p50_ms']:.1f} | {lat_s['p99_ms']:.1f} | "
+            f"{extra['p50_ms']:.1f} / {extra['p99_ms']:.1f} | {pct:+.1f} % | {rss:.0f} |"
+        )
+    load = os.getloadavg()
+    lines += [
+        "",
+        f"Load average (1/5/15 min) at the end of the run: {load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f}.",
+    ]
+    write_section("epoch-redis", "\n".join(lines))
 
 
 TARGETS: dict[str, dict[str, float]] = {  # p99 in ms; the HTTP p99 as a multiple of the floor's p99
