@@ -540,6 +540,56 @@ def run_http(
     }
 
 
+def run_http_paired(sc: Scenario, n: int, redis_url: str | None, roots: list[Path]) -> list[dict[str, Any]]:
+    """The scenario's epochs posted to the services of several checkouts at once (``roots``; on Redis,
+    each under its own key prefix, or on the in-memory store; no worker), each epoch to every one of them in turn, the first poster
+    changing from epoch to epoch, so that load on the machine weighs on every one alike; their decisions
+    are checked equal epoch by epoch. One ``run_http``-like result per checkout."""
+    from app.schemas.dispatch import decision_of
+
+    city = load_city(sc)
+    epochs = Epochs(sc, city)
+    out: list[dict[str, Any]] = [{"latency": [], "server_solve": []} for _ in roots]
+    with contextlib.ExitStack() as stack:
+        services = [stack.enter_context(_service(sc, city, redis_url, False, None, root)) for root in roots]
+        peaks = [stack.enter_context(TreePeak(svc.proc.pid)) for svc in services]
+        for e in range(n + 1):
+            snap, tasks = epochs.next()
+            order = list(range(len(roots)))
+            order = order[e % len(order) :] + order[: e % len(order)]
+            docs: dict[int, dict[str, Any]] = {}
+            for i in order:
+                took, docs[i] = _post_epoch(services[i], city, snap, tasks)
+                if e > 0:
+                    out[i]["latency"].append(took)
+                    out[i]["server_solve"].append(float(docs[i]["stats"]["solve_ms"]) / 1000.0)
+            d = decision_of(city, docs[0])
+            expired = tuple(RiderId(x) for x in docs[0]["expired_rider_ids"])
+            want = digest(_with_expired(d, expired))
+            for i, doc in docs.items():
+                got = digest(
+                    _with_expired(decision_of(city, doc), tuple(RiderId(x) for x in doc["expired_rider_ids"]))
+                )
+                if got != want:
+                    raise AssertionError(
+                        f"{sc.name} epoch {e}: the services of {roots[0]} and {roots[i]} differ"
+                    )
+            if epochs.platform is not None:
+                epochs.platform.apply(d.rider_matches, d.task_assignments, expired)
+            if e > 0:
+                print(
+                    f"  [{sc.name}] HTTP epoch {e}: "
+                    + ", ".join(
+                        f"{o['latency'][-1] * 1000:.0f} ms (solve {o['server_solve'][-1] * 1000:.0f})"
+                        for o in out
+                    ),
+                    flush=True,
+                )
+    for o, peak in zip(out, peaks, strict=True):
+        o["server_peak_rss_mb"] = peak.process_mb
+    return out
+
+
 def _with_expired(d: Any, expired: tuple[RiderId, ...]) -> Decision:
     """``d`` (a stored decision read back from a response) as a ``Decision`` for ``digest``."""
     return Decision(
@@ -646,7 +696,24 @@ def main(argv: list[str] | None = None) -> int:
         metavar="URL",
         help="instead: the HTTP path only, with the service on Redis at URL (its own section of the report)",
     )
+    ap.add_argument(
+        "--memory-pair",
+        action="store_true",
+        help="instead: the HTTP path only, on the in-memory store, beside --baseline's service (printed)",
+    )
     args = ap.parse_args(argv)
+    if args.memory_pair:
+        if args.baseline is None:
+            ap.error("--memory-pair needs --baseline")
+        for name in args.scenario or ["paper", "city"]:
+            sc = SCENARIOS[name]
+            pair = run_http_paired(sc, args.epochs or sc.epochs, None, [ROOT, args.baseline.resolve()])
+            for label, h in zip(("this code", "previous code"), pair, strict=True):
+                extra, pct = over_solve(h)
+                print(
+                    f"  {name} ({label}), memory: round trip - solve {extra['p50_ms']:.1f} ms, {pct:+.1f} %"
+                )
+        return 0
     if args.report_only:
         write_report(json.loads(args.report_only.read_text()))
         return 0
@@ -681,26 +748,28 @@ def _redis_main(
     port: int | None = None,
     baseline: Path | None = None,
 ) -> int:
-    """The HTTP path with the service on Redis, against the server's own solve of each epoch (and the same
-    epochs posted to the ``baseline`` checkout's service, one after the other, decisions checked equal)."""
+    """The HTTP path with the service on Redis, against the server's own solve of each epoch (and beside the
+    ``baseline`` checkout's service, every epoch posted to both: ``run_http_paired``)."""
     rows = []
     for name in names:
         sc = SCENARIOS[name]
         n = epochs or sc.epochs
         runs = [("this code", ROOT)] + ([] if baseline is None else [("previous code", baseline.resolve())])
-        digests = []
-        for label, root in runs:
-            print(f"[{name}] over HTTP on Redis ({label}), {n} epochs ...", flush=True)
-            h = run_http(sc, n, redis_url=url, worker=False, port=port, root=root)
-            digests.append(h["digests"])
+        print(
+            f"[{name}] over HTTP on Redis ({', '.join(label for label, _ in runs)}), {n} epochs ...",
+            flush=True,
+        )
+        if baseline is None:
+            results = [run_http(sc, n, redis_url=url, worker=False, port=port)]
+        else:
+            results = run_http_paired(sc, n, url, [root for _, root in runs])
+        for (label, _), h in zip(runs, results, strict=True):
             rows.append((name, label, n, summary(h["latency"]), *over_solve(h), h["server_peak_rss_mb"]))
             print(
                 f"  {name} ({label}): round trip p50 {rows[-1][3]['p50_ms']:.0f} ms, over the solve "
                 f"{rows[-1][5]:+.1f} %, {rows[-1][4]['p50_ms']:.1f} ms",
                 flush=True,
             )
-        if any(d != digests[0] for d in digests):
-            raise AssertionError(f"{name}: the previous code's service decided other epochs")
     if write:
         _write_redis(url, rows, baseline)
     return 0
@@ -718,8 +787,9 @@ def _write_redis(url: str, rows: list[tuple[Any, ...]], baseline: Path | None) -
         "(`SD_STORE=redis`, a local redis-server, a fresh key prefix), as a deployment runs it: the round",
         "trip, and the round trip minus the server's own solve of the same epoch (`stats.solve_ms`), which is",
         "the cost of validation, the state load and the commit on Redis, and the response (target: at most",
-        "+15 % over the solve). With `--baseline DIR` the same epochs are posted, one run after the other, to",
-        "the service of the checkout at DIR (the previous code), decisions checked equal.",
+        "+15 % over the solve). With `--baseline DIR` the service of the checkout at DIR (the previous code)",
+        "runs beside it under its own key prefix and every epoch is posted to both in turn (the first poster",
+        "alternating), decisions checked equal: load on the machine weighs on both alike.",
         "",
         "| scale | code | epochs | HTTP p50 ms | HTTP p99 ms | round trip - solve, p50 / p99 ms | over the solve (median) | server peak RSS MB |",
         "|---|---|---|---|---|---|---|---|",

@@ -378,7 +378,7 @@ class RedisStore:
         ]
         with self._mirror_lock:
             base = self._mirrors.get(city)
-        base_rev, base_tasks_rev = ("", "") if base is None else (base.rev, base.held_tasks()[0])
+            base_rev, base_tasks_rev = ("", "") if base is None else (base.rev, base.held_tasks()[0])
         new_rev = uuid.uuid4().hex
         doc: dict[str, Any] = {
             "epoch_id": commit.epoch_id,
