@@ -3,11 +3,11 @@ what the mirror lacks (docs/DESIGN.md, "The state mirror").
 
 The city's meta hash holds ``rev``, a token that every commit replaces, and ``sd:{c}:tasks:rev`` one that
 every commit writing tasks and every task registration replaces. A mirror holds the counts and visit sets
-it read or wrote at revision ``rev`` and the open tasks at ``tasks_rev``; the load script skips the keys the
-mirror holds only when the city's revision is still the mirror's, and the commit script reports whether the
-revisions it replaced were the ones the commit was computed on: only then is the commit applied to the
-mirror (it then equals what Redis holds). An empty revision (a city no commit has touched since its meta
-expired or was deleted) is never trusted.
+it read or wrote at revision ``rev`` and the open tasks at ``tasks_rev``; the load script is asked only for
+the keys the mirror lacks and answers ``stale`` (then everything is read) unless the city's revision and
+version are still the mirror's, and the commit script reports whether the revisions it replaced were the
+ones the mirror held: only then is the commit applied to the mirror (it then equals what Redis holds). An
+empty revision (a city no commit has touched since its meta expired or was deleted) is never trusted.
 
 Counts and visit sets expire in Redis (the retention): each entry keeps the monotonic time before which its
 key cannot have expired (its TTL when read, the retention when written, less ``EXPIRY_MARGIN_S``) and is
@@ -54,8 +54,9 @@ def deadline_of(now: float, pttl_ms: int) -> float:
 class CityMirror:
     """The counts, visit sets and open tasks of one city at revisions ``rev`` and ``tasks_rev``.
 
-    Values are never changed in place (a commit replaces them), so a load can hand them out without
-    copying under the store's lock. ``tasks`` is ``None`` while the open tasks are unknown."""
+    Entries are never changed in place (a commit replaces them), so a load can hand them out; the mirror
+    itself is read and changed under the store's lock only. ``tasks`` is ``None`` while the open tasks are
+    unknown; ``floor``: the intervals before it are forgotten."""
 
     rev: str
     version: int
@@ -63,6 +64,7 @@ class CityMirror:
     visits: dict[VisitKey, VisitEntry] = field(default_factory=dict)
     tasks_rev: str = ""
     tasks: dict[TaskId, Task] | None = None
+    floor: IntervalKey | None = None
 
     def count(self, k: IntervalKey, now: float) -> CountEntry | None:
         """Lambda of interval ``k`` by cell with its deadline, or ``None`` when not held (or about to
@@ -81,7 +83,10 @@ class CityMirror:
         return ("", 0) if self.tasks is None else (self.tasks_rev, len(self.tasks))
 
     def prune(self, oldest: IntervalKey) -> None:
-        """Forget the intervals before ``oldest`` (epochs move forward: a rewound city fetches them again)."""
+        """Forget the intervals before ``oldest`` (epochs move forward: a rewound city reads them again)."""
+        if self.floor is not None and oldest <= self.floor:
+            return
+        self.floor = oldest
         self.counts = {k: v for k, v in self.counts.items() if k >= oldest}
         self.visits = {kt: v for kt, v in self.visits.items() if kt[0] >= oldest}
 
@@ -89,8 +94,7 @@ class CityMirror:
         """The commit script's visits, sent at ``now``: a cell new to a (taxi, interval) set counts once
         more, and every key written lives until ``deadline``. A set the mirror does not hold makes its
         interval's counts unknown (whether a visit was new is unknown)."""
-        counts = dict(self.counts)
-        sets = dict(self.visits)
+        counts, sets = self.counts, self.visits
         for v in visits:
             key = (v.interval, v.taxi_id)
             have = sets.get(key)
@@ -110,13 +114,12 @@ class CityMirror:
                 cells = dict(hit[1])
                 cells[int(v.cell)] = cells.get(int(v.cell), 0) + 1
                 counts[v.interval] = (deadline, cells)
-        self.counts, self.visits = counts, sets
 
     def apply_tasks(self, updates: Iterable[Task]) -> None:
         """The commit script's task updates: a finished task leaves the open tasks, others are upserted."""
         if self.tasks is None:
             return
-        tasks = dict(self.tasks)
+        tasks = dict(self.tasks)  # a load may be reading the one it was handed
         for t in updates:
             if t.status in DONE:
                 tasks.pop(t.id, None)
@@ -131,12 +134,14 @@ class Held:
 
     mirror: CityMirror | None
     rev: str
+    version: int
     tasks_rev: str
     n_tasks: int
     tasks: dict[TaskId, Task] | None
     counts: list[CountEntry | None]
     visits: list[VisitEntry | None]
 
-    def flags(self) -> str:
-        """One character per count key, then per visit key: '1' where the mirror holds it."""
-        return "".join("0" if x is None else "1" for x in (*self.counts, *self.visits))
+    @classmethod
+    def nothing(cls, n_counts: int, n_visits: int) -> Held:
+        """Nothing held (no mirror, or one found stale): every key is read."""
+        return cls(None, "", 0, "", 0, None, [None] * n_counts, [None] * n_visits)

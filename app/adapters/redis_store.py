@@ -12,7 +12,6 @@ import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 from importlib import resources
 from typing import Any, Literal, TypeVar, cast
 from urllib.parse import urlsplit
@@ -237,35 +236,30 @@ class RedisStore:
         visits_from: IntervalKey | None = None,
     ) -> CityState:
         """Version, last epoch, counts, visits and tasks read by one script (``LOAD_STATE_LUA``: a consistent
-        snapshot, and one reply per visit set where a pipeline of SMEMBERS paid redis-py ~20 us a command);
-        the keys the city's mirror holds are left out while its revision is the city's (``CityMirror``)."""
+        snapshot, and one reply per visit set where a pipeline of SMEMBERS paid redis-py ~20 us a command).
+        With a mirror of the city (``CityMirror``) the script reads only the keys it lacks, and everything
+        again when the city's revision is no longer the mirror's."""
         ks = list(dict.fromkeys(intervals))
         vks = ks if visits_from is None else [k for k in ks if k >= visits_from]
         taxis = list(dict.fromkeys(taxi_ids))
         pairs = [(k, taxi) for taxi in taxis for k in vks]
-        tag = self._key(city)
-        keys = [f"{tag}:meta", f"{tag}:tasks", f"{tag}:tasks:rev"]
-        keys += [f"{tag}:count:{int(k)}" for k in ks]
-        keys += [f"{tag}:visit:{int(k)}:{taxi}" for k, taxi in pairs]
         now = time.monotonic()
         held = self._held(city, ks, pairs, now)
-        args = [str(len(ks)), held.rev, held.tasks_rev, str(held.n_tasks), held.flags()]
-        try:
-            with self._guard("loading city state"):
-                replies = self._eval("load_state", keys, args)
-        except BaseException:
-            self._forget(city)
-            raise
+        replies = self._read_state(city, ks, pairs, held)
+        if replies[2] == "stale":
+            held = Held.nothing(len(ks), len(pairs))
+            replies = self._read_state(city, ks, pairs, held)
         version, last_time, last_epoch, rev = replies[0]
         read = _Read(rev or "", replies[1] or "", int(version or 0), now, replies[3:])
-        counts = read.entries(held.counts, ks, 0, _count_entry)
-        sets = read.entries(held.visits, pairs, len(ks), _visit_entry)
+        counts = read.entries(held.counts, ks, _count_entry)
+        sets = read.entries(held.visits, pairs, _visit_entry)
         tasks = held.tasks if replies[2] is None else self._decode_open(city, replies[2])
         assert tasks is not None  # the script leaves them out only when the mirror's are current
         self._remember(city, held, read, (ks, counts), (pairs, sets), tasks)
         visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {taxi: set() for taxi in taxis}
         for (_, taxi), (_, cells) in zip(pairs, sets, strict=True):
-            visited[taxi].update(cells)
+            if cells:
+                visited[taxi].update(cells)
         return CityState(
             version=read.version,
             last_epoch_id=last_epoch,
@@ -275,6 +269,25 @@ class RedisStore:
             tasks=[tasks[i] for i in sorted(tasks)],
         )
 
+    def _read_state(self, city: str, ks: list[IntervalKey], pairs: list[VisitKey], held: Held) -> list[Any]:
+        """The load script's reply for the keys ``held`` lacks (``LOAD_STATE_LUA``)."""
+        tag = self._key(city)
+        keys = [f"{tag}:meta", f"{tag}:tasks", f"{tag}:tasks:rev"]
+        keys += [f"{tag}:count:{int(k)}" for k, have in zip(ks, held.counts, strict=True) if have is None]
+        n_counts = len(keys) - 3
+        keys += [
+            f"{tag}:visit:{int(k)}:{t}"
+            for (k, t), have in zip(pairs, held.visits, strict=True)
+            if have is None
+        ]
+        args = [str(n_counts), held.rev, held.tasks_rev, str(held.n_tasks), str(held.version)]
+        try:
+            with self._guard("loading city state"):
+                return cast(list[Any], self._eval("load_state", keys, args))
+        except BaseException:
+            self._forget(city)
+            raise
+
     # -- the state mirror (app/adapters/redis_mirror.py) ------------------------------------------------
 
     def _held(self, city: str, ks: list[IntervalKey], pairs: list[VisitKey], now: float) -> Held:
@@ -282,11 +295,12 @@ class RedisStore:
         with self._mirror_lock:
             m = self._mirrors.get(city)
             if m is None:
-                return Held(None, "", "", 0, None, [None] * len(ks), [None] * len(pairs))
+                return Held.nothing(len(ks), len(pairs))
             tasks_rev, n_tasks = m.held_tasks()
             return Held(
                 m,
                 m.rev,
+                m.version,
                 tasks_rev,
                 n_tasks,
                 m.tasks,
@@ -317,8 +331,13 @@ class RedisStore:
                     self._mirrors.pop(city, None)  # an older read, or the city was reset: start afresh
                     return
                 m = self._mirrors[city] = CityMirror(read.rev, read.version)
-            m.counts = {**m.counts, **dict(zip(*counts, strict=True))}
-            m.visits = {**m.visits, **dict(zip(*sets, strict=True))}
+            fresh = m is not held.mirror  # a new mirror: everything was read
+            for k, have, entry in zip(counts[0], held.counts, counts[1], strict=True):
+                if fresh or have is None:
+                    m.counts[k] = entry
+            for kt, have_set, set_entry in zip(sets[0], held.visits, sets[1], strict=True):
+                if fresh or have_set is None:
+                    m.visits[kt] = set_entry
             if counts[0]:
                 m.prune(min(counts[0]))
             if read.tasks_rev:
@@ -647,35 +666,22 @@ def _int_fields(raw: dict[str, str]) -> dict[int, int]:
     return {int(cell): int(n) for cell, n in raw.items() if int(n) != 0}
 
 
-@dataclass(frozen=True, slots=True)
 class _Read:
-    """A load script's reply: the revisions and version it read at monotonic time ``at``, and per count
-    and visit key either ``None`` (the mirror holds it) or [value, PTTL]."""
+    """A load script's reply: the revisions and version it read at monotonic time ``at``, and [value, PTTL]
+    per key it read, in the order asked (the count hashes, then the visit sets)."""
 
-    rev: str
-    tasks_rev: str
-    version: int
-    at: float
-    rows: Sequence[Any]
+    def __init__(self, rev: str, tasks_rev: str, version: int, at: float, rows: Sequence[Any]) -> None:
+        self.rev, self.tasks_rev, self.version, self.at = rev, tasks_rev, version, at
+        self._rows = iter(rows)
 
     def entries(
-        self,
-        held: Sequence[_E | None],
-        keys: Sequence[_K],
-        offset: int,
-        entry: Callable[[_K, float, Any], _E],
+        self, held: Sequence[_E | None], keys: Sequence[_K], entry: Callable[[_K, float, Any], _E]
     ) -> list[_E]:
-        """Each key's entry: the mirror's where the script left it out, else read from its row."""
-        out: list[_E] = []
-        for i, (have, key) in enumerate(zip(held, keys, strict=True)):
-            row = self.rows[offset + i]
-            if row is None:
-                if have is None:
-                    raise RuntimeError("the load script left out a key the mirror does not hold")
-                out.append(have)
-            else:
-                out.append(entry(key, self.at, row))
-        return out
+        """Each key's entry: the mirror's where it holds one, else the next row read."""
+        rows, at = self._rows, self.at
+        return [
+            entry(key, at, next(rows)) if have is None else have for have, key in zip(held, keys, strict=True)
+        ]
 
 
 def _count_entry(_: IntervalKey, at: float, row: Sequence[Any]) -> CountEntry:

@@ -98,14 +98,14 @@ def test_store_objects_interleaving_epochs_load_what_redis_holds(make_case: Any,
 
 
 def _count_held(store: RedisStore) -> list[int]:
-    """A counter of the keys the load script left out for ``store`` (its mirror held them)."""
+    """A counter of the loads ``store`` answered from its mirror (the script found its revision current)."""
     count = [0]
     real = store._eval
 
     def spy(script: str, keys: Any, args: Any) -> Any:
         reply = real(script, keys, args)
-        if script == "load_state":
-            count[0] += sum(1 for row in reply[3:] if row is None)
+        if script == "load_state" and args[1] and reply[2] != "stale":
+            count[0] += 1
         return reply
 
     store._eval = spy  # type: ignore[method-assign]
@@ -113,18 +113,18 @@ def _count_held(store: RedisStore) -> list[int]:
 
 
 def test_the_mirror_is_read_instead_of_redis(make_redis_store: Any) -> None:
-    """After its own commit a store's next load of the same keys fetches none of them; after another
-    store's commit it fetches every one again. (A city no commit has touched has no revision: its first
-    commit is made without a mirror.)"""
+    """After its own commit a store's next load of the same keys reads none of them; after another
+    store's commit the script finds the mirror stale and the store reads every key again. (A city no
+    commit has touched has no revision: its first commit is made without a mirror.)"""
     store: RedisStore = make_redis_store()
     other = RedisStore(store._url, prefix=store.prefix)
-    rows: list[list[Any]] = []
+    rows: list[tuple[int, bool]] = []  # per load script: the count and visit keys asked for, found stale
     real = store._eval
 
     def spy(script: str, keys: Any, args: Any) -> Any:
         reply = real(script, keys, args)
         if script == "load_state":
-            rows.append(list(reply[3:]))
+            rows.append((len(keys) - 3, reply[2] == "stale"))
         return reply
 
     store._eval = spy  # type: ignore[method-assign]
@@ -132,16 +132,16 @@ def test_the_mirror_is_read_instead_of_redis(make_redis_store: Any) -> None:
         assert store.commit_epoch(CITY, commit("e0", version=0)).status == "committed"
         store.put_tasks(CITY, [task("p1")])
         state = store.load_state(CITY, KS, TAXIS)
-        assert None not in rows[-1]
+        assert rows[-1] == (len(KS) + len(KS) * len(TAXIS), False)
         c = commit("e1", version=state.version, visits=[Visit(TAXIS[0], KS[0], 3)], tasks=[task("p1")])
         assert store.commit_epoch(CITY, c).status == "committed"
         mine = store.load_state(CITY, KS, TAXIS)
-        assert rows[-1] == [None] * (len(KS) + len(KS) * len(TAXIS))
+        assert rows[-1] == (0, False)
         assert mine.counts[KS[0]] == {3: 1} and [t.id for t in mine.tasks] == [TaskId("p1")]
         c2 = commit("e2", version=2, time_s=T0 + 1, visits=[Visit(TAXIS[1], KS[0], 3)])
         assert other.commit_epoch(CITY, c2).status == "committed"
         theirs = store.load_state(CITY, KS, TAXIS)
-        assert None not in rows[-1]
+        assert rows[-2:] == [(0, True), (len(KS) + len(KS) * len(TAXIS), False)]
         assert theirs.counts[KS[0]] == {3: 2} and theirs.version == 3
     finally:
         other.close()
