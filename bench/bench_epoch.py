@@ -376,19 +376,24 @@ class _Service:
 
 @contextlib.contextmanager
 def _service(
-    sc: Scenario, city: City, redis_url: str | None, worker: bool, port: int | None
+    sc: Scenario, city: City, redis_url: str | None, worker: bool, port: int | None, root: Path = ROOT
 ) -> Iterator[_Service]:
     """The real service (uvicorn; in-memory store, or Redis at ``redis_url`` under a fresh key prefix,
     deleted afterwards), ready; stopped with its whole process group on the way out. With ``worker`` the
     fleet worker runs inside it as ``make run`` runs it (its simulation runs on child processes), with a
-    fresh run cache."""
+    fresh run cache. ``root``: the checkout whose service runs (another one: the previous code)."""
     import httpx
 
     port = port or _free_port()
     token = "bench-token-0123456789"
     prefix = f"bench{os.getpid()}x{port}"
     with tempfile.TemporaryDirectory() as tmp:
-        env = {**os.environ, "SD_PORT": str(port), "SD_VAR_DIR": str(Path(tmp) / "var")}
+        env = {
+            **os.environ,
+            "SD_PORT": str(port),
+            "SD_VAR_DIR": str(Path(tmp) / "var"),
+            "PYTHONPATH": str(root),
+        }
         env["SD_TOKENS"] = json.dumps({token: ["read", "dispatch", "admin"]})
         env["SD_WORKER_EMBEDDED"] = "on" if worker else "off"
         if redis_url is not None:
@@ -402,7 +407,7 @@ def _service(
         proc = subprocess.Popen(
             [sys.executable, "-m", "app", "run"],
             env=env,
-            cwd=ROOT,
+            cwd=root,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
             start_new_session=True,  # its own process group: the worker's processes stop with it
@@ -483,12 +488,13 @@ def run_http(
     worker: bool = True,
     port: int | None = None,
     worker_wait_s: float = WORKER_WAIT_S,
+    root: Path = ROOT,
 ) -> dict[str, Any]:
     """Post the scenario's epochs to the real service over HTTP (``_service``), sampling the resident memory
     of the API process and of the service's whole process tree (``bench.rss``). With ``worker``, a fleet
     solve of the city is requested after the untimed first epoch, so that the timed epochs run beside the
     worker's simulation runs as on a platform at the top of an hour; its memory is sampled until that solve
-    is over, for at most ``worker_wait_s`` after the last epoch."""
+    is over, for at most ``worker_wait_s`` after the last epoch. ``root``: the checkout whose service runs."""
     from app.schemas.dispatch import decision_of
 
     city = load_city(sc)
@@ -497,7 +503,7 @@ def run_http(
     solve: list[float] = []  # the server's own solve time of each epoch (its response's stats.solve_ms)
     digests: list[str] = []
     solving = False  # a fleet solve was accepted (a city without its M days of history gets none)
-    with _service(sc, city, redis_url, worker, port) as svc, TreePeak(svc.proc.pid) as peak:
+    with _service(sc, city, redis_url, worker, port, root) as svc, TreePeak(svc.proc.pid) as peak:
         for e in range(n + 1):
             snap, tasks = epochs.next()
             took, doc = _post_epoch(svc, city, snap, tasks)
@@ -532,6 +538,56 @@ def run_http(
         "digests": digests,
         "ready_s": ready_s,
     }
+
+
+def run_http_paired(sc: Scenario, n: int, redis_url: str | None, roots: list[Path]) -> list[dict[str, Any]]:
+    """The scenario's epochs posted to the services of several checkouts at once (``roots``; on Redis,
+    each under its own key prefix, or on the in-memory store; no worker), each epoch to every one of them in turn, the first poster
+    changing from epoch to epoch, so that load on the machine weighs on every one alike; their decisions
+    are checked equal epoch by epoch. One ``run_http``-like result per checkout."""
+    from app.schemas.dispatch import decision_of
+
+    city = load_city(sc)
+    epochs = Epochs(sc, city)
+    out: list[dict[str, Any]] = [{"latency": [], "server_solve": []} for _ in roots]
+    with contextlib.ExitStack() as stack:
+        services = [stack.enter_context(_service(sc, city, redis_url, False, None, root)) for root in roots]
+        peaks = [stack.enter_context(TreePeak(svc.proc.pid)) for svc in services]
+        for e in range(n + 1):
+            snap, tasks = epochs.next()
+            order = list(range(len(roots)))
+            order = order[e % len(order) :] + order[: e % len(order)]
+            docs: dict[int, dict[str, Any]] = {}
+            for i in order:
+                took, docs[i] = _post_epoch(services[i], city, snap, tasks)
+                if e > 0:
+                    out[i]["latency"].append(took)
+                    out[i]["server_solve"].append(float(docs[i]["stats"]["solve_ms"]) / 1000.0)
+            d = decision_of(city, docs[0])
+            expired = tuple(RiderId(x) for x in docs[0]["expired_rider_ids"])
+            want = digest(_with_expired(d, expired))
+            for i, doc in docs.items():
+                got = digest(
+                    _with_expired(decision_of(city, doc), tuple(RiderId(x) for x in doc["expired_rider_ids"]))
+                )
+                if got != want:
+                    raise AssertionError(
+                        f"{sc.name} epoch {e}: the services of {roots[0]} and {roots[i]} differ"
+                    )
+            if epochs.platform is not None:
+                epochs.platform.apply(d.rider_matches, d.task_assignments, expired)
+            if e > 0:
+                print(
+                    f"  [{sc.name}] HTTP epoch {e}: "
+                    + ", ".join(
+                        f"{o['latency'][-1] * 1000:.0f} ms (solve {o['server_solve'][-1] * 1000:.0f})"
+                        for o in out
+                    ),
+                    flush=True,
+                )
+    for o, peak in zip(out, peaks, strict=True):
+        o["server_peak_rss_mb"] = peak.process_mb
+    return out
 
 
 def _with_expired(d: Any, expired: tuple[RiderId, ...]) -> Decision:
@@ -640,7 +696,24 @@ def main(argv: list[str] | None = None) -> int:
         metavar="URL",
         help="instead: the HTTP path only, with the service on Redis at URL (its own section of the report)",
     )
+    ap.add_argument(
+        "--memory-pair",
+        action="store_true",
+        help="instead: the HTTP path only, on the in-memory store, beside --baseline's service (printed)",
+    )
     args = ap.parse_args(argv)
+    if args.memory_pair:
+        if args.baseline is None:
+            ap.error("--memory-pair needs --baseline")
+        for name in args.scenario or ["paper", "city"]:
+            sc = SCENARIOS[name]
+            pair = run_http_paired(sc, args.epochs or sc.epochs, None, [ROOT, args.baseline.resolve()])
+            for label, h in zip(("this code", "previous code"), pair, strict=True):
+                extra, pct = over_solve(h)
+                print(
+                    f"  {name} ({label}), memory: round trip - solve {extra['p50_ms']:.1f} ms, {pct:+.1f} %"
+                )
+        return 0
     if args.report_only:
         write_report(json.loads(args.report_only.read_text()))
         return 0
@@ -651,6 +724,7 @@ def main(argv: list[str] | None = None) -> int:
             args.epochs,
             not args.no_write,
             args.port,
+            args.baseline,
         )
     results: dict[str, dict[str, Any]] = {}
     for name in args.scenario or list(SCENARIOS):
@@ -666,41 +740,71 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _redis_main(url: str, names: list[str], epochs: int | None, write: bool, port: int | None = None) -> int:
-    """The HTTP path with the service on Redis, against the server's own solve of each epoch."""
+def _redis_main(
+    url: str,
+    names: list[str],
+    epochs: int | None,
+    write: bool,
+    port: int | None = None,
+    baseline: Path | None = None,
+) -> int:
+    """The HTTP path with the service on Redis, against the server's own solve of each epoch (and beside the
+    ``baseline`` checkout's service, every epoch posted to both: ``run_http_paired``)."""
     rows = []
     for name in names:
         sc = SCENARIOS[name]
         n = epochs or sc.epochs
-        print(f"[{name}] over HTTP on Redis, {n} epochs ...", flush=True)
-        h = run_http(sc, n, redis_url=url, worker=False, port=port)
-        rows.append((name, n, summary(h["latency"]), *over_solve(h), h["server_peak_rss_mb"]))
+        runs = [("this code", ROOT)] + ([] if baseline is None else [("previous code", baseline.resolve())])
         print(
-            f"  {name}: round trip p50 {rows[-1][2]['p50_ms']:.0f} ms, over the solve {rows[-1][4]:+.1f} %",
+            f"[{name}] over HTTP on Redis ({', '.join(label for label, _ in runs)}), {n} epochs ...",
             flush=True,
         )
-    if write:
-        lines = [
-            "## Epoch latency on Redis",
-            "",
-            stamp(f"python -m bench.bench_epoch --redis-url {url}"),
-            "",
-            "The HTTP path of `Epoch latency`'s scenarios (the same epochs) with the service on Redis",
-            "(`SD_STORE=redis`, a local redis-server, a fresh key prefix), as a deployment runs it: the round",
-            "trip, and the round trip minus the server's own solve of the same epoch (`stats.solve_ms`), which is",
-            "the cost of validation, the state load and the commit on Redis, and the response (target: at most",
-            "+15 % over the solve).",
-            "",
-            "| scale | epochs | HTTP p50 ms | HTTP p99 ms | round trip - solve, p50 / p99 ms | over the solve (median) | server peak RSS MB |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for name, n, lat_s, extra, pct, rss in rows:
-            lines.append(
-                f"| {name} | {n} | {lat_s['p50_ms']:.1f} | {lat_s['p99_ms']:.1f} | "
-                f"{extra['p50_ms']:.1f} / {extra['p99_ms']:.1f} | {pct:+.1f} % | {rss:.0f} |"
+        if baseline is None:
+            results = [run_http(sc, n, redis_url=url, worker=False, port=port)]
+        else:
+            results = run_http_paired(sc, n, url, [root for _, root in runs])
+        for (label, _), h in zip(runs, results, strict=True):
+            rows.append((name, label, n, summary(h["latency"]), *over_solve(h), h["server_peak_rss_mb"]))
+            print(
+                f"  {name} ({label}): round trip p50 {rows[-1][3]['p50_ms']:.0f} ms, over the solve "
+                f"{rows[-1][5]:+.1f} %, {rows[-1][4]['p50_ms']:.1f} ms",
+                flush=True,
             )
-        write_section("epoch-redis", "\n".join(lines))
+    if write:
+        _write_redis(url, rows, baseline)
     return 0
+
+
+def _write_redis(url: str, rows: list[tuple[Any, ...]], baseline: Path | None) -> None:
+    """The section ``epoch-redis`` of the report."""
+    how = "" if baseline is None else f" --baseline {baseline}"
+    lines = [
+        "## Epoch latency on Redis",
+        "",
+        stamp(f"python -m bench.bench_epoch --redis-url {url}{how}"),
+        "",
+        "The HTTP path of `Epoch latency`'s scenarios (the same epochs) with the service on Redis",
+        "(`SD_STORE=redis`, a local redis-server, a fresh key prefix), as a deployment runs it: the round",
+        "trip, and the round trip minus the server's own solve of the same epoch (`stats.solve_ms`), which is",
+        "the cost of validation, the state load and the commit on Redis, and the response (target: at most",
+        "+15 % over the solve). With `--baseline DIR` the service of the checkout at DIR (the previous code)",
+        "runs beside it under its own key prefix and every epoch is posted to both in turn (the first poster",
+        "alternating), decisions checked equal: load on the machine weighs on both alike.",
+        "",
+        "| scale | code | epochs | HTTP p50 ms | HTTP p99 ms | round trip - solve, p50 / p99 ms | over the solve (median) | server peak RSS MB |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, label, n, lat_s, extra, pct, rss in rows:
+        lines.append(
+            f"| {name} | {label} | {n} | {lat_s['p50_ms']:.1f} | {lat_s['p99_ms']:.1f} | "
+            f"{extra['p50_ms']:.1f} / {extra['p99_ms']:.1f} | {pct:+.1f} % | {rss:.0f} |"
+        )
+    load = os.getloadavg()
+    lines += [
+        "",
+        f"Load average (1/5/15 min) at the end of the run: {load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f}.",
+    ]
+    write_section("epoch-redis", "\n".join(lines))
 
 
 TARGETS: dict[str, dict[str, float]] = {  # p99 in ms; the HTTP p99 as a multiple of the floor's p99

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import json
 import threading
-from collections.abc import Iterator, Sequence
+import time
+import uuid
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from importlib import resources
-from itertools import repeat
-from typing import Any, Literal, cast
+from typing import Any, Literal, TypeVar, cast
 from urllib.parse import urlsplit
 
 import redis
@@ -39,6 +40,15 @@ from app.adapters.codec import (
     worker_beat_to_json,
 )
 from app.adapters.redis_client import redis_client
+from app.adapters.redis_mirror import (
+    EXPIRY_MARGIN_S,
+    CityMirror,
+    CountEntry,
+    Held,
+    VisitEntry,
+    VisitKey,
+    deadline_of,
+)
 from app.ports import (
     CityState,
     CommitResult,
@@ -90,6 +100,9 @@ LOAD_STATE_LUA = _lua("load_state")
 
 RedisMode = Literal["standalone", "cluster"]
 
+_E = TypeVar("_E")
+_K = TypeVar("_K")
+
 _SCRIPTS = {
     "commit": COMMIT_EPOCH_LUA,
     "rewind": REWIND_LUA,
@@ -130,6 +143,9 @@ class RedisStore:
         self._connect_lock = threading.Lock()
         self._conn: redis.Redis | RedisCluster | None = None
         self._scripts: dict[str, Script] = {}
+        self._mirror_lock = threading.Lock()
+        self._mirrors: dict[str, CityMirror] = {}  # by city (app/adapters/redis_mirror.py)
+        self._task_cache: dict[str, dict[str, Task]] = {}  # by city: the open tasks' JSON -> task
         if mode == "standalone":
             self._connect()  # redis.Redis connects on first use anyway
 
@@ -220,45 +236,147 @@ class RedisStore:
         visits_from: IntervalKey | None = None,
     ) -> CityState:
         """Version, last epoch, counts, visits and tasks read by one script (``LOAD_STATE_LUA``: a consistent
-        snapshot, and one reply per visit set where a pipeline of SMEMBERS paid redis-py ~20 us a command)."""
+        snapshot, and one reply per visit set where a pipeline of SMEMBERS paid redis-py ~20 us a command).
+        With a mirror of the city (``CityMirror``) the script reads only the keys it lacks, and everything
+        again when the city's revision is no longer the mirror's."""
         ks = list(dict.fromkeys(intervals))
         vks = ks if visits_from is None else [k for k in ks if k >= visits_from]
         taxis = list(dict.fromkeys(taxi_ids))
-        keys = [self._key(city, "meta"), self._key(city, "tasks")]
-        keys += [self._count_key(city, k) for k in ks]
-        keys += [self._visit_key(city, k, taxi) for taxi in taxis for k in vks]
-        with self._guard("loading city state"):
-            replies = self._eval("load_state", keys, [str(len(ks))])
-        version, last_time, last_epoch = replies[0]
-        counts = {k: _int_fields(_pairs(replies[2 + i])) for i, k in enumerate(ks)}
-        visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
-        at = 2 + len(ks)
-        for taxi in taxis:
-            pairs: set[tuple[IntervalKey, int]] = set()
-            for k in vks:
-                if replies[at]:
-                    pairs.update(zip(repeat(k), map(int, replies[at].split(","))))
-                at += 1
-            visited[taxi] = pairs
+        pairs = [(k, taxi) for taxi in taxis for k in vks]
+        now = time.monotonic()
+        held = self._held(city, ks, pairs, now)
+        replies = self._read_state(city, ks, pairs, held)
+        if replies[2] == "stale":
+            held = Held.nothing(len(ks), len(pairs))
+            replies = self._read_state(city, ks, pairs, held)
+        version, last_time, last_epoch, rev = replies[0]
+        read = _Read(rev or "", replies[1] or "", int(version or 0), now, replies[3:])
+        counts = read.entries(held.counts, ks, _count_entry)
+        sets = read.entries(held.visits, pairs, _visit_entry)
+        tasks = held.tasks if replies[2] is None else self._decode_open(city, replies[2])
+        assert tasks is not None  # the script leaves them out only when the mirror's are current
+        self._remember(city, held, read, (ks, counts), (pairs, sets), tasks)
+        visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {taxi: set() for taxi in taxis}
+        for (_, taxi), (_, cells) in zip(pairs, sets, strict=True):
+            if cells:
+                visited[taxi].update(cells)
         return CityState(
-            version=int(version or 0),
+            version=read.version,
             last_epoch_id=last_epoch,
             last_epoch_time_s=None if last_time is None else float(last_time),
-            counts=counts,
+            counts={k: dict(cells) for k, (_, cells) in zip(ks, counts, strict=True)},
             visited=visited,
-            tasks=_decode_tasks(_pairs(replies[1])),
+            tasks=[tasks[i] for i in sorted(tasks)],
         )
 
+    def _read_state(self, city: str, ks: list[IntervalKey], pairs: list[VisitKey], held: Held) -> list[Any]:
+        """The load script's reply for the keys ``held`` lacks (``LOAD_STATE_LUA``)."""
+        tag = self._key(city)
+        keys = [f"{tag}:meta", f"{tag}:tasks", f"{tag}:tasks:rev"]
+        keys += [f"{tag}:count:{int(k)}" for k, have in zip(ks, held.counts, strict=True) if have is None]
+        n_counts = len(keys) - 3
+        keys += [
+            f"{tag}:visit:{int(k)}:{t}"
+            for (k, t), have in zip(pairs, held.visits, strict=True)
+            if have is None
+        ]
+        args = [str(n_counts), held.rev, held.tasks_rev, str(held.n_tasks), str(held.version)]
+        try:
+            with self._guard("loading city state"):
+                return cast(list[Any], self._eval("load_state", keys, args))
+        except BaseException:
+            self._forget(city)
+            raise
+
+    # -- the state mirror (app/adapters/redis_mirror.py) ------------------------------------------------
+
+    def _held(self, city: str, ks: list[IntervalKey], pairs: list[VisitKey], now: float) -> Held:
+        """What the city's mirror holds of a load's keys (nothing without a mirror)."""
+        with self._mirror_lock:
+            m = self._mirrors.get(city)
+            if m is None:
+                return Held.nothing(len(ks), len(pairs))
+            tasks_rev, n_tasks = m.held_tasks()
+            return Held(
+                m,
+                m.rev,
+                m.version,
+                tasks_rev,
+                n_tasks,
+                m.tasks,
+                [m.count(k, now) for k in ks],
+                [m.visit(k, taxi, now) for k, taxi in pairs],
+            )
+
+    def _remember(
+        self,
+        city: str,
+        held: Held,
+        read: _Read,
+        counts: tuple[list[IntervalKey], list[CountEntry]],
+        sets: tuple[list[VisitKey], list[VisitEntry]],
+        tasks: dict[TaskId, Task],
+    ) -> None:
+        """Keep what a load read: merged into the mirror when read at its revision, or as a new mirror when
+        the load read every key at a revision newer than the mirror's (an empty revision keeps none)."""
+        with self._mirror_lock:
+            m = self._mirrors.get(city)
+            if not read.rev:
+                self._mirrors.pop(city, None)
+                return
+            if m is None or m.rev != read.rev:
+                if held.mirror is not None and read.rev == held.rev:
+                    return  # read at the revision the mirror had; a commit of this process moved it on
+                if m is not None and m.version >= read.version:
+                    self._mirrors.pop(city, None)  # an older read, or the city was reset: start afresh
+                    return
+                m = self._mirrors[city] = CityMirror(read.rev, read.version)
+            fresh = m is not held.mirror  # a new mirror: everything was read
+            for k, have, entry in zip(counts[0], held.counts, counts[1], strict=True):
+                if fresh or have is None:
+                    m.counts[k] = entry
+            for kt, have_set, set_entry in zip(sets[0], held.visits, sets[1], strict=True):
+                if fresh or have_set is None:
+                    m.visits[kt] = set_entry
+            if counts[0]:
+                m.prune(min(counts[0]))
+            if read.tasks_rev:
+                m.tasks_rev, m.tasks = read.tasks_rev, tasks
+            else:
+                m.tasks_rev, m.tasks = "", None
+
+    def _forget(self, city: str) -> None:
+        """Drop the city's mirror (a call whose outcome is unknown, a reset)."""
+        with self._mirror_lock:
+            self._mirrors.pop(city, None)
+
+    def _decode_open(self, city: str, flat: Sequence[str]) -> dict[TaskId, Task]:
+        """The open tasks of a load's reply, each JSON text decoded once while it stays the same."""
+        cache = self._task_cache.get(city, {})
+        out: dict[TaskId, Task] = {}
+        seen: dict[str, Task] = {}
+        for raw in flat[1::2]:
+            t = cache.get(raw)
+            if t is None:
+                t = task_from_json(raw)
+            seen[raw] = t
+            out[t.id] = t
+        self._task_cache[city] = seen
+        return out
+
     def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
-        """Run the commit script (see ``app.ports.Store.commit_epoch``)."""
+        """Run the commit script (see ``app.ports.Store.commit_epoch``); a commit made on the revisions the
+        city's mirror holds is applied to the mirror, any other outcome but a refusal drops it."""
+        tag = self._key(city)
         keys = [
-            self._key(city, "meta"),
+            f"{tag}:meta",
             self._key(city, "epoch", commit.epoch_id),
-            self._key(city, "intervals"),
-            self._key(city, "tasks"),
+            f"{tag}:intervals",
+            f"{tag}:tasks",
             self._key(city, "demand", commit.demand_day or "none"),
-            self._key(city, "tasks", "done"),
-            self._key(city, "tasks", "done_at"),
+            f"{tag}:tasks:done",
+            f"{tag}:tasks:done_at",
+            f"{tag}:tasks:rev",
         ]
         index: dict[str, int] = {}
 
@@ -270,13 +388,17 @@ class RedisStore:
 
         visits = [
             [
-                key_index(self._count_key(city, v.interval)),
-                key_index(self._visit_key(city, v.interval, v.taxi_id)),
+                key_index(f"{tag}:count:{int(v.interval)}"),
+                key_index(f"{tag}:visit:{int(v.interval)}:{v.taxi_id}"),
                 str(int(v.cell)),
                 str(int(v.interval)),
             ]
             for v in commit.visits
         ]
+        with self._mirror_lock:
+            base = self._mirrors.get(city)
+            base_rev, base_tasks_rev = ("", "") if base is None else (base.rev, base.held_tasks()[0])
+        new_rev = uuid.uuid4().hex
         doc: dict[str, Any] = {
             "epoch_id": commit.epoch_id,
             "hash": commit.body_hash,
@@ -284,18 +406,27 @@ class RedisStore:
             "expected_version": str(int(commit.expected_version)),
             "ttl": str(int(commit.retention_s)),
             "nonce": commit.nonce,
+            "base_rev": base_rev,
+            "base_tasks_rev": base_tasks_rev,
+            "new_rev": new_rev,
             "visits": visits,
             "done_before": format_time(commit.time_s - commit.retention_s),
             "tasks": [
                 [str(t.id), task_to_json(t), "1" if t.status in DONE else "0"] for t in commit.task_updates
             ],
         }
-        with self._guard("committing an epoch"):
-            arg = json.dumps(doc, ensure_ascii=False)
-            demand = commit.demand_json if commit.demand_json is not None else ""
-            reply = cast(list[Any], self._eval("commit", keys, [arg, commit.response_json, demand]))
+        sent = time.monotonic()
+        try:
+            with self._guard("committing an epoch"):
+                arg = json.dumps(doc, ensure_ascii=False)
+                demand = commit.demand_json if commit.demand_json is not None else ""
+                reply = cast(list[Any], self._eval("commit", keys, [arg, commit.response_json, demand]))
+        except BaseException:
+            self._forget(city)  # applied or not: unknown
+            raise
         status = reply[0]
         if status == "committed":
+            self._committed(city, commit, (base, base_rev, base_tasks_rev, new_rev), reply, sent)
             return CommitResult("committed", new_version=int(reply[1]))
         if status == "duplicate":
             stored = StoredEpoch(commit.epoch_id, reply[1], float(reply[2]), reply[3])
@@ -303,6 +434,32 @@ class RedisStore:
         if status in ("version_mismatch", "stale"):
             return CommitResult(status)
         raise RuntimeError(f"unexpected reply from the commit script: {reply!r}")
+
+    def _committed(
+        self,
+        city: str,
+        commit: EpochCommit,
+        revs: tuple[CityMirror | None, str, str, str],
+        reply: Sequence[Any],
+        sent: float,
+    ) -> None:
+        """Apply a commit the script reports made on the mirror's revision (``revs``: the mirror it was
+        computed with, its revisions, the commit's new revision) to that mirror; else drop the mirror."""
+        base, base_rev, base_tasks_rev, new_rev = revs
+        with self._mirror_lock:
+            m = self._mirrors.get(city)
+            if m is None or m is not base or m.rev != base_rev or len(reply) < 4 or reply[2] != "1":
+                self._mirrors.pop(city, None)
+                return
+            m.apply_visits(commit.visits, sent, sent + commit.retention_s - EXPIRY_MARGIN_S)
+            m.rev, m.version = new_rev, int(reply[1])
+            if not commit.task_updates:
+                return
+            if reply[3] == "1" and m.held_tasks()[0] == base_tasks_rev:
+                m.apply_tasks(commit.task_updates)
+                m.tasks_rev = new_rev
+            else:
+                m.tasks_rev, m.tasks = "", None
 
     def rewind_epochs(self, city: str, time_s: float) -> RewindResult:
         """Set the last epoch time back (one script on the meta hash)."""
@@ -315,6 +472,7 @@ class RedisStore:
         """Delete every key of the city but its fleet records, solve requests and locks (SCAN, then DEL
         in batches: not atomic, so stop posting the city's epochs first)."""
         keep = (self._key(city, "fleet") + ":", self._key(city, "lock") + ":")
+        self._forget(city)
         with self._guard("resetting the epoch stream"):
             pattern = _glob_escape(self._key(city)) + ":*"
             doomed = [k for k in self._client.scan_iter(match=pattern, count=1000) if not k.startswith(keep)]
@@ -344,6 +502,7 @@ class RedisStore:
                         return outcome.result
                     pipe.multi()
                     pipe.hset(key, mapping={str(i): task_to_json(t) for i, t in outcome.to_write.items()})
+                    pipe.set(self._key(city, "tasks", "rev"), uuid.uuid4().hex)  # mirrors read them again
                     pipe.execute()
                     return outcome.result
                 except WatchError:
@@ -505,6 +664,34 @@ def _pairs(flat: Sequence[str]) -> dict[str, str]:
 
 def _int_fields(raw: dict[str, str]) -> dict[int, int]:
     return {int(cell): int(n) for cell, n in raw.items() if int(n) != 0}
+
+
+class _Read:
+    """A load script's reply: the revisions and version it read at monotonic time ``at``, and [value, PTTL]
+    per key it read, in the order asked (the count hashes, then the visit sets)."""
+
+    def __init__(self, rev: str, tasks_rev: str, version: int, at: float, rows: Sequence[Any]) -> None:
+        self.rev, self.tasks_rev, self.version, self.at = rev, tasks_rev, version, at
+        self._rows = iter(rows)
+
+    def entries(
+        self, held: Sequence[_E | None], keys: Sequence[_K], entry: Callable[[_K, float, Any], _E]
+    ) -> list[_E]:
+        """Each key's entry: the mirror's where it holds one, else the next row read."""
+        rows, at = self._rows, self.at
+        return [
+            entry(key, at, next(rows)) if have is None else have for have, key in zip(held, keys, strict=True)
+        ]
+
+
+def _count_entry(_: IntervalKey, at: float, row: Sequence[Any]) -> CountEntry:
+    return deadline_of(at, int(row[1])), _int_fields(_pairs(row[0]))
+
+
+def _visit_entry(key: VisitKey, at: float, row: Sequence[Any]) -> VisitEntry:
+    k = key[0]
+    cells = frozenset((k, int(c)) for c in row[0].split(",")) if row[0] else frozenset()
+    return deadline_of(at, int(row[1])), cells
 
 
 def _decode_tasks(raw: dict[str, str]) -> list[Task]:

@@ -419,9 +419,11 @@ def test_retention_ttl_on_redis_keys(redis_store: RedisStore, redis_url: str) ->
             f"{p}:meta",
         ):
             assert 0 < client.ttl(key) <= retention, key
-        for key in (f"{p}:tasks", f"{p}:intervals"):
+        for key in (f"{p}:tasks", f"{p}:tasks:rev", f"{p}:intervals"):
             assert client.ttl(key) == -1, key  # exists, no expiry
-        assert client.hgetall(f"{p}:meta") == {"version": "1", "last_time": repr(T0), "last_epoch": "e1"}
+        meta = client.hgetall(f"{p}:meta")
+        assert len(meta.pop("rev")) == 32  # the state revision (app/adapters/redis_mirror.py)
+        assert meta == {"version": "1", "last_time": repr(T0), "last_epoch": "e1"}
     finally:
         client.close()
 
