@@ -557,9 +557,10 @@ def report(res: dict[str, Any]) -> str:
         "",
         "`python -m app run` as `make run` starts it (memory store, the fleet worker inside it: its simulation "
         'runs on 2 local processes at niceness +10, stopped while an epoch is solved; docs/FLEET.md, "When the '
-        'worker solves"). Epochs are posted over HTTP back to back (a worst case for the worker: a platform '
-        "posts one every 200 s) while phases alternate in the same run, no solve / a solve / no solve ...; an "
-        "epoch counts in a phase when it started and ended inside it. The target: the epoch p99 with a solve "
+        'worker solves"). Epochs are posted over HTTP (a platform posts one every 200 s; here they come '
+        "back to back, or a few seconds apart at the metropolitan scale, so that the runs hold the CPU when an "
+        "epoch arrives) while phases alternate in the same run, no solve / a solve / no solve ...; an epoch "
+        "counts in a phase when it started and ended inside it. The target: the epoch p99 with a solve "
         f"running at most {TARGET_RATIO}x the p99 without (module docstring of `bench/bench_fleet_service.py`).",
         "",
     ]
