@@ -41,6 +41,7 @@ import datetime as dt
 import json
 import os
 import shutil
+import sys
 import tempfile
 import threading
 import time
@@ -520,6 +521,7 @@ def report_chengdu(res: dict[str, Any]) -> list[str]:
     return [
         "### The paper's scale: Chengdu, the replay client's days",
         "",
+        *([res["stamp"], ""] if "stamp" in res else []),
         f"{res['rounds']} solves, each from an empty run cache ({runs[0]} runs), between {res['rounds'] + 1} "
         f"phases of {res['quiet_s']:.0f} s without; {res['days_replayed']} days replayed back to back; "
         f"{_load(res)}. A solve request to its recommendation published: "
@@ -536,6 +538,7 @@ def report_metro(res: dict[str, Any]) -> list[str]:
     return [
         f"### A platform's scale: metro250k ({res['nodes']:,} nodes), 5,000 taxis an epoch",
         "",
+        *([res["stamp"], ""] if "stamp" in res else []),
         f"{res['rounds']} solve phases of {res['solve_s']:.0f} s (a requested re-solve's runs in progress, "
         f"ended by the benchmark) between {res['rounds'] + 1} phases of {res['quiet_s']:.0f} s without; "
         f"{res['epochs_posted']} epochs posted, {res['gap_s']:g} s apart (the worker's runs go on between "
@@ -584,11 +587,17 @@ def main() -> int:
     ap.add_argument("--report-only", type=Path, nargs="+", default=None, help="the section from these JSONs")
     args = ap.parse_args()
     if args.report_only is not None:
-        res = {}
-        for path in args.report_only:  # one file per scale when they were measured apart
-            res.update(json.loads(path.read_text()))
+        res: dict[str, Any] = {}
+        for path in args.report_only:  # one file per scale when they were measured apart: each its stamp
+            part = json.loads(path.read_text())
+            for scale in ("chengdu", "metro"):
+                if scale in part:
+                    res[scale] = {"stamp": part["stamp"], **part[scale]}
+        res["stamp"] = stamp(
+            f"python -m bench.bench_fleet_service --report-only {' '.join(map(str, args.report_only))}"
+        )
     else:
-        res = {"stamp": stamp("python -m bench.bench_fleet_service")}
+        res = {"stamp": stamp(" ".join(["python -m bench.bench_fleet_service", *sys.argv[1:]]))}
 
         def log(m: str) -> None:
             print(m, flush=True)
