@@ -222,8 +222,10 @@ def chengdu_solve_phase(svc: Service, phases: list[Phase], solves: list[dict[str
     phases.append(Phase("solve", start, end, cpu_last - cpu0, {"status": done["status"]}))
 
 
-def metro_solve_phase(svc: Service, seconds: float, phases: list[Phase], log: Log) -> None:
-    """A requested solve's runs in progress for ``seconds``, then ended by killing the worker's processes."""
+def bounded_solve_phase(svc: Service, seconds: float, phases: list[Phase], log: Log) -> None:
+    """A requested solve's runs in progress for ``seconds``, then ended by killing the worker's processes
+    (the run cache emptied first: every run is simulated)."""
+    shutil.rmtree(svc.var / "fleet-runs", ignore_errors=True)
     request_id = request_solve(svc)
     running(svc, request_id, runs_started=True)
     start, cpu0 = time.monotonic(), 0.0  # the pool's processes are new: their CPU so far is the solve's
@@ -239,7 +241,9 @@ def metro_solve_phase(svc: Service, seconds: float, phases: list[Phase], log: Lo
             continue
     last = ended(svc, request_id)
     note = {"runs_done": st["runs_done"], "runs_running": st["runs_running"], "runs_total": st["runs_total"]}
-    log(f"metro solve phase: {note}, worker CPU {cpu:.0f} s in {end - start:.0f} s; ended {last['status']}")
+    log(
+        f"{svc.city} solve phase: {note}, worker CPU {cpu:.0f} s in {end - start:.0f} s; ended {last['status']}"
+    )
     phases.append(Phase("solve", start, end, cpu, note))
 
 
@@ -329,7 +333,10 @@ def replay_day(client: httpx.Client, rec: Recorder, day: int) -> None:
     simulate(bundle.city, demand, tasks, config, TimedDispatcher(client, rec))
 
 
-def measure_chengdu(rounds: int, quiet_s: float, shot: bool, log: Log) -> dict[str, Any]:
+def measure_chengdu(
+    rounds: int, quiet_s: float, solve_s: float | None, shot: bool, log: Log
+) -> dict[str, Any]:
+    """Whole solves (``solve_s`` None), else solve phases of ``solve_s`` seconds of runs in progress."""
     rec, phases, solves = Recorder(), [], []  # type: ignore[var-annotated]
     with service(CITY, {}, log) as svc:
         replay_day(svc.api, Recorder(), 0)  # the first day loads the city's state: untimed
@@ -337,7 +344,11 @@ def measure_chengdu(rounds: int, quiet_s: float, shot: bool, log: Log) -> dict[s
         done = threading.Event()
         ctl = alternate(
             lambda: quiet_phase(svc, quiet_s, phases, done),
-            lambda: chengdu_solve_phase(svc, phases, solves),
+            lambda: (
+                chengdu_solve_phase(svc, phases, solves)
+                if solve_s is None
+                else bounded_solve_phase(svc, solve_s, phases, log)
+            ),
             rounds,
             done,
         )
@@ -359,6 +370,7 @@ def measure_chengdu(rounds: int, quiet_s: float, shot: bool, log: Log) -> dict[s
         "loadavg_after": list(load_after),
         "rounds": rounds,
         "quiet_s": quiet_s,
+        "solve_s": solve_s,
     }
 
 
@@ -457,7 +469,7 @@ def measure_metro(rounds: int, quiet_s: float, solve_s: float, gap_s: float, log
             done = threading.Event()
             ctl = alternate(
                 lambda: quiet_phase(svc, quiet_s, phases, done),
-                lambda: metro_solve_phase(svc, solve_s, phases, log),
+                lambda: bounded_solve_phase(svc, solve_s, phases, log),
                 rounds,
                 done,
             )
@@ -516,16 +528,25 @@ def _load(res: dict[str, Any]) -> str:
 
 
 def report_chengdu(res: dict[str, Any]) -> list[str]:
-    walls = [s["request_to_published_s"] for s in res["solves"]]
-    runs = [s["runs"] for s in res["solves"]]
+    if res.get("solve_s"):
+        what = (
+            f"{res['rounds']} solve phases of {res['solve_s']:.0f} s (a requested solve's runs in progress from "
+            "an empty run cache, ended by the benchmark)"
+        )
+        title = "solve phases of runs in progress"
+    else:
+        walls = ", ".join(f"{s['request_to_published_s']:.0f}" for s in res["solves"])
+        what = (
+            f"{res['rounds']} whole solves, each from an empty run cache ({res['solves'][0]['runs']} runs; a "
+            f"request to its recommendation published: {walls} s)"
+        )
+        title = "whole solves"
     return [
-        "### The paper's scale: Chengdu, the replay client's days",
+        f"### The paper's scale: Chengdu, the replay client's days ({title})",
         "",
         *([res["stamp"], ""] if "stamp" in res else []),
-        f"{res['rounds']} solves, each from an empty run cache ({runs[0]} runs), between {res['rounds'] + 1} "
-        f"phases of {res['quiet_s']:.0f} s without; {res['days_replayed']} days replayed back to back; "
-        f"{_load(res)}. A solve request to its recommendation published: "
-        f"{', '.join(f'{w:.0f}' for w in walls)} s.",
+        f"{what} between {res['rounds'] + 1} phases of {res['quiet_s']:.0f} s without; "
+        f"{res['days_replayed']} days replayed back to back; {_load(res)}.",
         "",
         *_rows(res),
         "",
@@ -567,8 +588,9 @@ def report(res: dict[str, Any]) -> str:
         f"running at most {TARGET_RATIO}x the p99 without (module docstring of `bench/bench_fleet_service.py`).",
         "",
     ]
-    if "chengdu" in res:
-        out += [*report_chengdu(res["chengdu"]), ""]
+    for key in ("chengdu", "chengdu_whole"):
+        if key in res:
+            out += [*report_chengdu(res[key]), ""]
     if "metro" in res:
         out += [*report_metro(res["metro"]), ""]
     return "\n".join(out)
@@ -580,6 +602,12 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=2, help="solves (solve phases) per scale")
     ap.add_argument("--quiet-s", type=float, default=90.0, help="seconds of each phase without a solve")
     ap.add_argument("--metro-solve-s", type=float, default=120.0, help="seconds of each metro solve phase")
+    ap.add_argument(
+        "--chengdu-solve-s",
+        type=float,
+        default=None,
+        help="chengdu solve phases of this many seconds of runs",
+    )
     ap.add_argument("--metro-gap-s", type=float, default=5.0, help="seconds between two metro epochs")
     ap.add_argument("--json-out", type=Path, default=JSON_OUT, help="where the measurement is written")
     ap.add_argument("--no-screenshot", action="store_true", help="do not save the dashboard screenshot")
@@ -592,7 +620,8 @@ def main() -> int:
             part = json.loads(path.read_text())
             for scale in ("chengdu", "metro"):
                 if scale in part:
-                    res[scale] = {"stamp": part["stamp"], **part[scale]}
+                    key = "chengdu_whole" if scale == "chengdu" and not part[scale].get("solve_s") else scale
+                    res[key] = {"stamp": part["stamp"], **part[scale]}
         res["stamp"] = stamp(
             f"python -m bench.bench_fleet_service --report-only {' '.join(map(str, args.report_only))}"
         )
@@ -604,7 +633,7 @@ def main() -> int:
 
         if args.scale in ("chengdu", "both"):
             shot = not (args.no_screenshot or args.no_write)
-            res["chengdu"] = measure_chengdu(args.rounds, args.quiet_s, shot, log)
+            res["chengdu"] = measure_chengdu(args.rounds, args.quiet_s, args.chengdu_solve_s, shot, log)
             log(json.dumps({k: v for k, v in res["chengdu"].items() if k != "phases"}, indent=1))
         if args.scale in ("metro", "both"):
             res["metro"] = measure_metro(args.rounds, args.quiet_s, args.metro_solve_s, args.metro_gap_s, log)
