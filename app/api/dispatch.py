@@ -64,7 +64,18 @@ def post_epoch(
     metrics: MetricsDep,
     limits: LimitsDep,
 ) -> Response:
-    """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
+    """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once.
+
+    The epoch's whole CPU path here (parsing, resolving its nodes, the solve, the commit and the response
+    document) holds the service's foreground: the embedded fleet worker's runs stay stopped throughout,
+    not only while the core solves (docs/FLEET.md, "When the worker solves")."""
+    with epochs.foreground():
+        return _post_epoch(city, raw, catalog, epochs, metrics, limits)
+
+
+def _post_epoch(
+    city: str, raw: RawBody, catalog: CitiesDep, epochs: EpochsDep, metrics: MetricsDep, limits: LimitsDep
+) -> Response:
     epoch = epoch_post(raw, limits)  # on this threadpool thread, before anything is counted
     started = time.perf_counter()
     try:
