@@ -64,11 +64,9 @@ def post_epoch(
     metrics: MetricsDep,
     limits: LimitsDep,
 ) -> Response:
-    """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once.
-
-    The epoch's whole CPU path here (parsing, resolving its nodes, the solve, the commit and the response
-    document) holds the service's foreground: the embedded fleet worker's runs stay stopped throughout,
-    not only while the core solves (docs/FLEET.md, "When the worker solves")."""
+    """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
+    # the epoch's whole CPU path (parsing, resolving its nodes, the solve, the commit, the response document)
+    # holds the foreground: the embedded worker's runs stay stopped throughout (docs/FLEET.md)
     with epochs.foreground():
         return _post_epoch(city, raw, catalog, epochs, metrics, limits)
 
