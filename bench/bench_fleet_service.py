@@ -4,7 +4,7 @@ request to the recommendation.
 
     python -m bench.bench_fleet_service                      # both scales, write docs/PERFORMANCE.md, screenshot
     python -m bench.bench_fleet_service --scale chengdu --rounds 2 --no-write   # a quick look
-    python -m bench.bench_fleet_service --report-only docs/perf_fleet_service.json
+    python -m bench.bench_fleet_service --report-only docs/perf_fleet_service/*.json   # one JSON per scale
 
 Each scale starts the service as `make run` starts it (`python -m app run`: memory store, the fleet worker
 inside it with its defaults: local simulation processes at niceness +10, paused while an epoch is solved),
@@ -70,7 +70,7 @@ from tests.e2e.service import start_process, stop, wait_ready
 CITY = "chengdu"
 METRO = "metro250k"
 TOKEN = "bench-fleet-admin-token"
-JSON_OUT = ROOT / "docs" / "perf_fleet_service.json"
+JSON_OUT = ROOT / "docs" / "perf_fleet_service" / "last.json"
 SCREENSHOT = ROOT / "docs" / "figures" / "dashboard.png"
 FIRST_DATE = dt.date(2025, 1, 1)  # far before the clock: outside the look-back of recorded history
 TARGET_RATIO = 1.3
@@ -591,8 +591,15 @@ def report(res: dict[str, Any]) -> str:
     for key in ("chengdu", "chengdu_whole"):
         if key in res:
             out += [*report_chengdu(res[key]), ""]
-    if "metro" in res:
-        out += [*report_metro(res["metro"]), ""]
+    for key in ("metro", "metro_before"):  # metro_before: an earlier measurement set beside it
+        if key in res:
+            out += [*report_metro(res[key]), ""]
+    out += [
+        "Reading: a phase's p99 over a few epochs is its largest epoch (the metropolitan phases hold 2-6 "
+        "each), so a ratio there moves with one slow epoch; the worker's CPU seconds per solve phase say "
+        "how much the runs ran beside the epochs (on a machine loaded by other work, processes at niceness "
+        "+10 get little).",
+    ]
     return "\n".join(out)
 
 
@@ -618,7 +625,7 @@ def main() -> int:
         res: dict[str, Any] = {}
         for path in args.report_only:  # one file per scale when they were measured apart: each its stamp
             part = json.loads(path.read_text())
-            for scale in ("chengdu", "metro"):
+            for scale in ("chengdu", "metro", "metro_before"):
                 if scale in part:
                     key = "chengdu_whole" if scale == "chengdu" and not part[scale].get("solve_s") else scale
                     res[key] = {"stamp": part["stamp"], **part[scale]}
