@@ -382,3 +382,40 @@ def test_epochs_beyond_the_solve_slots_wait_then_get_503_busy_and_change_nothing
     again = client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch("e2", 1.0), headers=auth())
     assert again.status_code == 200 and again.headers.get("Idempotent-Replayed") is None
     assert len(inner.calls) == 2  # e1 and e2 once each: the refused post solved nothing
+
+
+def test_the_whole_epoch_request_holds_the_foreground(
+    make_client: MakeClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The embedded worker's runs stay stopped while the API parses an epoch, not only while it solves: the
+    foreground is held when the body is parsed and when the decision is made, and released after, also
+    when the body is refused."""
+    import contextlib
+
+    from app.api.bodies import epoch_post
+
+    client = make_client()
+    held: list[int] = []
+    depth = [0]
+
+    @contextlib.contextmanager
+    def foreground() -> Any:
+        depth[0] += 1
+        try:
+            yield
+        finally:
+            depth[0] -= 1
+
+    client.app.state.use_cases.epochs.foreground = foreground  # type: ignore[attr-defined]
+
+    def parse_seen(*args: Any) -> Any:
+        held.append(depth[0])
+        return epoch_post(*args)
+
+    monkeypatch.setattr("app.api.dispatch.epoch_post", parse_seen)
+    r = client.post(URL, json=payloads.epoch(), headers=auth())
+    assert r.status_code == 200, r.text
+    assert held == [1] and depth[0] == 0
+    r = client.post(URL, content=b"{not json", headers={**auth(), "Content-Type": "application/json"})
+    assert r.status_code in (400, 422), r.text
+    assert held == [1, 1] and depth[0] == 0
