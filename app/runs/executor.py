@@ -125,9 +125,29 @@ START_WAIT_S = 5.0
 """How long an outcome waits for its item's start to come through the queue."""
 
 
-def _init_pool_process(started: Any, nice: int = 0) -> None:
+def _watch_service(service_pid: int, every_s: float = 1.0) -> None:
+    """In a pool process: end this process once the service that started the pool has ended, so a service
+    killed mid-solve leaves no simulation running on without it (the forkserver between them lives as long
+    as its children do, so the kernel's parent-death signal would never come)."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(every_s)
+            try:
+                os.kill(service_pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except PermissionError:  # the pid was taken by another user's process: ours has ended
+                os._exit(1)
+
+    threading.Thread(target=watch, name="watch-service", daemon=True).start()
+
+
+def _init_pool_process(started: Any, nice: int = 0, service_pid: int | None = None) -> None:
     global _started
     _started = started
+    if service_pid is not None:
+        _watch_service(service_pid)
     if nice > 0:
         os.nice(nice)  # the runs yield the CPU to the service's epochs (CFS weighs nice 10 at ~1/10)
 
@@ -146,7 +166,8 @@ class ProcessExecutor:
     process died) fails the items it held and is started again next time. ``fn`` must be a module-level
     function (it is sent to the processes by name). The processes read bundles from this machine's disk.
     ``nice`` is added to each process's niceness when it starts (0..19), so that the runs of a worker
-    inside the API process leave the CPU to the epochs.
+    inside the API process leave the CPU to the epochs. A process ends by itself within a second of the
+    process that started the pool ending (killed, say): no run goes on without its service.
     """
 
     def __init__(self, workers: int = 2, *, nice: int = 0) -> None:
@@ -209,7 +230,7 @@ class ProcessExecutor:
                 max_workers=self._workers,
                 mp_context=ctx,
                 initializer=_init_pool_process,
-                initargs=(self._started, self._nice),
+                initargs=(self._started, self._nice, os.getpid()),
             )
         batch = next(self._batches)
         pool, started = self._pool, self._started

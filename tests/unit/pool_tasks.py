@@ -34,3 +34,27 @@ def count_until_stopped(directory: str) -> int:
         os.replace(here / "count.tmp", here / "count")
         time.sleep(0.005)
     return n
+
+
+def executor_then_die(directory: str) -> None:
+    """In a process of its own: start a run on a ``ProcessExecutor``, write the run's pid to
+    ``directory/pid`` once it counts, then end abruptly (as a killed service would)."""
+    import pathlib
+    import threading
+    import time
+
+    from app.runs.executor import ProcessExecutor, Started
+
+    here = pathlib.Path(directory)
+    executor = ProcessExecutor(1)
+
+    def run() -> None:
+        for event in executor.map_unordered(count_until_stopped, [directory]):
+            if isinstance(event, Started):
+                (here / "pid.tmp").write_text(str(event.pid))
+                os.replace(here / "pid.tmp", here / "pid")
+
+    threading.Thread(target=run, daemon=True).start()
+    while not ((here / "pid").exists() and (here / "count").exists()):
+        time.sleep(0.01)
+    os._exit(0)

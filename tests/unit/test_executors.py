@@ -32,7 +32,7 @@ from app.runs.bundles import BundleFiles, install_shipped, shipped_copy
 from app.runs.executor import Foreground
 from app.runs.localcluster import free_port
 from tests.api.fakes import CITY, build_bundle
-from tests.unit.pool_tasks import count_until_stopped, exit_on_2, square_unless_3
+from tests.unit.pool_tasks import count_until_stopped, executor_then_die, exit_on_2, square_unless_3
 from tests.unit.test_worker_parts import result
 
 T = TypeVar("T")
@@ -256,6 +256,31 @@ def test_paused_processes_make_no_progress_until_resumed(tmp_path: Path) -> None
         (tmp_path / "stop").touch()
         executor.close()  # resumes first: a stopped process would never take its shutdown
     assert not runs.is_alive()
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` is a process that has not ended (a zombie has ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state != "Z"
+
+
+def test_a_run_does_not_outlive_the_process_that_started_it(tmp_path: Path) -> None:
+    """A service killed mid-solve (no shutdown) leaves no simulation running: the run's process is
+    killed when its parent ends."""
+    import multiprocessing
+
+    parent = multiprocessing.get_context("spawn").Process(target=executor_then_die, args=(str(tmp_path),))
+    parent.start()
+    parent.join(timeout=120)
+    assert parent.exitcode == 0
+    pid = int((tmp_path / "pid").read_text())
+    _until(lambda: not _alive(pid))
+    counted = _count(tmp_path)
+    time.sleep(0.3)
+    assert _count(tmp_path) == counted  # nothing counts on
 
 
 class _Recorder:
