@@ -267,6 +267,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+@pytest.mark.slow  # two processes and a pool start
 def test_a_run_does_not_outlive_the_process_that_started_it(tmp_path: Path) -> None:
     """A service killed mid-solve (no shutdown) leaves no simulation running: the run's process is
     killed when its parent ends."""
