@@ -22,11 +22,13 @@ from numpy.typing import NDArray
 from services.citydata import load_city
 from services.matching.assignment import lexicographic_assignment
 from services.model import CountsView, IntervalKey, TaxiId
-from services.network.graph import road_graph
+from services.network import search
+from services.network.graph import INF, Costs, road_graph
 from services.network.pads import Pads
-from services.routing.algorithm1 import Plans, plan_routes, problem
+from services.routing import algorithm1
+from services.routing.algorithm1 import Drive, Plans, plan_routes, problem
 from services.routing.step3 import PHI_BITS
-from services.sensing.gains import counted_csr, gain_table
+from services.sensing.gains import counted_csr, gain_table, mark
 from tests import reference as ref
 from tests.citymaker import T0, make_city
 
@@ -164,3 +166,52 @@ def test_step3_at_the_apis_largest_size_equals_the_straightforward_computation()
     for targets in (pois[:40], pois):
         got, straight = _plans_both(graph, gn, counted, sources, targets, now)
         _same(got, straight)
+
+
+def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_cells_is_the_full_search() -> (
+    None
+):
+    """``search.guided`` with the in-tree's path cells stops short of the POI, and away from the taxi, in
+    many searches, and the route it gives (the path to where it stopped, then the in-tree's path) is the
+    route of the search run to the POI, bit for bit."""
+    rng = np.random.default_rng(7)
+    city = _lattice(rng, 14, 0.0)
+    graph = road_graph(city)
+    now = T0 + 1200.0
+    k0 = city.horizon.interval_of(now)
+    taxis = [TaxiId(f"t{i}") for i in range(40)]
+    view = _heavy_counts(rng, city.grid.n_cells, k0, taxis, 0.25)
+    gn = gain_table(city, view.counts, k0, 2, now)
+    counted = counted_csr(view.visited, taxis, k0)
+    sources = rng.choice(graph.n_nodes, len(taxis), replace=True).astype(np.int64)
+    pb = problem(
+        gn, counted, sources, rng.choice(graph.n_nodes, 3, replace=False).astype(np.int64), KAPPAS, now
+    )
+    kt = algorithm1.kit(graph, KAPPAS)
+    base = algorithm1._base_kappa(kt, gn, pb.kappas, True)
+    stopped = searched = 0
+    with Pads(graph).take() as pad:
+        tl = algorithm1.tools(pad, gn)
+        sc = tl.sc
+        for root in pb.targets.tolist():
+            for q in (1, 3):
+                costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
+                search.run(kt.rg, kt.ed, costs, root, INF - 1, np.zeros(0, np.int64), tl.wsr)
+                search.path_cells(kt.rg, kt.ed, tl.wsr, sc.cbits, sc.cdone, 10**9 + q, sc.cstack)
+                for a, src in enumerate(sources.tolist()):
+                    mark(sc.zmask, counted, a, True)
+                    mine, lazy = algorithm1._own_metric(kt, sc, gn, q, KAPPAS[q], base.umax)
+                    leg = Drive(a, src, root, INF - 1)
+                    got = []
+                    for clean in (sc.cbits, sc.cbits[:0]):
+                        gd = search.tree_guide(
+                            tl.wsr, INF - 1, clean, algorithm1._zbits(counted, a, sc.zbits)
+                        )
+                        got.append(algorithm1._own_route(kt, pb, tl, costs, gd, lazy, mine, leg))
+                        if clean.shape[0]:
+                            meet = search.guided(kt.fg, kt.ed, mine, src, root, tl.wsf, gd, lazy)
+                            stopped += meet >= 0 and kt.fg.kept[meet] not in (root, src)
+                    mark(sc.zmask, counted, a, False)
+                    assert got[0] == got[1]
+                    searched += 1
+    assert stopped > searched // 4
