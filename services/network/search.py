@@ -51,6 +51,8 @@ __all__ = [
     "guided",
     "Guide",
     "tree_guide",
+    "CLEAN_WORDS",
+    "path_cells",
     "landmarks",
     "crossing_us",
     "resolve",
@@ -725,7 +727,11 @@ class Guide(NamedTuple):
     (``landmarks``; the travel-time bound, ties 0); an in-tree's labels, the arrays of the reverse
     workspace it was grown in (``tree_*``, (K,) each: kept indices are the same both ways), grown to
     ``cutoff - 1`` and not stopped early, so that a node it did not settle costs at least ``cutoff``; or
-    ``pot`` (3, K), a label per kept node."""
+    ``pot`` (3, K), a label per kept node.
+
+    With an in-tree, ``clean`` (K, ``CLEAN_WORDS``) may hold the cells each settled node's in-tree path
+    enters (``path_cells``) and ``zbits`` the cells whose entering edges the searched metric prices
+    differently from the in-tree's (as ``cell_bit`` sets; ``clean`` of shape (0, W): no such test)."""
 
     pot: NDArray[np.int64]
     lm: NDArray[np.int64]
@@ -734,11 +740,73 @@ class Guide(NamedTuple):
     tree_tie2: NDArray[np.int64]
     tree_state: NDArray[np.int64]
     cutoff: int
+    clean: NDArray[np.uint64]
+    zbits: NDArray[np.uint64]
+
+
+CLEAN_WORDS = 4
+"""Words of a cell set (``cell_bit``): cell ``c`` is bit ``c % (64 * CLEAN_WORDS)``, so on a network of more
+cells two cells may share a bit (a set then holds more cells than it should, never fewer)."""
+
+
+@compiled_inline
+def cell_bit(bits: NDArray[np.uint64], c: int) -> None:
+    """Add cell ``c`` to the cell set ``bits`` (``CLEAN_WORDS`` words)."""
+    b = c % (64 * CLEAN_WORDS)
+    bits[b >> 6] |= np.uint64(1) << np.uint64(b & 63)
 
 
 @compiled
-def tree_guide(tree: Workspace, limit: int) -> Guide:
-    """The ``Guide`` of the in-tree grown in ``tree`` to ``limit`` (``run`` with no targets)."""
+def path_cells(
+    g: SearchGraph,
+    ed: Edges,
+    tree: Workspace,
+    out: NDArray[np.uint64],
+    done: NDArray[np.int64],
+    stamp: int,
+    stack: NDArray[np.int64],
+) -> None:
+    """For every kept node the in-tree grown in ``tree`` (``run`` on the reverse graph ``g``) settled, the
+    cells its tree path to the root enters (each edge's cells but its first) into ``out[k]`` as a
+    ``cell_bit`` set; ``done[k] = stamp`` marks each node written. ``stack``: scratch of K entries."""
+    for i in range(tree.info[2]):
+        k0 = tree.touched[i]
+        if tree.state[k0] != -2 or done[k0] == stamp:
+            continue
+        top = 0
+        k = k0
+        while True:  # toward the root, to a node written or the root's super-edge
+            stack[top] = k
+            top += 1
+            s = tree.pse[k]
+            if s < 0 or tree.pstart[k] != 0:
+                break
+            k = g.se_tail[s]
+            if done[k] == stamp:
+                break
+        while top > 0:  # back, each node's set from the next node's toward the root
+            top -= 1
+            k = stack[top]
+            s = tree.pse[k]
+            for w in range(CLEAN_WORDS):
+                out[k, w] = 0
+            if s >= 0:
+                start = tree.pstart[k]
+                if start == 0:
+                    nxt = g.se_tail[s]
+                    for w in range(CLEAN_WORDS):
+                        out[k, w] = out[nxt, w]
+                for p in range(g.se_ptr[s] + start, g.se_ptr[s + 1]):
+                    e = g.se_edges[p]
+                    for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
+                        cell_bit(out[k], ed.ec_cell[j])
+            done[k] = stamp
+
+
+@compiled
+def tree_guide(tree: Workspace, limit: int, clean: NDArray[np.uint64], zbits: NDArray[np.uint64]) -> Guide:
+    """The ``Guide`` of the in-tree grown in ``tree`` to ``limit`` (``run`` with no targets), with its
+    nodes' path cells ``clean`` and the searched metric's cells ``zbits`` (``clean`` (0, W): no test)."""
     return Guide(
         np.zeros((3, 0), dtype=np.int64),
         np.zeros((0, 0), dtype=np.int64),
@@ -747,6 +815,8 @@ def tree_guide(tree: Workspace, limit: int) -> Guide:
         tree.tie2,
         tree.state,
         limit + 1,
+        clean,
+        zbits,
     )
 
 
@@ -780,7 +850,9 @@ def run_guided(
     """``guided`` with the potential ``pot`` or the landmark table ``lm`` (shape (0, 0): none), the metric
     held in ``costs``."""
     none = np.zeros(0, dtype=np.int64)
-    guided(g, ed, costs, source, target, ws, Guide(pot, lm, none, none, none, none, 0), no_lazy())
+    bits = np.zeros((0, CLEAN_WORDS), dtype=np.uint64)
+    gd = Guide(pot, lm, none, none, none, none, 0, bits, np.zeros(CLEAN_WORDS, dtype=np.uint64))
+    guided(g, ed, costs, source, target, ws, gd, no_lazy())
 
 
 @compiled_inline
@@ -822,6 +894,22 @@ def _guided_seed(
     return size, n_touched
 
 
+@compiled_inline
+def _meets(gd: Guide, k: int) -> bool:
+    """``guided`` stops at kept node ``k`` (just settled) when ``gd`` holds an in-tree's path cells and
+    ``k``'s in-tree path enters none of the cells ``gd.zbits`` holds: that path costs the searched metric
+    what it costs the in-tree's, and no other path from ``k`` costs less (the metric is nowhere cheaper
+    than the in-tree's), so ``k``'s key -- its label plus that path's label -- is the label of a path to
+    the target; no key taken later is smaller, so it is the target's label, and the canonical path is the
+    one to ``k`` (``unfold``) followed by the in-tree's path from ``k``."""
+    if gd.clean.shape[0] == 0 or gd.tree_state[k] != -2:
+        return False
+    hit = np.uint64(0)
+    for w in range(gd.zbits.shape[0]):
+        hit |= gd.clean[k, w] & gd.zbits[w]
+    return bool(hit == 0)
+
+
 @compiled
 def guided(
     g: SearchGraph,
@@ -832,7 +920,7 @@ def guided(
     ws: Workspace,
     gd: Guide,
     lazy: Lazy,
-) -> None:
+) -> int:
     """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*).
 
     The potential (``Guide``) is a label per kept node, ``(cost, tie1, tie2)`` (cost ``INF``: the node
@@ -845,27 +933,20 @@ def guided(
     ``run`` -- is the one ``run`` gives it. With the labels of the cheaper metric as potential, a search
     whose metric differs from it nowhere on the canonical path goes straight along that path. The search
     stops when the target can be resolved and settles no node that cannot reach it. ``lazy``: as in
-    ``grow``.
+    ``grow``. Returns -1, or the kept node where it stopped before the target (``_meets``).
     """
-    cost = ws.cost
-    tie1 = ws.tie1
-    tie2 = ws.tie2
-    state = ws.state
-    heap = ws.nxt
-    hkey = ws.hkey
+    cost, tie1, tie2, state, heap, hkey = ws.cost, ws.tie1, ws.tie2, ws.state, ws.nxt, ws.hkey
     _reset(ws)
     se_cost = costs.se
-    lazy_on = lazy.on
-    fixed = lazy.fixed
-    zmask = lazy.zmask
-    term = lazy.term
-    umax = lazy.umax
-    kappa = lazy.kappa
-    se_ptr = g.se_ptr
-    se_edges = g.se_edges
-    ec_ptr = ed.ec_ptr
-    ec_cell = ed.ec_cell
-    time_s = ed.time_s
+    lazy_on, fixed, zmask, term, umax, kappa = (
+        lazy.on,
+        lazy.fixed,
+        lazy.zmask,
+        lazy.term,
+        lazy.umax,
+        lazy.kappa,
+    )
+    se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
     ws.info[0] = source
     tgt = np.full(1, target, dtype=np.int64)
     n_touched, remaining = _need_targets(g, source, tgt, ws)
@@ -875,7 +956,7 @@ def guided(
     size = 0
     if remaining > 0:
         size, n_touched = _guided_seed(g, ed, costs, ws, gd, tl, source, n_touched)
-    complete = 1
+    complete, meet = 1, -1
     while size > 0:
         k = heap[0]
         size = _guided_pop(heap, hkey, state, size)
@@ -885,6 +966,9 @@ def guided(
             if remaining == 0:
                 complete = 0
                 break
+        if _meets(gd, k):
+            complete, meet = 0, k
+            break
         d = cost[k]
         a0 = tie1[k]
         b0 = tie2[k]
@@ -920,6 +1004,7 @@ def guided(
                 _guided_up(heap, hkey, state, at, h, c + p0, a + p1, b + p2)
     ws.info[1] = complete
     ws.info[2] = n_touched
+    return meet
 
 
 @compiled

@@ -103,7 +103,8 @@ class Kit(NamedTuple):
 
 class Scratch(NamedTuple):
     """One thread's scratch: a zero mask and an evaluation stamp over the gain table and the next stamp, a
-    lazy metric's costs per edge and super-edge, and the tree evaluation's scratch."""
+    lazy metric's costs per edge and super-edge, the tree evaluation's scratch, and the cell sets of
+    ``search.guided``'s stop (per kept node of an in-tree, and of a taxi)."""
 
     zmask: NDArray[np.bool_]
     stamp: NDArray[np.int64]
@@ -111,6 +112,10 @@ class Scratch(NamedTuple):
     edge_cost: NDArray[np.int64]  # (m,)
     se_cost: NDArray[np.int64]  # (S,) forward super-edges
     tree: TreeScratch
+    cbits: NDArray[np.uint64]  # (K, search.CLEAN_WORDS) an in-tree's path cells (search.path_cells)
+    cdone: NDArray[np.int64]  # (K,) and the stamp of the in-tree they were written for
+    cstack: NDArray[np.int64]  # (K,)
+    zbits: NDArray[np.uint64]  # (search.CLEAN_WORDS,) a taxi's counted cells
 
 
 class Tools(NamedTuple):
@@ -329,15 +334,53 @@ def _fastest_to(kt: Kit, pb: Problem, tl: Tools, best: Best, j: int) -> int:
 
 
 @compiled
+def _zbits(counted: Counted, a: int, out: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """The cells taxi ``a`` is counted in during the first slot, as a ``search.cell_bit`` set in ``out``."""
+    out[:] = 0
+    for p in range(counted.ptr[a], counted.ptr[a + 1]):
+        if counted.slot[p] == 0:
+            search.cell_bit(out, counted.cell[p])
+    return out
+
+
+@compiled
+def _own_route(
+    kt: Kit, pb: Problem, tl: Tools, base_q: Costs, gd: search.Guide, lazy: Lazy, mine: Costs, leg: Drive
+) -> tuple[float, float, float, int]:
+    """Taxi ``leg.i``'s route under its own costs ``mine`` (``lazy``) to ``leg.target``, searched
+    goal-directed by the in-tree (``base_q``, grown in ``tl.wsr`` to ``leg.limit``) that ``gd`` reads, and
+    evaluated: gain, time, length, largest slot. Where the search stops at a node whose in-tree path enters
+    none of the taxi's counted cells, the route is the path to it followed by that in-tree path
+    (``search.guided``)."""
+    ed = kt.ed
+    meet = search.guided(kt.fg, ed, mine, leg.source, leg.target, tl.wsf, gd, lazy)
+    if meet < 0:
+        search.unfold(kt.fg, ed, mine, INF, leg.target, tl.wsf)
+        edges = search.path_to(ed, 1, tl.wsf.pred, leg.source, leg.target)
+    else:
+        x = kt.fg.kept[meet]
+        search.unfold(kt.fg, ed, mine, INF, x, tl.wsf)
+        head = search.path_to(ed, 1, tl.wsf.pred, leg.source, x)
+        search.unfold(kt.rg, ed, base_q, leg.limit, x, tl.wsr)
+        edges = np.concatenate((head, search.walk(ed, tl.wsr.pred, x, leg.target)))
+    sid = tl.sc.next_stamp[0]
+    tl.sc.next_stamp[0] = sid + 1
+    g, _gq, t, length, ms = eval_path(ed, pb.gn, tl.sc.zmask, tl.sc.stamp, sid, edges, pb.depart_s)
+    return g, t, length, ms
+
+
+@compiled
 def _kappas_to(
     kt: Kit, pb: Problem, base: BaseKappa, own: NDArray[np.bool_], tl: Tools, best: Best, j: int
 ) -> tuple[int, int]:
     """POI ``j``'s in-tree under each base kappa metric, grown to the farthest fastest route of a taxi in
     reach (not ``own``): each such taxi's route in it is its own unless it enters a cell the taxi is
     counted in; then the taxi is searched again under its own costs, goal-directed by the in-tree's labels
-    (``search.tree_guide``: they never exceed the taxi's own). Folded in kappa order. Returns the largest
-    slot reached and the number of goal-directed searches."""
+    (``search.tree_guide``: they never exceed the taxi's own), and stopped where the in-tree's path enters
+    none of its counted cells (``_own_route``). Folded in kappa order. Returns the largest slot reached and
+    the number of goal-directed searches."""
     ed = kt.ed
+    sc = tl.sc
     root = pb.targets[j]
     limit = -1
     n = 0
@@ -362,23 +405,23 @@ def _kappas_to(
         search.run(kt.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), tl.wsr)
         if not search.unfold_many(kt.rg, ed, costs, limit, nodes, tl.wsr, reached):
             raise AssertionError("a discounted route costs more than the fastest path's time")
-        guide = search.tree_guide(tl.wsr, limit)
+        cells = False  # the in-tree's path cells, written at the first taxi searched again
         for r in range(n):
             a = who[r]
-            mark(tl.sc.zmask, pb.counted, a, True)
-            g, t, length, ms, touch = _eval_walk(ed, pb.gn, tl.sc, tl.wsr.pred, nodes[r], root, pb.depart_s)
+            mark(sc.zmask, pb.counted, a, True)
+            g, t, length, ms, touch = _eval_walk(ed, pb.gn, sc, tl.wsr.pred, nodes[r], root, pb.depart_s)
             if touch:
-                mine, lazy = _own_metric(kt, tl.sc, pb.gn, q, kappa, base.umax)
-                search.guided(kt.fg, ed, mine, nodes[r], root, tl.wsf, guide, lazy)
+                if not cells:
+                    stamp = sc.next_stamp[0]
+                    sc.next_stamp[0] = stamp + 1
+                    search.path_cells(kt.rg, ed, tl.wsr, sc.cbits, sc.cdone, stamp, sc.cstack)
+                    cells = True
+                gd = search.tree_guide(tl.wsr, limit, sc.cbits, _zbits(pb.counted, a, sc.zbits))
+                mine, lazy = _own_metric(kt, sc, pb.gn, q, kappa, base.umax)
+                leg = Drive(a, nodes[r], root, limit)
+                g, t, length, ms = _own_route(kt, pb, tl, costs, gd, lazy, mine, leg)
                 guided += 1
-                search.unfold(kt.fg, ed, mine, INF, root, tl.wsf)
-                edges = search.path_to(ed, 1, tl.wsf.pred, nodes[r], root)
-                sid = tl.sc.next_stamp[0]
-                tl.sc.next_stamp[0] = sid + 1
-                g, _gq, t, length, ms = eval_path(
-                    ed, pb.gn, tl.sc.zmask, tl.sc.stamp, sid, edges, pb.depart_s
-                )
-            mark(tl.sc.zmask, pb.counted, a, False)
+            mark(sc.zmask, pb.counted, a, False)
             _fold(best, a, j, q, g, t, length)
             max_slot = max(max_slot, ms)
     return max_slot, guided
@@ -603,6 +646,7 @@ def scratch(pad: Pad, gn: Gains) -> Scratch:
     if not isinstance(got, Scratch):
         graph = pad.graph
         shape = gn.term.shape
+        k = int(graph.reverse.kept.shape[0])
         got = pad.extra[key] = Scratch(
             np.zeros(shape, np.bool_),
             np.zeros(shape, np.int64),
@@ -610,6 +654,10 @@ def scratch(pad: Pad, gn: Gains) -> Scratch:
             np.zeros(graph.n_edges, np.int64),
             np.zeros(graph.forward.se_tail.shape[0], np.int64),
             tree_scratch(graph.n_nodes, shape),
+            np.zeros((k, search.CLEAN_WORDS), np.uint64),
+            np.zeros(k, np.int64),
+            np.zeros(k, np.int64),
+            np.zeros(search.CLEAN_WORDS, np.uint64),
         )
     return got
 
