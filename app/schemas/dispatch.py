@@ -326,6 +326,7 @@ def _assignment_doc(a: TaskAssignment, path: list[int], cells: list[tuple[int, i
         "sensing_gain": float(a.sensing_gain),
         "efficiency": float(a.efficiency),
         "cost_cny": float(a.cost_cny),
+        "kappa": float(a.kappa),
     }
 
 
@@ -361,6 +362,7 @@ class TaskAssignmentOut(ResponseModel):
     sensing_gain: float
     efficiency: float = Field(description="sensing_gain / travel_time_s (Eq. 12).")
     cost_cny: float
+    kappa: float = Field(description="The trade-off kappa the route was planned with (Algorithm 1).")
 
     @classmethod
     def of(cls, city: City, a: TaskAssignment) -> TaskAssignmentOut:
@@ -395,10 +397,11 @@ def epoch_doc(result: EpochResult) -> dict[str, Any]:
     city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
     matches, routes = decision.rider_matches, decision.task_assignments
     stats = _core_stats(decision)
+    by_step = decision.matches_by_step
     stats.update(
         {
-            "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
-            "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
+            "step1_matches": by_step[1],
+            "step2_matches": by_step[2],
             "task_assignments": len(decision.task_assignments),
             "tasks_completed": len(decision.tasks_completed),
             "riders": len(snapshot.riders),
@@ -462,8 +465,8 @@ def render_epoch(result: EpochResult) -> str:
 
 def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:
     """The decision an ``EpochOut`` document holds, in core types (node indices, POSIX times); the inverse
-    of ``EpochOut.of`` for what the document keeps. A match's ``trip_time_s`` is NaN in a document written
-    before responses carried it, an assignment's ``kappa`` always (the document does not keep it)."""
+    of ``EpochOut.of``. A match's ``trip_time_s`` and an assignment's ``kappa`` are NaN in a document written
+    before responses carried them."""
     index = city.network.index_of
 
     def path(ids: list[int]) -> tuple[int, ...]:
@@ -498,13 +501,18 @@ def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:
             sensing_gain=float(a["sensing_gain"]),
             efficiency=float(a["efficiency"]),
             cost_cny=float(a["cost_cny"]),
-            kappa=math.nan,
+            kappa=_number(a.get("kappa")),
         )
         for a in doc["task_assignments"]
     )
     completed = tuple(task_of(city, t) for t in doc["tasks_completed"])
     time_s = parse_rfc3339(doc["time"]).timestamp()
     return StoredDecision(doc["epoch_id"], time_s, matches, routes, completed)
+
+
+def _number(value: float | None) -> float:
+    """A float the document holds; NaN for one it does not (absent or null)."""
+    return math.nan if value is None else float(value)
 
 
 def read_epoch(city: City, response_json: str) -> StoredDecision:

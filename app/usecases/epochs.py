@@ -36,6 +36,7 @@ from app.ports import (
 )
 from app.usecases.cities import CityCatalog
 from services.city import City
+from services.epoch import until_fits
 from services.ledger import counts_view
 from services.model import (
     CountsView,
@@ -126,8 +127,8 @@ class EpochOutcome:
 class StoredDecision:
     """A committed epoch's decision read back from its stored response document, in core types.
 
-    ``trip_time_s`` of a match is NaN in a document stored before responses carried it; the riders' and
-    routes' ``path`` are node indices again; ``kappa`` of an assignment is NaN (not in the document).
+    ``trip_time_s`` of a match and ``kappa`` of an assignment are NaN in a document stored before responses
+    carried them; the riders' and routes' ``path`` are node indices again.
     """
 
     epoch_id: str
@@ -184,6 +185,19 @@ class EpochLimits:
     max_solves: int = 2
     solve_queue_s: float = 30.0
     max_ahead_s: float = 86400.0
+
+
+_Loaded = tuple[set[IntervalKey], CityState]
+"""The intervals an epoch's solve reads and the city's state loaded for them."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Solved:
+    """An epoch's solve: the counts it read, the tasks it expired and its decision."""
+
+    counts: CountsView
+    expired: list[Task]
+    decision: Decision
 
 
 class EpochService:
@@ -266,11 +280,13 @@ class EpochService:
                 "(SD_EPOCH_MAX_AHEAD_S)",
             )
 
-    def submit_epoch(self, name: str, epoch: EpochCommand) -> EpochOutcome:
+    def submit_epoch(self, name: str, epoch: EpochCommand, *, served: City | None = None) -> EpochOutcome:
         """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs"). At most
         ``max_solves`` epochs are solved at once: one finding every slot taken waits ``solve_queue_s``, then
-        is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot."""
-        city = self.cities.get(name)
+        is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot. ``served``:
+        the city ``name`` names when the caller has already resolved it (the epoch's node indices are
+        that city's), so it is not looked up again."""
+        city = served if served is not None else self.cities.get(name)
         snapshot = epoch.snapshot
         self._check_window(city, snapshot.time_s)
         stored = self.store.get_epoch(name, snapshot.epoch_id)
@@ -288,6 +304,30 @@ class EpochService:
         finally:
             self._solve_slots.release()
 
+    def _solver(
+        self, name: str, city: City, snapshot: Snapshot
+    ) -> Callable[[_Loaded], tuple[_Solved, _Loaded | None]]:
+        """One solve of ``snapshot`` against the intervals loaded so far, asking for the intervals it reached
+        and read as zero (loaded with the rest: the solve runs again on them), none when it reached none."""
+        instrumented = [t.id for t in snapshot.taxis if t.instrumented]
+        k0 = city.horizon.interval_of(snapshot.time_s)
+
+        def solve(loaded: _Loaded) -> tuple[_Solved, _Loaded | None]:
+            intervals, state = loaded
+            counts = counts_view(state.counts, state.visited, city.grid.n_cells, sorted(intervals))
+            tasks, expired = self._expire(state.tasks, snapshot.time_s)
+            decision = self.decide(city, counts, snapshot, tasks)
+            missing = set(decision.intervals_touched) - intervals
+            if not missing:
+                return _Solved(counts, expired, decision), None
+            more = intervals | missing
+            return _Solved(counts, expired, decision), (
+                more,
+                self._load(name, more, instrumented, snapshot.time_s, k0),
+            )
+
+        return solve
+
     def _solve_and_commit(self, name: str, city: City, epoch: EpochCommand) -> EpochOutcome:
         """``submit_epoch`` within a solve slot: solve against the loaded state, commit, and on a version
         conflict load and solve again."""
@@ -299,17 +339,10 @@ class EpochService:
         instrumented = [t.id for t in snapshot.taxis if t.instrumented]
         demand = _DemandRecord(city, epoch)  # the riders and the fleet as posted: the same every attempt
         for attempt in range(1, self.commit_attempts + 1):
-            state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
+            loaded = self._load(name, intervals, instrumented, snapshot.time_s, k0)
             started = time.perf_counter()
-            while True:
-                counts = counts_view(state.counts, state.visited, city.grid.n_cells, sorted(intervals))
-                tasks, expired = self._expire(state.tasks, snapshot.time_s)
-                decision = self.decide(city, counts, snapshot, tasks)
-                missing = set(decision.intervals_touched) - intervals
-                if not missing:
-                    break
-                intervals |= missing  # the solve reached intervals it read as zero: load them, solve again
-                state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
+            solved, (intervals, state) = until_fits(self._solver(name, city, snapshot), (intervals, loaded))
+            counts, expired, decision = solved.counts, solved.expired, solved.decision
             solve_ms = (time.perf_counter() - started) * 1000.0
             before, after = _gamma_before_after(city, counts, decision, day)
             result = EpochResult(city, epoch, decision, k0, solve_ms, attempt, before, after)
@@ -331,10 +364,8 @@ class EpochService:
                 ),
             )
             if commit.status == "committed":
-                steps = {1: 0, 2: 0}
-                for m in decision.rider_matches:
-                    steps[m.step] += 1
-                return EpochOutcome(response, False, steps, len(decision.task_assignments), attempt)
+                by_step = decision.matches_by_step
+                return EpochOutcome(response, False, by_step, len(decision.task_assignments), attempt)
             if commit.status == "duplicate":
                 if commit.stored is None:
                     raise RuntimeError("store reported a duplicate epoch without its record")
