@@ -1,7 +1,8 @@
 """The epoch use cases: solve and commit a posted epoch exactly once (``EpochService.submit_epoch``), and
 read committed epochs back (the log, the stored document, the routes an epoch planned). They take the core's
 types (a resolved epoch) and return the core's results; the API turns requests into those types
-(``app.api.inputs``) and renders the results (``app.schemas``)."""
+(``app.api.inputs``) and renders the results (``app.schemas``). A committed epoch's document is its record
+(``app.usecases.epoch_record``), written once and answered verbatim to its post and every replay."""
 
 from __future__ import annotations
 
@@ -35,6 +36,15 @@ from app.ports import (
     local_day,
 )
 from app.usecases.cities import CityCatalog
+from app.usecases.epoch_record import (
+    EpochCommand,
+    EpochReader,
+    EpochRenderer,
+    EpochResult,
+    StoredDecision,
+    read_epoch,
+    render_epoch,
+)
 from services.city import City
 from services.epoch import until_fits
 from services.ledger import counts_view
@@ -42,10 +52,8 @@ from services.model import (
     CountsView,
     Decision,
     IntervalKey,
-    RiderMatch,
     Snapshot,
     Task,
-    TaskAssignment,
     TaxiId,
 )
 from services.rfc3339 import format_time
@@ -75,44 +83,6 @@ DecideFn = Callable[[City, CountsView, Snapshot, Sequence[Task]], Decision]
 
 
 @dataclass(frozen=True, slots=True)
-class EpochCommand:
-    """One posted epoch, validated and resolved to node indices at the edge (``app.api.inputs``).
-
-    ``body_hash`` is the sha256 of the request's canonical JSON (``app.schemas.dispatch.body_hash``, computed
-    by the API from the validated request model). It is stored with the commit: a later post of the same
-    epoch id is a replay only if its hash is equal, so its definition never changes. ``time_text`` is the
-    epoch time as posted (RFC 3339 with the client's offset), echoed in the response and the recorded demand.
-    """
-
-    snapshot: Snapshot
-    body_hash: str
-    time_text: str
-
-
-@dataclass(frozen=True, slots=True)
-class EpochResult:
-    """A decided epoch, before its commit: what the response document shows (``app.schemas.dispatch``).
-
-    ``interval`` is the epoch's own sensing interval; ``gamma_before`` and ``gamma_after`` are Gamma over
-    that day's horizon intervals at the epoch's start and with its visits counted; ``attempts`` counts the
-    solves (a lost commit race solves again).
-    """
-
-    city: City
-    epoch: EpochCommand
-    decision: Decision
-    interval: IntervalKey
-    solve_ms: float
-    attempts: int
-    gamma_before: float
-    gamma_after: float
-
-
-EpochRenderer = Callable[[EpochResult], str]
-"""The response document of a decided epoch, committed with it and returned verbatim to replays."""
-
-
-@dataclass(frozen=True, slots=True)
 class EpochOutcome:
     """The response of one epoch post and what it changed (nothing when ``replayed``)."""
 
@@ -121,25 +91,6 @@ class EpochOutcome:
     matches_by_step: dict[int, int] = field(default_factory=dict)
     n_task_assignments: int = 0
     attempts: int = 0
-
-
-@dataclass(frozen=True, slots=True)
-class StoredDecision:
-    """A committed epoch's decision read back from its stored response document, in core types.
-
-    ``trip_time_s`` of a match and ``kappa`` of an assignment are NaN in a document stored before responses
-    carried them; the riders' and routes' ``path`` are node indices again.
-    """
-
-    epoch_id: str
-    time_s: float
-    rider_matches: tuple[RiderMatch, ...]
-    task_assignments: tuple[TaskAssignment, ...]
-    tasks_completed: tuple[Task, ...]
-
-
-EpochReader = Callable[[City, str], StoredDecision]
-"""The decision inside a stored response document (the inverse of an ``EpochRenderer``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,9 +154,9 @@ class _Solved:
 class EpochService:
     """Posted epochs solved and committed exactly once, and committed epochs read back.
 
-    ``render_epoch`` writes the response document of a decided epoch (the API's, ``app.schemas.dispatch``):
-    it is committed with the epoch in one atomic step, so a replay is answered with the same bytes;
-    ``read_epoch`` reads a stored document back into core types.
+    ``render_epoch`` writes the record of a decided epoch (``app.usecases.epoch_record``): it is committed
+    with the epoch in one atomic step, so a replay is answered with the same bytes; ``read_epoch`` reads a
+    stored record back into core types (a test may give stand-ins for both).
     """
 
     def __init__(
@@ -214,8 +165,8 @@ class EpochService:
         store: DispatchStore,
         decide: DecideFn,
         *,
-        render_epoch: EpochRenderer,
-        read_epoch: EpochReader,
+        render_epoch: EpochRenderer = render_epoch,
+        read_epoch: EpochReader = read_epoch,
         limits: EpochLimits = EpochLimits(),
         clock: Callable[[], float] = time.time,
         foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
