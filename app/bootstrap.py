@@ -38,7 +38,6 @@ from app.metrics import Metrics
 from app.ports import Store
 from app.runs import ProcessExecutor, Progress, ResultCache, RunCache, Runner, make_executor
 from app.runs.executor import Foreground
-from app.schemas.dispatch import read_epoch, render_epoch
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
 from app.usecases import CityCatalog, DecideFn, EpochLimits, SizingConfig, UseCases
@@ -116,8 +115,6 @@ def _use_cases(
         registry,
         store,
         decide or _default_decide(settings.dispatch.workers),
-        render_epoch=render_epoch,
-        read_epoch=read_epoch,
         limits=limits,
         worker_stale_s=settings.worker.stale_s,
         sizing=SizingConfig.from_settings(settings.sizing, settings.store.retention_s),

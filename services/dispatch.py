@@ -18,8 +18,10 @@ canonical shortest path of its cost (``services.network.graph``).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,13 +45,14 @@ from services.model import (
     Taxi,
     TaxiId,
     Visit,
+    matches_by_step,
 )
 from services.network import hierarchy
 from services.network.graph import RoadGraph, road_graph
 from services.network.pads import pads_for
 from services.routing.algorithm1 import Route
 from services.routing.algorithm2 import improve_routes
-from services.routing.step3 import Step3, step3_monitoring_routes
+from services.routing.step3 import step3_monitoring_routes
 from services.sensing.gains import Counted, counted_csr, counted_rows, path_facts
 from services.tasks import PlannedPath, Reach, apply_reaches, due_completions, reaches
 
@@ -60,70 +63,63 @@ INITIAL_SLOTS = 3
 
 
 @dataclass(frozen=True, slots=True)
-class _Present:
-    """Who the epoch serves: the riders still waiting (those past their patience expire), the vacant taxis
-    (instrumented first: taxi indices below ``len(instrumented)`` are instrumented)."""
+class _Ride:
+    """A rider matched in Step 1 (an instrumented taxi) or Step 2 (an ordinary one): the taxi and the rider,
+    the reported sensing gain, the pickup leg's length and wait, the trip, and the planned path (the pickup
+    leg then the trip)."""
+
+    step: Literal[1, 2]
+    taxi: Taxi
+    rider: Rider
+    gain: float
+    pickup_m: float
+    wait_s: float
+    trip: Leg
+    edges: NDArray[np.int64]
+
+
+@dataclass(frozen=True, slots=True)
+class _Routed:
+    """A free instrumented taxi sent to a POI in Step 3 (its route after Algorithm 2) and the task the POI
+    stands for."""
+
+    taxi: Taxi
+    route: Route
+    task_id: TaskId
+
+
+@dataclass(slots=True)
+class _Tally:
+    """One epoch's decision as the steps build it, in their order.
+
+    Who the epoch serves: the riders still waiting (those past their patience expire) and the vacant taxis,
+    instrumented and ordinary; each rider's trip (pickup -> dropoff). Steps 1-2: the rides (Step 1's
+    first), Step 1's diagnostics and the interval slots tabulated so far. Step 3's POIs: the open tasks no
+    Step 1 path reaches, by node (the first task at a node, in schedule order, stands for the node), and the
+    nodes of the pending tasks (the only ones a path can reach). Step 3 after Algorithm 2: the routed taxis,
+    the joint utility after the initial matching and each accepted re-plan, Algorithm 2's passes. Last,
+    what the decision reports: the rider matches, the task assignments, the visits to count and every
+    planned path (for the tasks they reach).
+    """
 
     riders: list[Rider]
     expired: tuple[RiderId, ...]
     instrumented: list[Taxi]
     ordinary: list[Taxi]
-
-    @property
-    def taxis(self) -> list[Taxi]:
-        return self.instrumented + self.ordinary
-
-
-@dataclass(frozen=True, slots=True)
-class _Riders:
-    """Steps 1-2 put together: the matched pairs (Step 1's first), each pair's index among the pickups, its
-    path (pickup leg then trip) and Step 1's paths as planned paths (the sensing taxis' commitments)."""
-
-    step1: Step1
-    step2: list[Match]
-    at: NDArray[np.int64]
-    paths: list[NDArray[np.int64]]
-    planned: list[PlannedPath]
-
-    @property
-    def both(self) -> list[Match]:
-        return self.step1.pairs + self.step2
-
-
-@dataclass(frozen=True, slots=True)
-class _Targets:
-    """Step 3's POIs: the open tasks no Step 1 path reaches, by node (the first task at a node, in schedule
-    order, stands for the node), and the nodes of the pending tasks (the ones a path can reach)."""
-
-    open_tasks: list[Task]
-    by_node: dict[int, TaskId]
-    pending_nodes: NDArray[np.bool_]
-
-    @property
-    def nodes(self) -> NDArray[np.int64]:
-        return np.fromiter(self.by_node, dtype=np.int64, count=len(self.by_node))
-
-
-@dataclass(frozen=True, slots=True)
-class _Monitoring:
-    """Step 3 after Algorithm 2: the matched taxis and their routes, the joint utility after the initial
-    matching and each accepted re-plan, Algorithm 2's passes and the interval slots tabulated."""
-
-    taxis: list[Taxi]
-    routes: list[Route]
-    history: list[float]
-    passes: int
-    n_slots: int
-
-
-@dataclass(frozen=True, slots=True)
-class _Assembled:
-    """The decision's matches, assignments and visits, and every planned path (for the tasks they reach)."""
-
-    matches: list[RiderMatch]
-    assignments: list[TaskAssignment]
-    visits: list[Visit]
-    planned: list[PlannedPath]
+    trips: list[Leg] = field(default_factory=list)
+    rides: list[_Ride] = field(default_factory=list)
+    step1_stats: dict[str, float | int] = field(default_factory=dict)
+    n_slots: int = INITIAL_SLOTS
+    open_tasks: list[Task] = field(default_factory=list)
+    by_node: dict[int, TaskId] = field(default_factory=dict)
+    pending_nodes: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    routed: list[_Routed] = field(default_factory=list)
+    history: list[float] = field(default_factory=list)
+    passes: int = 0
+    matches: list[RiderMatch] = field(default_factory=list)
+    assignments: list[TaskAssignment] = field(default_factory=list)
+    visits: list[Visit] = field(default_factory=list)
+    planned: list[PlannedPath] = field(default_factory=list)
 
 
 def path_nodes(graph: RoadGraph, start: int, edges: NDArray[np.int64]) -> tuple[int, ...]:
@@ -133,7 +129,7 @@ def path_nodes(graph: RoadGraph, start: int, edges: NDArray[np.int64]) -> tuple[
     return (int(graph.edges.tail[edges[0]]), *graph.edges.head[edges].tolist())
 
 
-def _present(snapshot: Snapshot, patience_s: float) -> _Present:
+def _present(snapshot: Snapshot, patience_s: float) -> _Tally:
     """The riders within their patience and the vacant taxis of ``snapshot``."""
     now = snapshot.time_s
     expired = tuple(r.id for r in snapshot.riders if now - r.requested_at_s > patience_s)
@@ -142,22 +138,28 @@ def _present(snapshot: Snapshot, patience_s: float) -> _Present:
     vacant = [t for t in snapshot.taxis if t.vacant]
     instr = [t for t in vacant if t.instrumented]
     ordinary = [t for t in vacant if not t.instrumented]
-    return _Present(riders, tuple(RiderId(r) for r in expired), instr, ordinary)
+    return _Tally(riders, tuple(RiderId(r) for r in expired), instr, ordinary)
 
 
-def _pickups(ep: Epoch, who: _Present) -> Pickups:
-    """Every (taxi, rider) pair whose fastest pickup path is within the radius."""
+def _pickups(ep: Epoch, tally: _Tally) -> tuple[Pickups, Pickups]:
+    """Every (taxi, rider) pair whose fastest pickup path is within the radius: the instrumented taxis'
+    pairs and the ordinary taxis' (a pair's taxi is its index among its own kind). One search for both."""
     net = ep.city.network
     xy = np.column_stack((net.x_m, net.y_m))
-    origins = np.array([r.origin for r in who.riders], dtype=np.int64)
-    taxi_nodes = np.array([t.node for t in who.taxis], dtype=np.int64)
-    return pickups(ep.graph, xy, origins, taxi_nodes, ep.city.params.radius_m, ep.workers, ep.pads)
+    origins = np.array([r.origin for r in tally.riders], dtype=np.int64)
+    fleet = tally.instrumented + tally.ordinary
+    taxi_nodes = np.array([t.node for t in fleet], dtype=np.int64)
+    pk = pickups(ep.graph, xy, origins, taxi_nodes, ep.city.params.radius_m, ep.workers, ep.pads)
+    n = len(tally.instrumented)
+    ordinary = select(pk, pk.taxi >= n)
+    return select(pk, pk.taxi < n), dataclasses.replace(ordinary, taxi=ordinary.taxi - n)
 
 
-def _trips(ep: Epoch, riders: list[Rider], pk: Pickups) -> list[Leg]:
+def _trips(ep: Epoch, riders: list[Rider], cands: Sequence[Pickups]) -> list[Leg]:
     """Each rider's service leg (pickup -> dropoff); an empty leg for a rider no taxi can pick up."""
     has_pair = np.zeros(len(riders), dtype=bool)
-    has_pair[pk.rider] = True
+    for pk in cands:
+        has_pair[pk.rider] = True
     rows = np.flatnonzero(has_pair)
     legs = trips(ep.graph, [(riders[j].origin, riders[j].destination) for j in rows], ep.workers, ep.pads)
     service: list[Leg] = [Leg(np.zeros(0, dtype=np.int64), 0.0, 0.0)] * len(riders)
@@ -166,30 +168,37 @@ def _trips(ep: Epoch, riders: list[Rider], pk: Pickups) -> list[Leg]:
     return service
 
 
-def _rider_paths(
-    ep: Epoch, who: _Present, pk: Pickups, s1: Step1, s2: list[Match], service: Sequence[Leg]
-) -> _Riders:
-    """The matched riders' paths: the pickup leg (searched again for the matched pairs only) then the trip."""
-    taxis, riders = who.taxis, who.riders
-    both = s1.pairs + s2
-    pair_keys = pk.rider * len(taxis) + pk.taxi  # ascending: the pairs are ordered by rider, then taxi
-    at = np.searchsorted(pair_keys, np.array([j * len(taxis) + i for i, j, _ in both], dtype=np.int64))
+def _rides(ep: Epoch, tally: _Tally, s1: Step1, s2: list[Match], cands: tuple[Pickups, Pickups]) -> None:
+    """Steps 1-2's rides: the pickup leg (searched again for the matched pairs only) then the trip (from
+    ``tally``'s trips)."""
+    steps: tuple[tuple[Literal[1, 2], list[Taxi], Pickups, list[Match]], ...] = (
+        (1, tally.instrumented, cands[0], s1.pairs),
+        (2, tally.ordinary, cands[1], s2),
+    )
+    chosen = [(step, fleet[m.taxi], pk, m) for step, fleet, pk, matches in steps for m in matches]
     with ep.pads.take() as pad:
         legs_in = hierarchy.fastest_paths(
             ep.graph,
             pad,
-            np.array([taxis[i].node for i, _, _ in both], dtype=np.int64),
-            np.array([riders[j].origin for _, j, _ in both], dtype=np.int64),
+            np.array([taxi.node for _, taxi, _, _ in chosen], dtype=np.int64),
+            np.array([tally.riders[m.rider].origin for *_, m in chosen], dtype=np.int64),
         )
-    paths = [
-        np.concatenate((leg, service[j].edges)).astype(np.int64)
-        for leg, (_, j, _) in zip(legs_in, both, strict=True)
-    ]
-    planned = [
-        PlannedPath(taxis[i].id, taxis[i].node, edges, ep.now)
-        for (i, _, _), edges in zip(s1.pairs, paths[: len(s1.pairs)], strict=True)
-    ]
-    return _Riders(s1, s2, at, paths, planned)
+    for (step, taxi, pk, m), leg in zip(chosen, legs_in, strict=True):
+        trip = tally.trips[m.rider]
+        tally.rides.append(
+            _Ride(
+                step,
+                taxi,
+                tally.riders[m.rider],
+                m.gain,
+                float(pk.length_m[m.pickup]),
+                float(pk.wait_s[m.pickup]),
+                trip,
+                np.concatenate((leg, trip.edges)).astype(np.int64),
+            )
+        )
+    tally.step1_stats, tally.n_slots = s1.stats, s1.n_slots
+    tally.planned = [PlannedPath(r.taxi.id, r.taxi.node, r.edges, ep.now) for r in tally.rides if r.step == 1]
 
 
 def _touching(graph: RoadGraph, paths: Sequence[PlannedPath], nodes: NDArray[np.bool_]) -> list[PlannedPath]:
@@ -199,34 +208,46 @@ def _touching(graph: RoadGraph, paths: Sequence[PlannedPath], nodes: NDArray[np.
     return [p for p in paths if nodes[p.start] or bool(nodes[head[p.edges]].any())]
 
 
-def _targets(ep: Epoch, tasks: Sequence[Task], planned: Sequence[PlannedPath]) -> _Targets:
+def _targets(ep: Epoch, tally: _Tally, tasks: Sequence[Task]) -> None:
     """Step 3's POIs: the open tasks not already reached by a Step 1 path, grouped by node."""
     pending_nodes = np.zeros(ep.city.network.n_nodes, dtype=bool)
     pending_nodes[[t.node for t in tasks if t.status == "pending"]] = True
-    passive1 = reaches(ep.city, _touching(ep.graph, planned, pending_nodes), tasks)
-    open_tasks = sorted(
+    passive1 = reaches(ep.city, _touching(ep.graph, tally.planned, pending_nodes), tasks)
+    tally.open_tasks = sorted(
         (t for t in tasks if t.is_open(ep.now) and t.id not in passive1),
         key=lambda t: (t.scheduled_at_s, t.id),
     )
-    by_node: dict[int, TaskId] = {}
-    for t in open_tasks:
-        by_node.setdefault(t.node, t.id)
-    return _Targets(open_tasks, by_node, pending_nodes)
+    for t in tally.open_tasks:
+        tally.by_node.setdefault(t.node, t.id)
+    tally.pending_nodes = pending_nodes
 
 
-def _algorithm2(ep: Epoch, free: Sequence[Taxi], counted_free: Counted, s3: Step3) -> _Monitoring:
-    """Algorithm 2 over Step 3's matched taxis (``counted_free``: the free taxis' counted pairs)."""
-    matched = [free[i] for i, _, _ in s3.pairs]
-    counted = counted_rows(counted_free, [i for i, _, _ in s3.pairs])
-    routes, history, passes = improve_routes(
+def _monitoring(
+    ep: Epoch, tally: _Tally, counted: Counted, busy: set[int], lap: Callable[[str], None]
+) -> None:
+    """Step 3 and Algorithm 2 over the instrumented taxis Step 1 left free (``busy``: the ones it matched;
+    row ``i`` of ``counted``: instrumented taxi ``i``'s counted pairs), when active sensing is on and there
+    are free taxis and POIs."""
+    free_rows = [i for i in range(len(tally.instrumented)) if i not in busy]
+    free = [tally.instrumented[i] for i in free_rows]
+    if not (ep.city.params.active_sensing and free and tally.by_node):
+        return
+    counted_free = counted_rows(counted, free_rows)
+    nodes = np.fromiter(tally.by_node, dtype=np.int64, count=len(tally.by_node))
+    s3 = step3_monitoring_routes(ep, free, counted_free, nodes, tally.n_slots)
+    lap("step3")
+    taxis = [free[i] for i in s3.taxis]
+    routes, tally.history, tally.passes = improve_routes(
         ep,
-        [t.id for t in matched],
-        counted,
-        [r for _, r, _ in s3.pairs],
-        [f for _, _, f in s3.pairs],
+        [t.id for t in taxis],
+        counted_rows(counted_free, s3.taxis),
+        list(s3.routes),
+        s3.fastest,
         s3.n_slots,
     )
-    return _Monitoring(matched, routes, history, passes, s3.n_slots)
+    tally.routed = [_Routed(t, r, tally.by_node[r.target]) for t, r in zip(taxis, routes, strict=True)]
+    tally.n_slots = s3.n_slots
+    lap("algorithm2")
 
 
 class _Facts:
@@ -263,139 +284,107 @@ class _Facts:
         return [Visit(taxi.id, IntervalKey(k), c) for k, c in zip(ks, cs, strict=True) if (k, c) not in seen]
 
 
-def _rider_matches(
-    ep: Epoch, who: _Present, pk: Pickups, rides: _Riders, service: Sequence[Leg], facts: _Facts
-) -> tuple[list[RiderMatch], list[Visit]]:
-    """Steps 1-2's rider matches and the visits Step 1's sensing taxis make on their way."""
-    taxis, n1 = who.taxis, len(rides.step1.pairs)
-    matches: list[RiderMatch] = []
-    visits: list[Visit] = []
-    for q, (i, j, gain) in enumerate(rides.both):
-        k = int(rides.at[q])
-        taxi, svc = taxis[i], service[j]
-        matches.append(
+def _assemble(ep: Epoch, tally: _Tally) -> None:
+    """The rider matches, the task assignments, the visits to count (Step 1's taxis', then the routed
+    taxis') and every planned path of the epoch (Step 1's, then the routes)."""
+    facts = _Facts(ep, [*(r.edges for r in tally.rides), *(m.route.edges for m in tally.routed)])
+    for q, ride in enumerate(tally.rides):
+        tally.matches.append(
             RiderMatch(
-                1 if q < n1 else 2,
-                taxi.id,
-                who.riders[j].id,
-                float(pk.length_m[k]),
-                float(pk.wait_s[k]),
-                svc.length_m,
-                svc.time_s,
-                gain,
-                path_nodes(ep.graph, taxi.node, rides.paths[q]),
+                ride.step,
+                ride.taxi.id,
+                ride.rider.id,
+                ride.pickup_m,
+                ride.wait_s,
+                ride.trip.length_m,
+                ride.trip.time_s,
+                ride.gain,
+                path_nodes(ep.graph, ride.taxi.node, ride.edges),
                 facts.cells_of(q),
             )
         )
-        if q < n1:
-            visits.extend(facts.visits_of(q, taxi))
-    return matches, visits
-
-
-def _assemble(
-    ep: Epoch,
-    who: _Present,
-    pk: Pickups,
-    rides: _Riders,
-    service: Sequence[Leg],
-    mon: _Monitoring,
-    by_node: dict[int, TaskId],
-) -> _Assembled:
-    """The rider matches, the task assignments, the visits to count and every planned path of the epoch."""
-    facts = _Facts(ep, [*rides.paths, *(r.edges for r in mon.routes)])
-    matches, visits = _rider_matches(ep, who, pk, rides, service, facts)
-    p = ep.city.params
-    planned = list(rides.planned)
-    assignments: list[TaskAssignment] = []
-    for q, (taxi, route) in enumerate(zip(mon.taxis, mon.routes, strict=True), start=len(rides.paths)):
-        task_id = by_node[route.target]
-        assignments.append(
+        if ride.step == 1:
+            tally.visits.extend(facts.visits_of(q, ride.taxi))
+    unit_cost = ep.city.params.unit_cost_cny_per_km
+    for q, m in enumerate(tally.routed, start=len(tally.rides)):
+        taxi, route = m.taxi, m.route
+        tally.assignments.append(
             TaskAssignment(
                 taxi.id,
-                task_id,
+                m.task_id,
                 path_nodes(ep.graph, taxi.node, route.edges),
                 facts.cells_of(q),
                 route.length_m,
                 route.time_s,
                 route.gain,
                 route.efficiency,
-                p.unit_cost_cny_per_km * route.length_m / 1000.0,
+                unit_cost * route.length_m / 1000.0,
                 route.kappa,
             )
         )
-        planned.append(PlannedPath(taxi.id, taxi.node, route.edges, ep.now, target_task=task_id))
-        visits.extend(facts.visits_of(q, taxi))
-    return _Assembled(matches, assignments, visits, planned)
+        tally.planned.append(PlannedPath(taxi.id, taxi.node, route.edges, ep.now, target_task=m.task_id))
+        tally.visits.extend(facts.visits_of(q, taxi))
 
 
 def _task_updates(
-    ep: Epoch, tasks: Sequence[Task], planned: Sequence[PlannedPath], pending_nodes: NDArray[np.bool_]
+    ep: Epoch, tally: _Tally, tasks: Sequence[Task]
 ) -> tuple[dict[TaskId, Reach], tuple[Task, ...]]:
     """The tasks the planned paths reach and every task the epoch changes (due completions, then reaches)."""
-    found = reaches(ep.city, _touching(ep.graph, planned, pending_nodes), tasks)
+    found = reaches(ep.city, _touching(ep.graph, tally.planned, tally.pending_nodes), tasks)
     updates = {t.id: t for t in due_completions(tasks, ep.now)}
     updates.update({t.id: t for t in apply_reaches(tasks, found, ep.now)})
     return found, tuple(updates.values())
 
 
 def _stats(
-    ep: Epoch,
-    snapshot: Snapshot,
-    who: _Present,
-    rides: _Riders,
-    out: _Assembled,
-    targets: _Targets,
-    found: dict[TaskId, Reach],
-    mon: _Monitoring,
+    ep: Epoch, snapshot: Snapshot, tally: _Tally, found: dict[TaskId, Reach]
 ) -> dict[str, float | int]:
     """The decision's per-step diagnostics."""
-    s1, history = rides.step1, mon.history
+    history, by_step = tally.history, matches_by_step(tally.matches)
     return {
         "interval": ep.k0,
         "riders": len(snapshot.riders),
-        "riders_expired": len(who.expired),
-        "vacant_instrumented": len(who.instrumented),
-        "vacant_ordinary": len(who.ordinary),
-        "step1_matches": len(s1.pairs),
-        "step2_matches": len(rides.step2),
-        "step3_assignments": len(out.assignments),
-        "step1_sensing_gain": float(sum(g for _, _, g in s1.pairs)),
-        "total_wait_s": float(sum(m.wait_s for m in out.matches)),
-        "open_tasks": len(targets.open_tasks),
+        "riders_expired": len(tally.expired),
+        "vacant_instrumented": len(tally.instrumented),
+        "vacant_ordinary": len(tally.ordinary),
+        "step1_matches": by_step[1],
+        "step2_matches": by_step[2],
+        "step3_assignments": len(tally.assignments),
+        "step1_sensing_gain": float(sum(r.gain for r in tally.rides if r.step == 1)),
+        "total_wait_s": float(sum(m.wait_s for m in tally.matches)),
+        "open_tasks": len(tally.open_tasks),
         "passive_reaches": sum(1 for r in found.values() if r.mode == "passive"),
-        "alg2_passes": mon.passes,
+        "alg2_passes": tally.passes,
         "alg2_utility_initial": history[0] if history else 0.0,
         "alg2_utility_final": history[-1] if history else 0.0,
-        "monitoring_cost_cny": float(sum(a.cost_cny for a in out.assignments)),
-        **s1.stats,
+        "monitoring_cost_cny": float(sum(a.cost_cny for a in tally.assignments)),
+        **tally.step1_stats,
     }
 
 
 def _decision(
     ep: Epoch,
     snapshot: Snapshot,
-    who: _Present,
-    rides: _Riders,
-    out: _Assembled,
+    tally: _Tally,
     task_updates: tuple[Task, ...],
     stats: dict[str, float | int],
-    n_slots: int,
 ) -> Decision:
     """The decision: the riders left unmatched, the completed tasks and the intervals touched (the tabulated
     slots and every visit's) beside the matches, assignments and visits."""
-    taken = {j for _, j, _ in rides.both}
-    riders = who.riders
-    touched = sorted({IntervalKey(ep.k0 + s) for s in range(n_slots)} | {v.interval for v in out.visits})
+    taken = {ride.rider.id for ride in tally.rides}
+    touched = sorted(
+        {IntervalKey(ep.k0 + s) for s in range(tally.n_slots)} | {v.interval for v in tally.visits}
+    )
     return Decision(
         epoch_id=snapshot.epoch_id,
         time_s=ep.now,
-        rider_matches=tuple(out.matches),
-        task_assignments=tuple(out.assignments),
+        rider_matches=tuple(tally.matches),
+        task_assignments=tuple(tally.assignments),
         tasks_completed=tuple(t for t in task_updates if t.status == "completed"),
         task_updates=task_updates,
-        unmatched_rider_ids=tuple(riders[j].id for j in range(len(riders)) if j not in taken),
-        expired_rider_ids=who.expired,
-        visits=tuple(dict.fromkeys(out.visits)),
+        unmatched_rider_ids=tuple(r.id for r in tally.riders if r.id not in taken),
+        expired_rider_ids=tally.expired,
+        visits=tuple(dict.fromkeys(tally.visits)),
         intervals_touched=tuple(touched),
         stats=stats,
     )
@@ -439,43 +428,23 @@ def decide(
         workers,
         pads_for(graph),
     )
-    who = _present(snapshot, city.params.patience_s)
-    pk = _pickups(ep, who)
+    tally = _present(snapshot, city.params.patience_s)
+    instrumented, ordinary = _pickups(ep, tally)
     lap("pickups")
-    service = _trips(ep, who.riders, pk)
+    tally.trips = _trips(ep, tally.riders, (instrumented, ordinary))
     lap("trips")
-    counted_instr = counted_csr(counts.visited, [t.id for t in who.instrumented], ep.k0)  # row i: taxi i
-    s1 = step1_sensing_matches(
-        ep, counted_instr, select(pk, pk.taxi < len(who.instrumented)), service, INITIAL_SLOTS
-    )
+    counted = counted_csr(counts.visited, [t.id for t in tally.instrumented], ep.k0)  # row i: taxi i
+    s1 = step1_sensing_matches(ep, counted, instrumented, tally.trips, INITIAL_SLOTS)
     lap("step1")
-    s2 = step2_regular_matches(pk, len(who.instrumented), {j for _, j, _ in s1.pairs}, len(who.riders))
-    rides = _rider_paths(ep, who, pk, s1, s2, service)
+    s2 = step2_regular_matches(ordinary, {m.rider for m in s1.pairs}, len(tally.riders))
+    _rides(ep, tally, s1, s2, (instrumented, ordinary))
     lap("step2")
-    targets = _targets(ep, tasks, rides.planned)
-    busy = {i for i, _, _ in s1.pairs}
-    free_rows = [i for i in range(len(who.instrumented)) if i not in busy]
-    free = [who.instrumented[i] for i in free_rows]
-    mon = _Monitoring([], [], [], 0, s1.n_slots)
-    if city.params.active_sensing and free and len(targets.by_node):
-        counted_free = counted_rows(counted_instr, free_rows)
-        s3 = step3_monitoring_routes(ep, free, counted_free, targets.nodes, s1.n_slots)
-        lap("step3")
-        mon = _algorithm2(ep, free, counted_free, s3)
-        lap("algorithm2")
-    out = _assemble(ep, who, pk, rides, service, mon, targets.by_node)
-    found, task_updates = _task_updates(ep, tasks, out.planned, targets.pending_nodes)
+    _targets(ep, tally, tasks)
+    _monitoring(ep, tally, counted, {m.taxi for m in s1.pairs}, lap)
+    _assemble(ep, tally)
+    found, task_updates = _task_updates(ep, tally, tasks)
     lap("tasks")
-    return _decision(
-        ep,
-        snapshot,
-        who,
-        rides,
-        out,
-        task_updates,
-        _stats(ep, snapshot, who, rides, out, targets, found, mon),
-        mon.n_slots,
-    )
+    return _decision(ep, snapshot, tally, task_updates, _stats(ep, snapshot, tally, found))
 
 
 def warm_up(city: City) -> None:

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 from services.city import City
 from services.model import CountsView
 from services.network.graph import RoadGraph
 from services.network.pads import Pads
 
-__all__ = ["Epoch"]
+__all__ = ["Epoch", "until_fits"]
+
+_R = TypeVar("_R")
+_S = TypeVar("_S")
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,3 +40,14 @@ class Epoch:
     k0: int
     workers: int
     pads: Pads
+
+
+def until_fits(attempt: Callable[[_S], tuple[_R, _S | None]], size: _S) -> tuple[_R, _S]:
+    """``attempt(size)`` repeated with the size it asks for until it asks for none; its last result and the
+    size that fitted. An epoch's gain tables (and the intervals the use case loads) start with the epoch's
+    first intervals and grow when a path runs on past them."""
+    while True:
+        result, needed = attempt(size)
+        if needed is None:
+            return result, size
+        size = needed

@@ -6,6 +6,7 @@ the shell converts ids and lon/lat to indices at the edge. Times are POSIX secon
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal, NewType
 
@@ -29,6 +30,7 @@ __all__ = [
     "RiderMatch",
     "TaskAssignment",
     "Decision",
+    "matches_by_step",
 ]
 
 TaxiId = NewType("TaxiId", str)
@@ -157,3 +159,16 @@ class Decision:
     visits: tuple[Visit, ...]  # distinct (taxi, interval, cell) crossings of instrumented planned paths
     intervals_touched: tuple[IntervalKey, ...]
     stats: dict[str, float | int]
+
+    @property
+    def matches_by_step(self) -> dict[int, int]:
+        """How many riders Step 1 and Step 2 matched (``{1: n1, 2: n2}``)."""
+        return matches_by_step(self.rider_matches)
+
+
+def matches_by_step(matches: Iterable[RiderMatch]) -> dict[int, int]:
+    """How many of ``matches`` each step made (``{1: n1, 2: n2}``)."""
+    steps = {1: 0, 2: 0}
+    for m in matches:
+        steps[m.step] += 1
+    return steps

@@ -31,10 +31,9 @@ def post_tasks(
     tasks: TasksBody,
     catalog: CitiesDep,
     registered: TasksDep,
-    limits: LimitsDep,
 ) -> TasksPutOut:
     """Register tasks: an id already stored with the same content is unchanged, with other content 409."""
-    return TasksPutOut.of(registered.put_tasks(city, tasks_of(catalog.get(city), tasks, limits)))
+    return TasksPutOut.of(registered.put_tasks(city, tasks_of(catalog.get(city), tasks)))
 
 
 @router.post(
@@ -76,8 +75,9 @@ def _post_epoch(
     epoch = epoch_post(raw, limits)  # on this threadpool thread, before anything is counted
     started = time.perf_counter()
     try:
-        command = epoch_command(catalog.get(city), epoch.body, limits, epoch.taxis, epoch.riders)
-        outcome = epochs.submit_epoch(city, command)
+        served = catalog.get(city)
+        command = epoch_command(served, epoch.body, epoch.taxis, epoch.riders)
+        outcome = epochs.submit_epoch(city, command, served=served)
     except ServiceError as err:  # StoreUnavailable included: its kind is store_unavailable
         metrics.epochs.labels(outcome=err.kind).inc()
         raise

@@ -1,5 +1,6 @@
-"""Requests to the core's types: sizes and ids checked, locations resolved against the city, interval
-queries parsed. Every refusal is a 422 naming the offending field, raised before the store is touched."""
+"""Requests to the core's types: ids checked, locations resolved against the city, interval queries parsed
+(a body's sizes are checked before it is validated, in ``app.api.bodies``). Every refusal is a 422 naming
+the offending field, raised before the store is touched."""
 
 from __future__ import annotations
 
@@ -99,11 +100,6 @@ def _unique(ids: Sequence[str], where: str) -> None:
         seen.add(ident)
 
 
-def _at_most(n: int, limit: int, where: str) -> None:
-    if n > limit:
-        raise InvalidInput.at(where, f"at most {limit} items per request, got {n}")
-
-
 def _riders(city: City, body: EpochIn, time_s: float, snapped: Snapped) -> list[Rider]:
     """The body's riders (validated by the model) resolved, in order, each checked as it comes."""
     riders: list[Rider] = []
@@ -144,18 +140,15 @@ def _plain_riders(city: City, plain: PlainRiders, time_s: float) -> list[Rider]:
 def snapshot_of(
     city: City,
     body: EpochIn,
-    limits: Limits,
     plain: PlainTaxis | None = None,
     plain_riders: PlainRiders | None = None,
 ) -> Snapshot:
-    """The epoch resolved to node indices (sizes, unique ids, request times and locations checked). With
+    """The epoch resolved to node indices (unique ids, request times and locations checked). With
     ``plain`` (``plain_riders``), the body's taxis (riders) read by ``plain_taxis`` (``plain_riders``) and
     ``body`` validated without them, the taxis (riders) are those, checked in the same order with the same
     errors."""
     taxi_ids = [t.id for t in body.taxis] if plain is None else plain.ids
     rider_ids = [r.id for r in body.riders] if plain_riders is None else plain_riders.ids
-    _at_most(len(rider_ids), limits.max_riders, "riders")
-    _at_most(len(taxi_ids), limits.max_taxis, "taxis")
     _unique(rider_ids, "riders")
     _unique(taxi_ids, "taxis")
     time_s = body.time.timestamp()
@@ -195,7 +188,6 @@ def snapshot_of(
 def epoch_command(
     city: City,
     body: EpochIn,
-    limits: Limits,
     plain: PlainTaxis | None = None,
     plain_riders: PlainRiders | None = None,
 ) -> EpochCommand:
@@ -203,15 +195,14 @@ def epoch_command(
     (``plain``, ``plain_riders``: the body's taxis and riders as ``plain_taxis`` and ``plain_riders`` read
     them, ``body`` validated without them)."""
     return EpochCommand(
-        snapshot_of(city, body, limits, plain, plain_riders),
+        snapshot_of(city, body, plain, plain_riders),
         body_hash(body, plain, plain_riders),
         body.time.isoformat(),
     )
 
 
-def tasks_of(city: City, tasks: Sequence[TaskIn], limits: Limits) -> list[Task]:
+def tasks_of(city: City, tasks: Sequence[TaskIn]) -> list[Task]:
     """Tasks to register, resolved to node indices (a lon/lat registration keeps its position)."""
-    _at_most(len(tasks), limits.max_tasks, "body")
     _unique([t.id for t in tasks], "")
     out: list[Task] = []
     for i, t in enumerate(tasks):

@@ -6,17 +6,12 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import json
-import math
 import re
-import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import chain
 from json.encoder import encode_basestring_ascii
 from typing import Any, Literal
 
-import numpy as np
-import pydantic_core
 from pydantic import Field, StrictBool
 
 from app.schemas.common import (
@@ -28,12 +23,18 @@ from app.schemas.common import (
     Rfc3339,
     TimedRequest,
 )
-from app.schemas.tasks import TaskOut, task_doc, task_of
-from app.usecases import EpochResult, StoredDecision
+from app.schemas.tasks import TaskOut
+from app.usecases import EpochResult
+from app.usecases.epoch_record import _core_stats as _core_stats
+from app.usecases.epoch_record import _ext_paths as _ext_paths
+from app.usecases.epoch_record import assignment_doc, match_doc
+from app.usecases.epoch_record import decision_of as decision_of
+from app.usecases.epoch_record import epoch_doc as epoch_doc
+from app.usecases.epoch_record import read_epoch as read_epoch
+from app.usecases.epoch_record import render_epoch as render_epoch
 from services.city import City
-from services.model import Decision, RiderId, RiderMatch, TaskAssignment, TaskId, TaxiId
-from services.network.network import Network
-from services.rfc3339 import MAX_YEAR, MIN_YEAR, parse_rfc3339
+from services.model import RiderMatch, TaskAssignment
+from services.rfc3339 import MAX_YEAR, MIN_YEAR
 
 __all__ = [
     "RiderIn",
@@ -266,69 +267,6 @@ def body_hash(body: EpochIn, taxis: PlainTaxis | None = None, riders: PlainRider
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-_EXTERNAL_IDS: dict[int, tuple[Network, list[int]]] = {}  # id(network) -> (network, its node ids as ints)
-_EXTERNAL_IDS_LOCK = threading.Lock()  # responses are rendered on the threadpool
-
-
-def _external_ids(city: City) -> list[int]:
-    """The city's external node ids as a list of ints, kept for the few most recent networks (the entry
-    holds its network, so an id is never taken for another network's while it is kept)."""
-    net = city.network
-    with _EXTERNAL_IDS_LOCK:
-        hit = _EXTERNAL_IDS.get(id(net))
-        if hit is None or hit[0] is not net:
-            if len(_EXTERNAL_IDS) >= 8:
-                _EXTERNAL_IDS.pop(next(iter(_EXTERNAL_IDS)))
-            hit = _EXTERNAL_IDS[id(net)] = (net, net.node_ids.tolist())
-        return hit[1]
-
-
-def _ext_paths(city: City, paths: Sequence[tuple[int, ...]]) -> list[list[int]]:
-    """External node ids along each path."""
-    at = _external_ids(city).__getitem__
-    return [list(map(at, path)) for path in paths]
-
-
-def _cells_of(routes: Sequence[tuple[tuple[int, int], ...]]) -> list[list[tuple[int, int]]]:
-    """Each route's (col, row) cells as ints: as they are when they already are pairs of ints (one look at
-    all of them), converted one by one otherwise."""
-    cells = list(chain.from_iterable(routes))
-    if set(map(len, cells)) <= {2} and set(map(type, chain.from_iterable(cells))) <= {int}:
-        return [list(route) for route in routes]
-    return [[(int(c), int(r)) for c, r in route] for route in routes]
-
-
-def _match_doc(m: RiderMatch, path: list[int], cells: list[tuple[int, int]]) -> dict[str, Any]:
-    """A core match as a ``RiderMatchOut`` document (same fields, same order)."""
-    return {
-        "step": int(m.step),
-        "taxi_id": str(m.taxi_id),
-        "rider_id": str(m.rider_id),
-        "pickup_m": float(m.pickup_m),
-        "wait_s": float(m.wait_s),
-        "trip_m": float(m.trip_m),
-        "trip_time_s": float(m.trip_time_s),
-        "sensing_gain": float(m.sensing_gain),
-        "path": path,
-        "cells": cells,
-    }
-
-
-def _assignment_doc(a: TaskAssignment, path: list[int], cells: list[tuple[int, int]]) -> dict[str, Any]:
-    """A core assignment as a ``TaskAssignmentOut`` document (same fields, same order)."""
-    return {
-        "taxi_id": str(a.taxi_id),
-        "task_id": str(a.task_id),
-        "path": path,
-        "cells": cells,
-        "length_m": float(a.length_m),
-        "travel_time_s": float(a.travel_time_s),
-        "sensing_gain": float(a.sensing_gain),
-        "efficiency": float(a.efficiency),
-        "cost_cny": float(a.cost_cny),
-    }
-
-
 class RiderMatchOut(ResponseModel):
     """A taxi sent to a rider (Step 1: instrumented, Step 2: not)."""
 
@@ -346,7 +284,7 @@ class RiderMatchOut(ResponseModel):
     @classmethod
     def of(cls, city: City, m: RiderMatch) -> RiderMatchOut:
         """Render a core match."""
-        return cls.model_validate(_match_doc(m, _ext_paths(city, [m.path])[0], _cells_of([m.cells])[0]))
+        return cls.model_validate(match_doc(city, m))
 
 
 class TaskAssignmentOut(ResponseModel):
@@ -361,11 +299,12 @@ class TaskAssignmentOut(ResponseModel):
     sensing_gain: float
     efficiency: float = Field(description="sensing_gain / travel_time_s (Eq. 12).")
     cost_cny: float
+    kappa: float = Field(description="The trade-off kappa the route was planned with (Algorithm 1).")
 
     @classmethod
     def of(cls, city: City, a: TaskAssignment) -> TaskAssignmentOut:
         """Render a core assignment."""
-        return cls.model_validate(_assignment_doc(a, _ext_paths(city, [a.path])[0], _cells_of([a.cells])[0]))
+        return cls.model_validate(assignment_doc(city, a))
 
 
 class EpochOut(ResponseModel):
@@ -386,127 +325,3 @@ class EpochOut(ResponseModel):
     def of(cls, result: EpochResult) -> EpochOut:
         """Render a decided epoch with external node ids and local times (validated)."""
         return cls.model_validate(epoch_doc(result))
-
-
-def epoch_doc(result: EpochResult) -> dict[str, Any]:
-    """A decided epoch as an ``EpochOut`` document of plain JSON values (external node ids, local times),
-    with the model's fields in the model's order: ``EpochOut.model_validate`` keeps it as it is, so its
-    JSON is byte for byte ``EpochOut.of(result).model_dump_json()`` (tests/api/test_usecases.py)."""
-    city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
-    matches, routes = decision.rider_matches, decision.task_assignments
-    stats = _core_stats(decision)
-    stats.update(
-        {
-            "step1_matches": sum(1 for m in decision.rider_matches if m.step == 1),
-            "step2_matches": sum(1 for m in decision.rider_matches if m.step == 2),
-            "task_assignments": len(decision.task_assignments),
-            "tasks_completed": len(decision.tasks_completed),
-            "riders": len(snapshot.riders),
-            "taxis": len(snapshot.taxis),
-            "interval": city.horizon.label(result.interval),
-            "interval_key": int(result.interval),
-            "in_horizon": int(city.horizon.in_horizon(result.interval)),
-            "solve_ms": round(float(result.solve_ms), 3),
-            "attempts": int(result.attempts),
-            "visits": len(decision.visits),
-            "gamma": float(result.gamma_after),
-            "gamma_gain": float(result.gamma_after - result.gamma_before),
-        }
-    )
-    return {
-        "epoch_id": str(snapshot.epoch_id),
-        "time": str(result.epoch.time_text),
-        "rider_matches": list(
-            map(
-                _match_doc,
-                matches,
-                _ext_paths(city, [m.path for m in matches]),
-                _cells_of([m.cells for m in matches]),
-            )
-        ),
-        "task_assignments": list(
-            map(
-                _assignment_doc,
-                routes,
-                _ext_paths(city, [a.path for a in routes]),
-                _cells_of([a.cells for a in routes]),
-            )
-        ),
-        "tasks_completed": [task_doc(city, t) for t in decision.tasks_completed],
-        "unmatched_rider_ids": [str(r) for r in decision.unmatched_rider_ids],
-        "expired_rider_ids": [str(r) for r in decision.expired_rider_ids],
-        "stats": stats,
-    }
-
-
-def _core_stats(decision: Decision) -> dict[str, float | int | str]:
-    """The solver's diagnostics as JSON values (booleans as 0/1; NaN and infinities left out)."""
-    stats: dict[str, float | int | str] = {}
-    for key, value in decision.stats.items():
-        v: Any = value
-        if isinstance(v, bool | np.bool_ | int | np.integer):
-            stats[key] = int(v)
-        elif isinstance(v, float | np.floating):
-            if math.isfinite(v):  # JSON has no NaN or infinity
-                stats[key] = float(v)
-        elif isinstance(v, str):
-            stats[key] = str(v)
-    return stats
-
-
-def render_epoch(result: EpochResult) -> str:
-    """The response document of a decided epoch (``EpochService``'s renderer): ``epoch_doc`` encoded by
-    pydantic's JSON encoder, without validating the values it was built from a second time."""
-    return pydantic_core.to_json(epoch_doc(result), inf_nan_mode="null").decode()
-
-
-def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:
-    """The decision an ``EpochOut`` document holds, in core types (node indices, POSIX times); the inverse
-    of ``EpochOut.of`` for what the document keeps. A match's ``trip_time_s`` is NaN in a document written
-    before responses carried it, an assignment's ``kappa`` always (the document does not keep it)."""
-    index = city.network.index_of
-
-    def path(ids: list[int]) -> tuple[int, ...]:
-        return tuple(index(v) for v in ids)
-
-    def cells(pairs: list[list[int]]) -> tuple[tuple[int, int], ...]:
-        return tuple((int(c), int(r)) for c, r in pairs)
-
-    matches = tuple(
-        RiderMatch(
-            step=m["step"],
-            taxi_id=TaxiId(m["taxi_id"]),
-            rider_id=RiderId(m["rider_id"]),
-            pickup_m=float(m["pickup_m"]),
-            wait_s=float(m["wait_s"]),
-            trip_m=float(m["trip_m"]),
-            trip_time_s=float(m.get("trip_time_s", math.nan)),
-            sensing_gain=float(m["sensing_gain"]),
-            path=path(m["path"]),
-            cells=cells(m["cells"]),
-        )
-        for m in doc["rider_matches"]
-    )
-    routes = tuple(
-        TaskAssignment(
-            taxi_id=TaxiId(a["taxi_id"]),
-            task_id=TaskId(a["task_id"]),
-            path=path(a["path"]),
-            cells=cells(a["cells"]),
-            length_m=float(a["length_m"]),
-            travel_time_s=float(a["travel_time_s"]),
-            sensing_gain=float(a["sensing_gain"]),
-            efficiency=float(a["efficiency"]),
-            cost_cny=float(a["cost_cny"]),
-            kappa=math.nan,
-        )
-        for a in doc["task_assignments"]
-    )
-    completed = tuple(task_of(city, t) for t in doc["tasks_completed"])
-    time_s = parse_rfc3339(doc["time"]).timestamp()
-    return StoredDecision(doc["epoch_id"], time_s, matches, routes, completed)
-
-
-def read_epoch(city: City, response_json: str) -> StoredDecision:
-    """The decision inside a stored response document (``EpochService``'s reader)."""
-    return decision_of(city, json.loads(response_json))

@@ -30,19 +30,23 @@ from app.ports import Store
 from app.usecases.admin import AdminService, StreamChange
 from app.usecases.cities import CityCatalog
 from app.usecases.coverage import Coverage, CoverageService
-from app.usecases.epochs import (
-    LOOKAHEAD_INTERVALS,
-    DecideFn,
+from app.usecases.epoch_record import (
     EpochCommand,
-    EpochLimits,
-    EpochLog,
-    EpochOutcome,
     EpochReader,
     EpochRenderer,
     EpochResult,
+    StoredDecision,
+    read_epoch,
+    render_epoch,
+)
+from app.usecases.epochs import (
+    LOOKAHEAD_INTERVALS,
+    DecideFn,
+    EpochLimits,
+    EpochLog,
+    EpochOutcome,
     EpochRoutes,
     EpochService,
-    StoredDecision,
 )
 from app.usecases.fleet import START_WORKER_HINT, FleetService, FleetStatus
 from app.usecases.fleet_history import SizingConfig
@@ -100,8 +104,8 @@ class UseCases:
         store: Store,
         decide: DecideFn,
         *,
-        render_epoch: EpochRenderer,
-        read_epoch: EpochReader,
+        render_epoch: EpochRenderer = render_epoch,
+        read_epoch: EpochReader = read_epoch,
         limits: EpochLimits = _DEFAULT_LIMITS,
         worker_stale_s: float = 30.0,
         sizing: SizingConfig = _DEFAULT_SIZING,

@@ -1,7 +1,8 @@
 """The epoch use cases: solve and commit a posted epoch exactly once (``EpochService.submit_epoch``), and
 read committed epochs back (the log, the stored document, the routes an epoch planned). They take the core's
 types (a resolved epoch) and return the core's results; the API turns requests into those types
-(``app.api.inputs``) and renders the results (``app.schemas``)."""
+(``app.api.inputs``) and renders the results (``app.schemas``). A committed epoch's document is its record
+(``app.usecases.epoch_record``), written once and answered verbatim to its post and every replay."""
 
 from __future__ import annotations
 
@@ -35,16 +36,24 @@ from app.ports import (
     local_day,
 )
 from app.usecases.cities import CityCatalog
+from app.usecases.epoch_record import (
+    EpochCommand,
+    EpochReader,
+    EpochRenderer,
+    EpochResult,
+    StoredDecision,
+    read_epoch,
+    render_epoch,
+)
 from services.city import City
+from services.epoch import until_fits
 from services.ledger import counts_view
 from services.model import (
     CountsView,
     Decision,
     IntervalKey,
-    RiderMatch,
     Snapshot,
     Task,
-    TaskAssignment,
     TaxiId,
 )
 from services.rfc3339 import format_time
@@ -74,44 +83,6 @@ DecideFn = Callable[[City, CountsView, Snapshot, Sequence[Task]], Decision]
 
 
 @dataclass(frozen=True, slots=True)
-class EpochCommand:
-    """One posted epoch, validated and resolved to node indices at the edge (``app.api.inputs``).
-
-    ``body_hash`` is the sha256 of the request's canonical JSON (``app.schemas.dispatch.body_hash``, computed
-    by the API from the validated request model). It is stored with the commit: a later post of the same
-    epoch id is a replay only if its hash is equal, so its definition never changes. ``time_text`` is the
-    epoch time as posted (RFC 3339 with the client's offset), echoed in the response and the recorded demand.
-    """
-
-    snapshot: Snapshot
-    body_hash: str
-    time_text: str
-
-
-@dataclass(frozen=True, slots=True)
-class EpochResult:
-    """A decided epoch, before its commit: what the response document shows (``app.schemas.dispatch``).
-
-    ``interval`` is the epoch's own sensing interval; ``gamma_before`` and ``gamma_after`` are Gamma over
-    that day's horizon intervals at the epoch's start and with its visits counted; ``attempts`` counts the
-    solves (a lost commit race solves again).
-    """
-
-    city: City
-    epoch: EpochCommand
-    decision: Decision
-    interval: IntervalKey
-    solve_ms: float
-    attempts: int
-    gamma_before: float
-    gamma_after: float
-
-
-EpochRenderer = Callable[[EpochResult], str]
-"""The response document of a decided epoch, committed with it and returned verbatim to replays."""
-
-
-@dataclass(frozen=True, slots=True)
 class EpochOutcome:
     """The response of one epoch post and what it changed (nothing when ``replayed``)."""
 
@@ -120,25 +91,6 @@ class EpochOutcome:
     matches_by_step: dict[int, int] = field(default_factory=dict)
     n_task_assignments: int = 0
     attempts: int = 0
-
-
-@dataclass(frozen=True, slots=True)
-class StoredDecision:
-    """A committed epoch's decision read back from its stored response document, in core types.
-
-    ``trip_time_s`` of a match is NaN in a document stored before responses carried it; the riders' and
-    routes' ``path`` are node indices again; ``kappa`` of an assignment is NaN (not in the document).
-    """
-
-    epoch_id: str
-    time_s: float
-    rider_matches: tuple[RiderMatch, ...]
-    task_assignments: tuple[TaskAssignment, ...]
-    tasks_completed: tuple[Task, ...]
-
-
-EpochReader = Callable[[City, str], StoredDecision]
-"""The decision inside a stored response document (the inverse of an ``EpochRenderer``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,12 +138,25 @@ class EpochLimits:
     max_ahead_s: float = 86400.0
 
 
+_Loaded = tuple[set[IntervalKey], CityState]
+"""The intervals an epoch's solve reads and the city's state loaded for them."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Solved:
+    """An epoch's solve: the counts it read, the tasks it expired and its decision."""
+
+    counts: CountsView
+    expired: list[Task]
+    decision: Decision
+
+
 class EpochService:
     """Posted epochs solved and committed exactly once, and committed epochs read back.
 
-    ``render_epoch`` writes the response document of a decided epoch (the API's, ``app.schemas.dispatch``):
-    it is committed with the epoch in one atomic step, so a replay is answered with the same bytes;
-    ``read_epoch`` reads a stored document back into core types.
+    ``render_epoch`` writes the record of a decided epoch (``app.usecases.epoch_record``): it is committed
+    with the epoch in one atomic step, so a replay is answered with the same bytes; ``read_epoch`` reads a
+    stored record back into core types (a test may give stand-ins for both).
     """
 
     def __init__(
@@ -200,8 +165,8 @@ class EpochService:
         store: DispatchStore,
         decide: DecideFn,
         *,
-        render_epoch: EpochRenderer,
-        read_epoch: EpochReader,
+        render_epoch: EpochRenderer = render_epoch,
+        read_epoch: EpochReader = read_epoch,
         limits: EpochLimits = EpochLimits(),
         clock: Callable[[], float] = time.time,
         foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
@@ -266,11 +231,13 @@ class EpochService:
                 "(SD_EPOCH_MAX_AHEAD_S)",
             )
 
-    def submit_epoch(self, name: str, epoch: EpochCommand) -> EpochOutcome:
+    def submit_epoch(self, name: str, epoch: EpochCommand, *, served: City | None = None) -> EpochOutcome:
         """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs"). At most
         ``max_solves`` epochs are solved at once: one finding every slot taken waits ``solve_queue_s``, then
-        is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot."""
-        city = self.cities.get(name)
+        is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot. ``served``:
+        the city ``name`` names when the caller has already resolved it (the epoch's node indices are
+        that city's), so it is not looked up again."""
+        city = served if served is not None else self.cities.get(name)
         snapshot = epoch.snapshot
         self._check_window(city, snapshot.time_s)
         stored = self.store.get_epoch(name, snapshot.epoch_id)
@@ -288,6 +255,30 @@ class EpochService:
         finally:
             self._solve_slots.release()
 
+    def _solver(
+        self, name: str, city: City, snapshot: Snapshot
+    ) -> Callable[[_Loaded], tuple[_Solved, _Loaded | None]]:
+        """One solve of ``snapshot`` against the intervals loaded so far, asking for the intervals it reached
+        and read as zero (loaded with the rest: the solve runs again on them), none when it reached none."""
+        instrumented = [t.id for t in snapshot.taxis if t.instrumented]
+        k0 = city.horizon.interval_of(snapshot.time_s)
+
+        def solve(loaded: _Loaded) -> tuple[_Solved, _Loaded | None]:
+            intervals, state = loaded
+            counts = counts_view(state.counts, state.visited, city.grid.n_cells, sorted(intervals))
+            tasks, expired = self._expire(state.tasks, snapshot.time_s)
+            decision = self.decide(city, counts, snapshot, tasks)
+            missing = set(decision.intervals_touched) - intervals
+            if not missing:
+                return _Solved(counts, expired, decision), None
+            more = intervals | missing
+            return _Solved(counts, expired, decision), (
+                more,
+                self._load(name, more, instrumented, snapshot.time_s, k0),
+            )
+
+        return solve
+
     def _solve_and_commit(self, name: str, city: City, epoch: EpochCommand) -> EpochOutcome:
         """``submit_epoch`` within a solve slot: solve against the loaded state, commit, and on a version
         conflict load and solve again."""
@@ -299,17 +290,10 @@ class EpochService:
         instrumented = [t.id for t in snapshot.taxis if t.instrumented]
         demand = _DemandRecord(city, epoch)  # the riders and the fleet as posted: the same every attempt
         for attempt in range(1, self.commit_attempts + 1):
-            state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
+            loaded = self._load(name, intervals, instrumented, snapshot.time_s, k0)
             started = time.perf_counter()
-            while True:
-                counts = counts_view(state.counts, state.visited, city.grid.n_cells, sorted(intervals))
-                tasks, expired = self._expire(state.tasks, snapshot.time_s)
-                decision = self.decide(city, counts, snapshot, tasks)
-                missing = set(decision.intervals_touched) - intervals
-                if not missing:
-                    break
-                intervals |= missing  # the solve reached intervals it read as zero: load them, solve again
-                state = self._load(name, intervals, instrumented, snapshot.time_s, k0)
+            solved, (intervals, state) = until_fits(self._solver(name, city, snapshot), (intervals, loaded))
+            counts, expired, decision = solved.counts, solved.expired, solved.decision
             solve_ms = (time.perf_counter() - started) * 1000.0
             before, after = _gamma_before_after(city, counts, decision, day)
             result = EpochResult(city, epoch, decision, k0, solve_ms, attempt, before, after)
@@ -331,10 +315,8 @@ class EpochService:
                 ),
             )
             if commit.status == "committed":
-                steps = {1: 0, 2: 0}
-                for m in decision.rider_matches:
-                    steps[m.step] += 1
-                return EpochOutcome(response, False, steps, len(decision.task_assignments), attempt)
+                by_step = decision.matches_by_step
+                return EpochOutcome(response, False, by_step, len(decision.task_assignments), attempt)
             if commit.status == "duplicate":
                 if commit.stored is None:
                     raise RuntimeError("store reported a duplicate epoch without its record")

@@ -17,15 +17,24 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from services.epoch import Epoch
+from services.epoch import Epoch, until_fits
 from services.matching.assignment import lexicographic_assignment
 from services.matching.legs import Leg, Pickups
-from services.sensing.gains import Counted, eval_pairs, fixed_point_unit, gain_table, pair_gains_q
+from services.sensing.gains import Counted, Gains, eval_pairs, fixed_point_unit, gain_table, pair_gains_q
 
 __all__ = ["Match", "Step1", "select", "step1_sensing_matches", "step2_regular_matches"]
 
-Match = tuple[int, int, float]
-"""A matched pair: (taxi index, rider index, reported sensing gain; 0.0 in Step 2)."""
+
+@dataclass(frozen=True, slots=True)
+class Match:
+    """A matched pair: the taxi (its index among the step's taxis: the instrumented ones in Step 1, the
+    ordinary ones in Step 2), the rider (its index among the epoch's riders), the pair's index among the
+    step's candidate pickups, and the reported sensing gain (0.0 in Step 2)."""
+
+    taxi: int
+    rider: int
+    pickup: int
+    gain: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,14 +72,15 @@ def step1_sensing_matches(
     leg_ptr, leg_edges = _service_edges(service)
     crossings = max(int((ed.ec_ptr[leg.edges + 1] - ed.ec_ptr[leg.edges]).sum()) for leg in service)
     depart = ep.now + cands.wait_s
-    while True:
-        top = gain_table(ep.city, ep.counts.counts, ep.k0, n_slots, ep.now)
+
+    def gains(n: int) -> tuple[tuple[Gains, NDArray[np.int64]], int | None]:
+        top = gain_table(ep.city, ep.counts.counts, ep.k0, n, ep.now)
         unit = fixed_point_unit(float(top.term.max(initial=0.0)), crossings)
-        gn = gain_table(ep.city, ep.counts.counts, ep.k0, n_slots, ep.now, unit=unit)
+        gn = gain_table(ep.city, ep.counts.counts, ep.k0, n, ep.now, unit=unit)
         gq, max_slot = pair_gains_q(ed, gn, counted, cands.taxi, cands.rider, depart, leg_ptr, leg_edges)
-        if max_slot < n_slots:
-            break
-        n_slots = int(max_slot) + 1
+        return (gn, gq), (None if max_slot < n else int(max_slot) + 1)
+
+    (gn, gq), n_slots = until_fits(gains, n_slots)
     ok = np.flatnonzero(gq > 0)  # a pair is a candidate for gain when its exact gain is positive
     sol = lexicographic_assignment(
         cands.taxi[ok], cands.rider[ok], gq[ok], cands.wait_us[ok], secondary_sense="min"
@@ -81,22 +91,23 @@ def step1_sensing_matches(
     g, _gq, _ms = eval_pairs(
         ed, gn, counted, cands.taxi[chosen], cands.rider[chosen], depart[chosen], leg_ptr, leg_edges
     )
-    pairs = [(int(cands.taxi[k]), int(cands.rider[k]), float(x)) for k, x in zip(chosen, g, strict=True)]
+    pairs = [
+        Match(int(cands.taxi[k]), int(cands.rider[k]), int(k), float(x))
+        for k, x in zip(chosen.tolist(), g, strict=True)
+    ]
     return Step1(pairs, n_slots, stats)
 
 
-def step2_regular_matches(
-    pk: Pickups, n_instrumented: int, taken: Collection[int], n_riders: int
-) -> list[Match]:
-    """Step 2 (Eq. 8-11): the ordinary taxis (indices from ``n_instrumented`` on) x the riders not in
-    ``taken``; maximize the matches, then minimize the total wait."""
+def step2_regular_matches(cands: Pickups, taken: Collection[int], n_riders: int) -> list[Match]:
+    """Step 2 (Eq. 8-11) over the ordinary taxis' candidate pairs ``cands`` x the riders not in ``taken``;
+    maximize the matches, then minimize the total wait."""
     left = np.array([j not in taken for j in range(n_riders)], dtype=bool)
-    ok = (pk.taxi >= n_instrumented) & left[pk.rider] if len(pk.rider) else np.zeros(0, dtype=bool)
+    ok = np.flatnonzero(left[cands.rider]) if len(cands.rider) else np.zeros(0, dtype=np.int64)
     sol = lexicographic_assignment(
-        pk.taxi[ok],
-        pk.rider[ok],
-        np.ones(int(ok.sum()), dtype=np.int64),
-        pk.wait_us[ok],
+        cands.taxi[ok],
+        cands.rider[ok],
+        np.ones(len(ok), dtype=np.int64),
+        cands.wait_us[ok],
         secondary_sense="min",
     )
-    return [(int(i), int(j), 0.0) for i, j in zip(sol.rows.tolist(), sol.cols.tolist(), strict=True)]
+    return [Match(int(cands.taxi[k]), int(cands.rider[k]), int(k), 0.0) for k in ok[sol.pair].tolist()]

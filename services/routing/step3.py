@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.city import City
-from services.epoch import Epoch
+from services.epoch import Epoch, until_fits
 from services.kernel.parallel import parallel_map
 from services.matching.assignment import lexicographic_assignment
 from services.model import Taxi
@@ -33,11 +33,13 @@ PHI_BITS = 40
 
 @dataclass(frozen=True, slots=True)
 class Step3:
-    """Step 3's outcome before Algorithm 2: per matched pair (free-taxi index, route, fastest path to the same
-    POI), the gain table the routes were planned on and the interval slots it holds."""
+    """Step 3's outcome before Algorithm 2, one entry per matched pair in each list: the free taxi (its index
+    among the free taxis), its route and its fastest path to the same POI; and the interval slots the gain
+    table the routes were planned on holds."""
 
-    pairs: list[tuple[int, Route, NDArray[np.int64]]]
-    gains: Gains
+    taxis: list[int]
+    routes: list[Route]
+    fastest: list[NDArray[np.int64]]
     n_slots: int
 
 
@@ -65,13 +67,15 @@ def _plans(
     """Algorithm 1 from every free taxi to every POI in its reach, on a gain table that grows until every
     route fits; the plans, the table and its slots."""
     reach_us = step3_reach_us(ep.city, ep.graph)
-    while True:
-        gn = gain_table(ep.city, ep.counts.counts, ep.k0, n_slots, ep.now)
+
+    def planned(n: int) -> tuple[tuple[Plans, Gains], int | None]:
+        gn = gain_table(ep.city, ep.counts.counts, ep.k0, n, ep.now)
         pb = problem(gn, counted, sources, targets, ep.city.params.kappas, ep.now, reach_us)
         plans = plan_routes(ep.graph, pb, ep.workers, ep.pads)
-        if plans.max_slot < n_slots:
-            return plans, gn, n_slots
-        n_slots = plans.max_slot + 1
+        return (plans, gn), (None if plans.max_slot < n else plans.max_slot + 1)
+
+    (plans, gn), n_slots = until_fits(planned, n_slots)
+    return plans, gn, n_slots
 
 
 def _assign(plans: Plans) -> list[tuple[int, int]]:
@@ -117,4 +121,5 @@ def step3_monitoring_routes(
                 )
         return out
 
-    return Step3(parallel_map(routes, _assign(plans), ep.workers), gn, n_slots)
+    found = parallel_map(routes, _assign(plans), ep.workers)
+    return Step3([i for i, _, _ in found], [r for _, r, _ in found], [f for _, _, f in found], n_slots)

@@ -37,7 +37,7 @@ def former(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
                     epoch_post(("application/json", json.dumps(obj).encode()), limits)
                 raise _Skip
     model = _validate(EpochIn, body)
-    return EpochCommand(snapshot_of(city, model, limits), body_hash(model), model.time.isoformat())
+    return EpochCommand(snapshot_of(city, model), body_hash(model), model.time.isoformat())
 
 
 class _Skip(Exception):
@@ -47,7 +47,7 @@ class _Skip(Exception):
 def current(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
     """The epoch path as the route runs it."""
     post = epoch_post(("application/json", json.dumps(obj).encode()), limits)
-    return epoch_command(city, post.body, limits, post.taxis, post.riders)
+    return epoch_command(city, post.body, post.taxis, post.riders)
 
 
 def outcome(run: Any, city: City, obj: Any) -> Any:

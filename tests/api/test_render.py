@@ -116,6 +116,7 @@ def reference_render(result: EpochResult) -> str:
                 sensing_gain=float(a.sensing_gain),
                 efficiency=float(a.efficiency),
                 cost_cny=float(a.cost_cny),
+                kappa=float(a.kappa),
             )
             for a in decision.task_assignments
         ],
