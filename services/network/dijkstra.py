@@ -296,6 +296,61 @@ def _settle_dead_ends(
 # that writes an array after an inlined call, leaves reference counting in the loop (measured: up to 1.75
 # times the time); the loop keeps those steps in its own body, and its helpers time within 2 % of the loop
 # written out (Chengdu and the generated metropolis, plain and lazy metrics).
+#
+# Nodes are taken from a bucket queue of width ``costs.width`` (the cheapest super-edge): every label in the
+# lowest non-empty bucket is final, because anything that could still improve it would come along a
+# super-edge from a node of the same bucket and so cost at least one width more. Within a bucket the order
+# does not matter. Metrics too spread for the ring use a 4-ary heap on the cost instead. With ``lazy.on``
+# the metric is computed as the search goes (``graph.Lazy``): each super-edge when it is relaxed, the
+# source's and the targets' chains edge by edge before the search starts; ``costs.width`` and
+# ``costs.span`` must then bound every super-edge's cost from below and above.
+
+
+@compiled_inline
+def _grow_start(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    limit: int,
+    targets: NDArray[np.int64],
+    ws: Workspace,
+    lazy: Lazy,
+) -> tuple[int, int, int, int]:
+    """Start ``grow``'s search: reset ``ws``, mark the targets, cost the lazy ends and queue the source's
+    first labels (none when every target is already resolved). Returns the queue's size, the ring's first
+    bucket being emptied (ring), the touched nodes' count and the number of nodes to settle."""
+    _reset(ws)
+    ws.info[0] = source
+    n_touched, remaining = _need_targets(g, source, targets, ws)
+    size, pos = 0, 0
+    if lazy.on:
+        _lazy_ends(g, ed, costs, lazy, source, targets)
+    if not (targets.shape[0] > 0 and remaining == 0):
+        size, n_touched = _grow_seed(g, ed, costs, ws, source, limit, n_touched)
+        if costs.span <= ws.ring.shape[0] and size > 0:
+            pos = _next_bucket(ws.bits, costs.span, 0)
+    return size, pos, n_touched, remaining
+
+
+@compiled_inline
+def _ring_take(
+    ring: NDArray[np.int64],
+    bits: NDArray[np.int64],
+    nxt: NDArray[np.int64],
+    prv: NDArray[np.int64],
+    span: int,
+    pos: int,
+) -> tuple[int, int]:
+    """Take a node from the lowest non-empty bucket at or after ``pos``; returns it and its bucket."""
+    k = ring[pos]
+    if k < 0:
+        pos = _next_bucket(bits, span, pos)
+        k = ring[pos]
+    _unlink(ring, bits, nxt, prv, pos, k)
+    return k, pos
+
+
 @compiled
 def grow(
     g: SearchGraph,
@@ -311,48 +366,24 @@ def grow(
 
     With ``targets`` non-empty the search stops as soon as every target can be resolved: a kept target is
     settled, and for an interior target both ends of its chain are (unless the source lies before it on
-    that chain). ``ws`` is reset here; read the result with ``resolve`` and ``unfold``.
-
-    Nodes are taken from a bucket queue of width ``costs.width`` (the cheapest super-edge): every label in
-    the lowest non-empty bucket is final, because anything that could still improve it would come along a
-    super-edge from a node of the same bucket and so cost at least one width more. Within a bucket the
-    order does not matter. Metrics too spread for the ring use a 4-ary heap on the cost instead.
-
-    With ``lazy.on`` the metric is computed as the search goes (``graph.Lazy``): each super-edge when it is
-    relaxed, the source's and the targets' chains edge by edge before the search starts; ``costs.width``
-    and ``costs.span`` must then bound every super-edge's cost from below and above.
-    """
+    that chain). ``ws`` is reset here; read the result with ``resolve`` and ``unfold``. The queue (a bucket
+    ring, or a heap for spread metrics) and the lazy metric are described above."""
     cost, tie1, tie2, pse, pstart, state = ws.cost, ws.tie1, ws.tie2, ws.pse, ws.pstart, ws.state
     nxt, prv, ring, bits, need, touched = ws.nxt, ws.prv, ws.ring, ws.bits, ws.need, ws.touched
     indptr, se_head, se_tie1, se_tie2, dead_end = g.indptr, g.se_head, g.se_tie1, g.se_tie2, g.dead_end
     lazy_on, fixed, zmask, term = lazy.on, lazy.fixed, lazy.zmask, lazy.term
     se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
     umax, kappa, width, span, se_cost = lazy.umax, lazy.kappa, costs.width, costs.span, costs.se
-    use_ring = span <= ring.shape[0]
-    _reset(ws)
-    ws.info[0] = source
-    n_touched, remaining = _need_targets(g, source, targets, ws)
-    early = targets.shape[0] > 0
-    size, pos = 0, 0  # queued nodes; ring: the bucket being emptied
-    if lazy_on:
-        _lazy_ends(g, ed, costs, lazy, source, targets)
-    if not (early and remaining == 0):
-        size, n_touched = _grow_seed(g, ed, costs, ws, source, limit, n_touched)
-        if use_ring and size > 0:
-            pos = _next_bucket(bits, span, 0)
+    use_ring, early = span <= ring.shape[0], targets.shape[0] > 0
+    size, pos, n_touched, remaining = _grow_start(g, ed, costs, source, limit, targets, ws, lazy)
     complete = 1
     while size > 0:
         if use_ring:
-            k = ring[pos]
-            if k < 0:
-                pos = _next_bucket(bits, span, pos)
-                k = ring[pos]
-            _unlink(ring, bits, nxt, prv, pos, k)
+            k, pos = _ring_take(ring, bits, nxt, prv, span, pos)
             size -= 1
             d = cost[k]
         else:
-            k = prv[0]
-            d = nxt[0]
+            k, d = prv[0], nxt[0]
             size = _pop(nxt, prv, state, size)
         state[k] = -2
         if need[k]:
