@@ -256,6 +256,37 @@ def run_guided(
 
 
 @compiled_inline
+def _guided_label(
+    ws: Workspace,
+    h: int,
+    label: tuple[int, int, int],
+    s: int,
+    os: int,
+    pot: tuple[int, int, int],
+    size: int,
+    n_touched: int,
+) -> tuple[int, int]:
+    """Give kept node ``h`` the label ``(cost, tie1, tie2)`` through super-edge ``s`` (entered ``os`` edges
+    in) and queue it, or move it up the queue, keyed by label + potential ``pot``; returns the queue's size
+    and the touched nodes' count."""
+    c, a, b = label
+    if ws.cost[h] == INF and not ws.need[h]:
+        ws.touched[n_touched] = h
+        n_touched += 1
+    ws.cost[h] = c
+    ws.tie1[h] = a
+    ws.tie2[h] = b
+    ws.pse[h] = s
+    ws.pstart[h] = os
+    at = ws.state[h]
+    if at < 0:
+        at = size
+        size += 1
+    _guided_up(ws.nxt, ws.hkey, ws.state, at, h, c + pot[0], a + pot[1], b + pot[2])
+    return size, n_touched
+
+
+@compiled_inline
 def _guided_seed(
     g: SearchGraph,
     ed: Edges,
@@ -268,7 +299,7 @@ def _guided_seed(
 ) -> tuple[int, int]:
     """Queue the first labels of a guided search from ``source`` (keyed by label + potential); returns the
     queue's size and the touched nodes' count."""
-    cost, tie1, tie2, state = ws.cost, ws.tie1, ws.tie2, ws.state
+    cost, tie1, tie2 = ws.cost, ws.tie1, ws.tie2
     sk = g.kept_of[source]
     size = 0
     for j in range(1 if sk >= 0 else 2):
@@ -278,19 +309,7 @@ def _guided_seed(
         p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
         if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
             continue
-        if cost[h] == INF and not ws.need[h]:
-            ws.touched[n_touched] = h
-            n_touched += 1
-        cost[h] = c
-        tie1[h] = a
-        tie2[h] = b
-        ws.pse[h] = s
-        ws.pstart[h] = os
-        at = state[h]
-        if at < 0:
-            at = size
-            size += 1
-        _guided_up(ws.nxt, ws.hkey, state, at, h, c + p0, a + p1, b + p2)
+        size, n_touched = _guided_label(ws, h, (c, a, b), s, os, (p0, p1, p2), size, n_touched)
     return size, n_touched
 
 
@@ -308,6 +327,33 @@ def _meets(gd: Guide, k: int) -> bool:
     for w in range(gd.zbits.shape[0]):
         hit |= gd.clean[k, w] & gd.zbits[w]
     return bool(hit == 0)
+
+
+@compiled_inline
+def _guided_start(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    ws: Workspace,
+    gd: Guide,
+    lazy: Lazy,
+    source: int,
+    target: int,
+) -> tuple[int, int, int, NDArray[np.int64]]:
+    """Start ``guided``'s search: reset ``ws``, mark the target, cost the lazy ends and queue the source's
+    first labels (none when the target is already resolved). Returns the queue's size, the touched nodes'
+    count, the number of nodes to settle and the target's landmark row (empty: no landmarks)."""
+    _reset(ws)
+    ws.info[0] = source
+    tgt = np.full(1, target, dtype=np.int64)
+    n_touched, remaining = _need_targets(g, source, tgt, ws)
+    tl = gd.lm[target] if gd.lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
+    if lazy.on:
+        _lazy_ends(g, ed, costs, lazy, source, tgt)
+    size = 0
+    if remaining > 0:
+        size, n_touched = _guided_seed(g, ed, costs, ws, gd, tl, source, n_touched)
+    return size, n_touched, remaining, tl
 
 
 @compiled
@@ -336,7 +382,6 @@ def guided(
     ``grow``. Returns -1, or the kept node where it stopped before the target (``_meets``).
     """
     cost, tie1, tie2, state, heap, hkey = ws.cost, ws.tie1, ws.tie2, ws.state, ws.nxt, ws.hkey
-    _reset(ws)
     se_cost = costs.se
     lazy_on, fixed, zmask, term, umax, kappa = (
         lazy.on,
@@ -347,15 +392,7 @@ def guided(
         lazy.kappa,
     )
     se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
-    ws.info[0] = source
-    tgt = np.full(1, target, dtype=np.int64)
-    n_touched, remaining = _need_targets(g, source, tgt, ws)
-    tl = gd.lm[target] if gd.lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
-    if lazy.on:
-        _lazy_ends(g, ed, costs, lazy, source, tgt)
-    size = 0
-    if remaining > 0:
-        size, n_touched = _guided_seed(g, ed, costs, ws, gd, tl, source, n_touched)
+    size, n_touched, remaining, tl = _guided_start(g, ed, costs, ws, gd, lazy, source, target)
     complete, meet = 1, -1
     while size > 0:
         k = heap[0]
@@ -389,19 +426,7 @@ def guided(
             a = a0 + g.se_tie1[s]
             b = b0 + g.se_tie2[s]
             if _less(c, a, b, cost[h], tie1[h], tie2[h]):
-                if cost[h] == INF and not ws.need[h]:
-                    ws.touched[n_touched] = h
-                    n_touched += 1
-                cost[h] = c
-                tie1[h] = a
-                tie2[h] = b
-                ws.pse[h] = s
-                ws.pstart[h] = 0
-                at = st
-                if at < 0:
-                    at = size
-                    size += 1
-                _guided_up(heap, hkey, state, at, h, c + p0, a + p1, b + p2)
+                size, n_touched = _guided_label(ws, h, (c, a, b), s, 0, (p0, p1, p2), size, n_touched)
     ws.info[1] = complete
     ws.info[2] = n_touched
     return meet
