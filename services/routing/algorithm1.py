@@ -584,35 +584,7 @@ def plan_routes(
     in_trees = guided = 0
     slots: list[int] = []
     if from_roots:
-
-        def fastest(js: Sequence[int]) -> list[int]:
-            with pads.take() as pad:
-                tl = tools(pad, gn)
-                return [_fastest_to(kt, pb, tl, best, j) for j in js]
-
-        slots += parallel_map(fastest, range(p), workers)
-        in_trees = p
-        with pads.take() as pad:
-            own = _own_normalized(kt, pb, base, tools(pad, gn).sc)
-        # A taxi whose fastest routes enter its counted cells on the way to many targets will likely need
-        # as many goal-directed searches per kappa: past GUIDED_PER_TREE of them, one tree of its own per
-        # kappa is cheaper (speed only: both give the canonical routes).
-        own |= best.touched.sum(axis=1) > GUIDED_PER_TREE
-        if 2 * p < f - int(own.sum()) and base.umax > 0.0:
-
-            def kappa_trees(js: Sequence[int]) -> list[tuple[int, int]]:
-                with pads.take() as pad:
-                    tl = tools(pad, gn)
-                    return [_kappas_to(kt, pb, base, own, tl, best, j) for j in js]
-
-            done = parallel_map(kappa_trees, range(p), workers)
-            slots += [ms for ms, _ in done]
-            guided = sum(n for _, n in done)
-            in_trees += p * int(np.count_nonzero(kap != 0.0))
-        else:
-            # The kappa > 0 in-trees pay only while they serve twice as many taxis as there are targets,
-            # as for kappa = 0 (speed only: both give the canonical routes).
-            own[:] = True
+        slots, own, in_trees, guided = _in_trees(kt, pb, base, best, workers, pads)
 
     def taxis(rows: Sequence[int]) -> list[tuple[int, int]]:
         with pads.take() as pad:
@@ -637,6 +609,47 @@ def plan_routes(
         guided,
         sum(n for _, n in done),
     )
+
+
+def _in_trees(
+    kt: Kit, pb: Problem, base: BaseKappa, best: Best, workers: int, pads: Pads
+) -> tuple[list[int], NDArray[np.bool_], int, int]:
+    """``plan_routes``'s routes from the targets' in-trees (into ``best``): one fastest in-tree per target,
+    then the kappa > 0 in-trees when they serve enough taxis. Returns the largest slots reached, which taxis
+    must still grow their own trees, and the numbers of in-trees grown and of goal-directed searches."""
+    gn, kap = pb.gn, pb.kappas
+    f, p = len(pb.sources), len(pb.targets)
+    guided = 0
+
+    def fastest(js: Sequence[int]) -> list[int]:
+        with pads.take() as pad:
+            tl = tools(pad, gn)
+            return [_fastest_to(kt, pb, tl, best, j) for j in js]
+
+    slots: list[int] = parallel_map(fastest, range(p), workers)
+    in_trees = p
+    with pads.take() as pad:
+        own = _own_normalized(kt, pb, base, tools(pad, gn).sc)
+    # A taxi whose fastest routes enter its counted cells on the way to many targets will likely need
+    # as many goal-directed searches per kappa: past GUIDED_PER_TREE of them, one tree of its own per
+    # kappa is cheaper (speed only: both give the canonical routes).
+    own |= best.touched.sum(axis=1) > GUIDED_PER_TREE
+    if 2 * p < f - int(own.sum()) and base.umax > 0.0:
+
+        def kappa_trees(js: Sequence[int]) -> list[tuple[int, int]]:
+            with pads.take() as pad:
+                tl = tools(pad, gn)
+                return [_kappas_to(kt, pb, base, own, tl, best, j) for j in js]
+
+        done = parallel_map(kappa_trees, range(p), workers)
+        slots += [ms for ms, _ in done]
+        guided = sum(n for _, n in done)
+        in_trees += p * int(np.count_nonzero(kap != 0.0))
+    else:
+        # The kappa > 0 in-trees pay only while they serve twice as many taxis as there are targets,
+        # as for kappa = 0 (speed only: both give the canonical routes).
+        own[:] = True
+    return slots, own, in_trees, guided
 
 
 def scratch(pad: Pad, gn: Gains) -> Scratch:
