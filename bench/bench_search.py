@@ -3,7 +3,7 @@ city (``bench.metro.metro_city``), and what the city's search structures and a d
 hold.
 
 Every search runs on the project's own code paths, as an epoch runs them: ``road_graph``'s contracted forward
-graph, a workspace of the city's pads (``pads_for(graph).take()``), ``search.run`` under the travel time
+graph, a workspace of the city's pads (``pads_for(graph).take()``), ``dijkstra.run`` under the travel time
 prepared for the graph, and a taxi's kappa tree with its costs computed as the search goes (``graph.Lazy``,
 built as ``algorithm1._own_metric`` builds it, from the kit of the city's kappa family). Measured:
 
@@ -23,7 +23,7 @@ built as ``algorithm1._own_metric`` builds it, from the kit of the city's kappa 
 8. the contraction hierarchy under the travel time (``services.network.hierarchy``): its build time (once),
    arcs and memory, and ``TRIPS`` trips between nodes drawn uniformly over the whole network (a heavy
    epoch's riders, seed ``SEED``) found through it and goal-directed by the landmarks
-   (``search.fastest_paths``), each way once on one thread after an untimed pair, the paths checked equal.
+   (``point_to_point.landmark_fastest_paths``), each way once on one thread after an untimed pair, the paths checked equal.
 
 Sources: ``SOURCES`` nodes drawn around the city's centres (``bench.metro.near_centres``, 2.5 km spread, seed
 ``SEED``), where the epoch benchmark's taxis are; each of the service's searches timed as the best of ``REPEATS``
@@ -58,7 +58,7 @@ from services.dispatch import INITIAL_SLOTS, decide
 from services.kernel.parallel import default_workers
 from services.ledger import Ledger, ledger_view
 from services.model import IntervalKey
-from services.network import hierarchy, search
+from services.network import dijkstra, heaps, hierarchy, point_to_point
 from services.network.graph import INF, US_PER_S, Costs, Lazy, RoadGraph, road_graph
 from services.network.pads import Pad, pads_for
 from services.routing import algorithm1
@@ -155,7 +155,7 @@ def sizes(graph: RoadGraph, kt: Kit) -> dict[str, float]:
     }
 
 
-def _settled(ws: search.Workspace) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def _settled(ws: heaps.Workspace) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The kept nodes the last search in ``ws`` settled (sorted) and their costs."""
     touched = ws.touched[: int(ws.info[2])]
     done = np.sort(touched[ws.state[touched] == -2])
@@ -176,9 +176,11 @@ def time_trees(
         "whole_settled": [],
     }
     for limit, name in ((reach_us, "bounded"), (INF, "whole")):
-        search.run(fg, ed, costs, int(src[0]), limit, none, ws)  # untimed: workspace and kernel warm
+        dijkstra.run(fg, ed, costs, int(src[0]), limit, none, ws)  # untimed: workspace and kernel warm
         for v in src.tolist():
-            out[f"{name}_ms"].append(best_of(partial(search.run, fg, ed, costs, v, limit, none, ws), repeats))
+            out[f"{name}_ms"].append(
+                best_of(partial(dijkstra.run, fg, ed, costs, v, limit, none, ws), repeats)
+            )
             out[f"{name}_settled"].append(float(_settled(ws)[0].shape[0]))
     return {k: summary(v) for k, v in out.items()} | {"raw": out}
 
@@ -218,12 +220,12 @@ def kappa_trees(
     fg, ed, ws = kt.fg, kt.ed, pad.forward
     none = np.zeros(0, dtype=np.int64)
     out: dict[str, list[float]] = {"lazy_ms": [], "precomputed_ms": [], "ratio": [], "settled": []}
-    search.grow(fg, ed, costs, int(src[0]), limit, none, ws, lazy)  # untimed: kernels warm
-    search.run(fg, ed, pre, int(src[0]), limit, none, ws)
+    dijkstra.grow(fg, ed, costs, int(src[0]), limit, none, ws, lazy)  # untimed: kernels warm
+    dijkstra.run(fg, ed, pre, int(src[0]), limit, none, ws)
     for v in src.tolist():
-        t_lazy = best_of(partial(search.grow, fg, ed, costs, v, limit, none, ws, lazy), repeats)
+        t_lazy = best_of(partial(dijkstra.grow, fg, ed, costs, v, limit, none, ws, lazy), repeats)
         got = _settled(ws)
-        t_pre = best_of(partial(search.run, fg, ed, pre, v, limit, none, ws), repeats)
+        t_pre = best_of(partial(dijkstra.run, fg, ed, pre, v, limit, none, ws), repeats)
         want = _settled(ws)
         if not (np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])):
             raise AssertionError(f"source {v}: the lazy and the prepared kappa trees differ")
@@ -251,7 +253,7 @@ def memory(city: City, graph: RoadGraph, kt: Kit, pad: Pad, gn: Gains) -> dict[s
         "grid_crossings": nbytes(city.edge_cells, city.cell_weight, city.interval_weight) / MB,
         "search_graphs": nbytes(graph) / MB,
         "kit": nbytes(kt.fixed, kt.floor_width, kt.floor_span) / MB,
-        "landmarks": nbytes(search.landmarks(graph)) / MB,
+        "landmarks": nbytes(point_to_point.landmarks(graph)) / MB,
         "forward_workspace": nbytes(pad.forward) / MB,
         "reverse_workspace": nbytes(pad.reverse) / MB,
         "algorithm1_scratch": nbytes(sc) / MB,
@@ -284,12 +286,12 @@ def trips(graph: RoadGraph, pad: Pad, n: int, seed: int) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     src, dst = rng.integers(graph.n_nodes, size=n), rng.integers(graph.n_nodes, size=n)
     hierarchy.fastest_paths(graph, pad, src[:1], dst[:1])
-    search.fastest_paths(graph, pad.forward, src[:1], dst[:1])
+    point_to_point.landmark_fastest_paths(graph, pad.forward, src[:1], dst[:1])
     started = time.perf_counter()
     through = hierarchy.fastest_paths(graph, pad, src, dst)
     ch_s = time.perf_counter() - started
     started = time.perf_counter()
-    guided = search.fastest_paths(graph, pad.forward, src, dst)
+    guided = point_to_point.landmark_fastest_paths(graph, pad.forward, src, dst)
     alt_s = time.perf_counter() - started
     if any(not np.array_equal(a, b) for a, b in zip(through, guided, strict=True)):
         raise AssertionError("the hierarchy's paths differ from the search's")
@@ -333,7 +335,7 @@ def measure(
     """Items 1-6 on ``city`` (see the module docstring)."""
     started = time.perf_counter()
     graph = road_graph(city)
-    search.landmarks(graph)
+    point_to_point.landmarks(graph)
     print(f"graph and landmarks: {time.perf_counter() - started:.1f} s", flush=True)
     kappas = tuple(float(k) for k in city.params.kappas)
     kt = kit(graph, kappas)  # Algorithm 1's kit for the city's kappa family, as an epoch gets it
@@ -382,7 +384,7 @@ def write_report(res: dict[str, Any], doc: Path = PERFORMANCE) -> Path:
         "",
         "One search of an epoch on the generated metropolitan city (`bench/metro.py`, `metro.metro_city()`), run",
         "as an epoch runs it: `road_graph`'s contracted forward graph, a workspace of the city's pads,",
-        f"`search.run` under the travel time. Sources: {inp['sources']} nodes drawn around the city's centres",
+        f"`dijkstra.run` under the travel time. Sources: {inp['sources']} nodes drawn around the city's centres",
         f"(`metro.near_centres`, {inp['spread_m']:,.0f} m spread, seed {inp['seed']}), where the epoch benchmark's",
         f"taxis are; each of the service's searches timed as the best of {inp['repeats']} after an untimed one,",
         f"median (min-max) over the sources. The bound is Step 3's reach ({inp['reach_s']:.0f} s). The gains",
@@ -414,7 +416,7 @@ def write_report(res: dict[str, Any], doc: Path = PERFORMANCE) -> Path:
             f"  {hy['arcs']:,} arcs ({hy['arcs_per_edge']:.2f} per edge), {hy['hierarchy_mb']:.1f} MB, a thread's query scratch",
             f"  {hy['lanes_mb']:.1f} MB. {hy['trips']} trips between nodes drawn uniformly over the network (a heavy epoch's",
             f"  riders; {hy['edges']:,} edges in all), one thread: {hy['through_s'] * 1000:.0f} ms through it,",
-            f"  {hy['guided_s'] * 1000:.0f} ms goal-directed by the landmarks (`search.fastest_paths`); the same paths, checked.",
+            f"  {hy['guided_s'] * 1000:.0f} ms goal-directed by the landmarks (`point_to_point.landmark_fastest_paths`); the same paths, checked.",
         ]
     if lim is not None:
         lines += [

@@ -4,8 +4,8 @@ MAX_PARAMS parameters; exit 1 when there is one.
 A function's length is the lines from its ``def`` (decorators excluded) to its last line, signature,
 docstring, comments and blank lines inside it all counted; a nested function counts in its enclosing one and
 on its own. Its parameters are all of them but ``self`` and ``cls``, keyword-only and ``*args``/``**kwargs``
-included. A function listed in ``KNOWN`` (with the reason) may stay over a limit at its
-recorded size, no more. Usage: ``python scripts/check_functions.py [DIR ...]`` (default: services app).
+included; there are no exceptions. Usage: ``python scripts/check_functions.py [DIR ...]`` (default:
+services app).
 """
 
 from __future__ import annotations
@@ -17,17 +17,6 @@ from pathlib import Path
 MAX_LINES = 80
 MAX_PARAMS = 10
 ROOT = Path(__file__).resolve().parents[1]
-
-KNOWN: dict[str, tuple[int, int]] = {
-    # Being split with the rest of their modules (the searches, the routing algorithms, the gains); each
-    # leaves this list when its module is done.
-    "services/network/search.py:grow": (104, 8),
-    "services/network/search.py:guided": (97, 8),
-    "services/routing/algorithm1.py:plan_routes": (88, 5),
-    "services/routing/algorithm2.py:improve_routes": (84, 6),
-    "services/sensing/gains.py:eval_tree": (100, 9),
-}
-"""Functions allowed over a limit, by ``path:name``, with the (lines, parameters) they may not exceed."""
 
 
 def _params(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
@@ -43,9 +32,8 @@ def _lines(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
     return end - fn.lineno + 1
 
 
-def offenders(paths: list[Path], known: list[str]) -> list[str]:
-    """One line per function over a limit: ``path:line name: N lines, M parameters``; those within their
-    ``KNOWN`` allowance go to ``known`` instead."""
+def offenders(paths: list[Path]) -> list[str]:
+    """One line per function over a limit: ``path:line name: N lines, M parameters``."""
     found: list[str] = []
     for path in paths:
         for file in sorted(path.rglob("*.py")):
@@ -56,28 +44,19 @@ def offenders(paths: list[Path], known: list[str]) -> list[str]:
                 lines, params = _lines(node), _params(node)
                 if lines > MAX_LINES or params > MAX_PARAMS:
                     rel = file.relative_to(ROOT) if file.is_relative_to(ROOT) else file
-                    text = f"{rel}:{node.lineno} {node.name}: {lines} lines, {params} parameters"
-                    cap = KNOWN.get(f"{rel}:{node.name}")
-                    if cap is not None and lines <= cap[0] and params <= cap[1]:
-                        known.append(text)
-                    else:
-                        found.append(text)
+                    found.append(f"{rel}:{node.lineno} {node.name}: {lines} lines, {params} parameters")
     return found
 
 
 def main(argv: list[str]) -> int:
     paths = [ROOT / a for a in argv] if argv else [ROOT / "services", ROOT / "app"]
-    known: list[str] = []
-    found = offenders(paths, known)
-    for line in known:
-        print(f"{line} (allowed: scripts/check_functions.py KNOWN)")
+    found = offenders(paths)
     for line in found:
         print(line)
     if found:
         print(f"{len(found)} function(s) over {MAX_LINES} lines or {MAX_PARAMS} parameters", file=sys.stderr)
         return 1
-    other = " other" if known else ""
-    print(f"no{other} function over {MAX_LINES} lines or {MAX_PARAMS} parameters")
+    print(f"no function over {MAX_LINES} lines or {MAX_PARAMS} parameters")
     return 0
 
 

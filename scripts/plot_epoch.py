@@ -35,7 +35,8 @@ from services.model import (  # noqa: E402
     TaxiId,
 )
 from services.network.graph import road_graph  # noqa: E402
-from services.network.search import fastest_path, workspace  # noqa: E402
+from services.network.heaps import workspace  # noqa: E402
+from services.network.point_to_point import fastest_path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

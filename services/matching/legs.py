@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from services.kernel.jit import compiled
 from services.kernel.parallel import parallel_map
-from services.network import hierarchy, search
+from services.network import dijkstra, heaps, hierarchy, unfolding
 from services.network.graph import US_PER_S, Costs, Edges, RoadGraph, SearchGraph
 from services.network.pads import Pads
 
@@ -51,7 +51,7 @@ class _Tree(NamedTuple):
 
     ed: Edges
     rg: SearchGraph
-    ws: search.Workspace
+    ws: heaps.Workspace
     time_costs: Costs
 
 
@@ -91,10 +91,10 @@ def _within(
             n_u += 1
     un = uniq[:n_u]
     reached = np.zeros(n_u, dtype=np.bool_)
-    search.run(rg, ed, time_costs, origin, limit_us, un, ws)
-    search.unfold_many(rg, ed, time_costs, limit_us, un, ws, reached)
+    dijkstra.run(rg, ed, time_costs, origin, limit_us, un, ws)
+    unfolding.unfold_many(rg, ed, time_costs, limit_us, un, ws, reached)
     label = np.empty((3, n_u), dtype=np.int64)
-    search.labels(rg, ed, time_costs, limit_us, un, ws, label)
+    unfolding.labels(rg, ed, time_costs, limit_us, un, ws, label)
     u_ok = np.zeros(n_u, dtype=np.bool_)
     u_s = np.zeros(n_u)
     u_len = np.zeros(n_u)

@@ -4,11 +4,16 @@
 * ``graph``: :class:`RoadGraph`, the edges and the forward and reverse search graphs; costs (fixed,
   kappa-weighted, and the lazy metric of Algorithm 1's discounted trees).
 * ``contraction``: degree-2 chains contracted into super-edges.
-* ``search``: the one Dijkstra, the guided (A*) search and its landmarks; canonical shortest paths.
+* ``heaps``: a search's workspace and its heap and bucket queues.
+* ``dijkstra``: the one Dijkstra (``run``, ``grow``).
+* ``astar``: the guided (A*) search toward one target.
+* ``unfolding``: results read off a search (resolve, unfold, labels, paths) and the batch searches.
+* ``point_to_point``: fastest paths between pairs with the landmark bounds; the landmarks; the crossing
+  time.
 * ``pads``: per-thread search scratch.
 """
 
-from services.network import search
+from services.network import astar, dijkstra, heaps, point_to_point, unfolding
 from services.network.contraction import Contraction, contract
 from services.network.graph import (
     INF,
@@ -38,10 +43,14 @@ from services.network.network import (
     utm_crs,
 )
 from services.network.pads import Pad, Pads, pads_for
-from services.network.search import crossing_us, fastest_path, fastest_paths, landmarks
+from services.network.point_to_point import crossing_us, fastest_path, landmark_fastest_paths, landmarks
 
 __all__ = [
-    "search",
+    "heaps",
+    "dijkstra",
+    "astar",
+    "unfolding",
+    "point_to_point",
     "Network",
     "SnapError",
     "build_network",
@@ -68,7 +77,7 @@ __all__ = [
     "Contraction",
     "contract",
     "fastest_path",
-    "fastest_paths",
+    "landmark_fastest_paths",
     "landmarks",
     "crossing_us",
     "Pad",

@@ -2,7 +2,7 @@
 
 OSM networks are mostly shape points: nodes with one way in and one way out. Searching only the *kept*
 nodes (junctions, dead ends, one node of any cycle made of shape points alone) settles a fraction of the
-nodes; the interior nodes of a chain are read off its ends afterwards (``services.network.search``). Every
+nodes; the interior nodes of a chain are read off its ends afterwards (``services.network.unfolding``). Every
 super-edge keeps its original edges in travel order, so costs, paths, times and cell crossings are those
 of the original network.
 

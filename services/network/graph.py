@@ -10,7 +10,7 @@ straightforward one-search-per-taxi computation (``docs/DISPATCH.md``, "Canonica
 
 :class:`SearchGraph` is one direction of the network with its chains of degree-2 nodes contracted
 (``services.network.contraction``); :class:`Edges` holds the per-edge arrays. Both are ``NamedTuple`` s
-of arrays so that the compiled kernels (``services.network.search``, ``services.sensing.gains``,
+of arrays so that the compiled kernels (``services.network.dijkstra``, ``services.sensing.gains``,
 ``services.routing.algorithm1``) take them as one typed argument each.
 """
 
@@ -122,7 +122,7 @@ class Lazy(NamedTuple):
     the edge enters them (``lazy_edge``). A super-edge none of whose edges enters a cell costs its travel
     time under every such metric (``fixed``: that cost, -1 for the others). A search given one writes the
     costs of the super-edges a path may end or start inside (the source's and the targets'), and of their
-    edges, into its ``Costs`` arrays beforehand, so ``search.resolve`` finds them there.
+    edges, into its ``Costs`` arrays beforehand, so ``unfolding.resolve`` finds them there.
     ``on`` False: the ``Costs`` arrays hold the metric already."""
 
     on: bool

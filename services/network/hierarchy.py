@@ -14,7 +14,7 @@ total and adding an edge's label (cost >= 1) strictly raises a label, which is a
 correctness needs: contracting a node keeps the least label between every two remaining nodes (a witness
 is taken only when its label is no larger; a witness search that gives up early adds the shortcut, which
 is merely redundant), and the query returns the least label over all paths. The least label is the
-canonical path's, so the unpacked path is exactly the path ``search.run`` finds (two different paths
+canonical path's, so the unpacked path is exactly the path ``dijkstra.run`` finds (two different paths
 with the same cost and both tie sums equal would need two 47-bit sums to collide at once).
 
 Built once per graph (``hierarchy``), in a few seconds on a metropolitan network; queries share nothing
@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.kernel.jit import compiled, compiled_inline
-from services.network import search
+from services.network import point_to_point, unfolding
 from services.network.graph import INF, RoadGraph
 from services.network.pads import Pad
 
@@ -667,7 +667,7 @@ def ch_paths(
     h: Hierarchy, ln: Lanes, sources: NDArray[np.int64], targets: NDArray[np.int64]
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The canonical fastest path of every (source, target) pair as CSR ``(ptr, edges)``, as
-    ``search.paths``; a pair that cannot be joined gets ``ptr`` -1 at its end and ends the call."""
+    ``unfolding.paths``; a pair that cannot be joined gets ``ptr`` -1 at its end and ends the call."""
     n = sources.shape[0]
     ptr = np.zeros(n + 1, dtype=np.int64)
     flat = np.empty(max(64, 32 * n), dtype=np.int64)
@@ -677,7 +677,7 @@ def ch_paths(
         if m < 0:
             ptr[i + 1] = -1
             return ptr, flat[:used]
-        flat, used = search.append_path(flat, used, _path(h, ln, sources[i], targets[i], m))
+        flat, used = unfolding.append_path(flat, used, _path(h, ln, sources[i], targets[i], m))
         ptr[i + 1] = used
     return ptr, flat[:used]
 
@@ -686,7 +686,8 @@ def fastest_paths(
     graph: RoadGraph, pad: Pad, sources: NDArray[np.int64], targets: NDArray[np.int64]
 ) -> list[NDArray[np.int64]]:
     """The canonical fastest path of every (source, target) pair: through the graph's hierarchy, or with
-    ``search.fastest_paths`` (the same paths) on a network that has none; ``pad``: the thread's scratch.
+    ``point_to_point.landmark_fastest_paths`` (the same paths) on a network that has none; ``pad``: the
+    thread's scratch.
 
     Raises
     ------
@@ -695,11 +696,11 @@ def fastest_paths(
     """
     h = hierarchy(graph)
     if h is None:
-        return search.fastest_paths(graph, pad.forward, sources, targets)
+        return point_to_point.landmark_fastest_paths(graph, pad.forward, sources, targets)
     ln = pad.extra.get(Lanes)
     if not isinstance(ln, Lanes):
         ln = pad.extra[Lanes] = lanes(graph.n_nodes)
     src = np.asarray(sources, dtype=np.int64)
     tgt = np.asarray(targets, dtype=np.int64)
     ptr, flat = ch_paths(h, ln, src, tgt)
-    return search.split_paths(ptr, flat, src, tgt)
+    return point_to_point.split_paths(ptr, flat, src, tgt)

@@ -11,7 +11,7 @@ import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from services.network import search
+from services.network import heaps
 from services.network.graph import RoadGraph
 
 __all__ = ["Pad", "Pads", "pads_for"]
@@ -22,8 +22,8 @@ class Pad:
 
     def __init__(self, graph: RoadGraph) -> None:
         self.graph = graph
-        self.forward = search.workspace(graph)
-        self.reverse = search.workspace(graph, reverse=True)
+        self.forward = heaps.workspace(graph)
+        self.reverse = heaps.workspace(graph, reverse=True)
         self.extra: dict[object, object] = {}
 
 

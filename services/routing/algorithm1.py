@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from services.kernel.jit import compiled, compiled_inline
 from services.kernel.parallel import parallel_map
-from services.network import search
+from services.network import astar, dijkstra, heaps, unfolding
 from services.network.graph import (
     INF,
     Costs,
@@ -79,7 +79,7 @@ __all__ = [
 
 
 GUIDED_PER_TREE = 16
-"""About how many goal-directed searches (``search.guided``) from a taxi to one POI cost as much as one
+"""About how many goal-directed searches (``astar.guided``) from a taxi to one POI cost as much as one
 tree from the taxi to every POI, on a metropolitan street grid (``bench/bench_epoch.py``); only speed
 depends on it."""
 
@@ -104,7 +104,7 @@ class Kit(NamedTuple):
 class Scratch(NamedTuple):
     """One thread's scratch: a zero mask and an evaluation stamp over the gain table and the next stamp, a
     lazy metric's costs per edge and super-edge, the tree evaluation's scratch, and the cell sets of
-    ``search.guided``'s stop (per kept node of an in-tree, and of a taxi)."""
+    ``astar.guided``'s stop (per kept node of an in-tree, and of a taxi)."""
 
     zmask: NDArray[np.bool_]
     stamp: NDArray[np.int64]
@@ -112,17 +112,17 @@ class Scratch(NamedTuple):
     edge_cost: NDArray[np.int64]  # (m,)
     se_cost: NDArray[np.int64]  # (S,) forward super-edges
     tree: TreeScratch
-    cbits: NDArray[np.uint64]  # (K, search.CLEAN_WORDS) an in-tree's path cells (search.path_cells)
+    cbits: NDArray[np.uint64]  # (K, astar.CLEAN_WORDS) an in-tree's path cells (astar.path_cells)
     cdone: NDArray[np.int64]  # (K,) and the stamp of the in-tree they were written for
     cstack: NDArray[np.int64]  # (K,)
-    zbits: NDArray[np.uint64]  # (search.CLEAN_WORDS,) a taxi's counted cells
+    zbits: NDArray[np.uint64]  # (astar.CLEAN_WORDS,) a taxi's counted cells
 
 
 class Tools(NamedTuple):
     """What one thread's kernels work in: a forward and a reverse workspace and the scratch."""
 
-    wsf: search.Workspace
-    wsr: search.Workspace
+    wsf: heaps.Workspace
+    wsr: heaps.Workspace
     sc: Scratch
 
 
@@ -314,11 +314,11 @@ def _fastest_to(kt: Kit, pb: Problem, tl: Tools, best: Best, j: int) -> int:
     f = pb.sources.shape[0]
     root = pb.targets[j]
     ws = tl.wsr
-    search.run(kt.rg, ed, kt.time_rev, root, pb.reach_us, pb.sources, ws)
+    dijkstra.run(kt.rg, ed, kt.time_rev, root, pb.reach_us, pb.sources, ws)
     reached = np.empty(f, dtype=np.bool_)
-    search.unfold_many(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, reached)
+    unfolding.unfold_many(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, reached)
     label = np.empty((3, f), dtype=np.int64)
-    search.labels(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, label)
+    unfolding.labels(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, label)
     max_slot = 0
     for a in range(f):
         if not reached[a]:
@@ -335,34 +335,34 @@ def _fastest_to(kt: Kit, pb: Problem, tl: Tools, best: Best, j: int) -> int:
 
 @compiled
 def _zbits(counted: Counted, a: int, out: NDArray[np.uint64]) -> NDArray[np.uint64]:
-    """The cells taxi ``a`` is counted in during the first slot, as a ``search.cell_bit`` set in ``out``."""
+    """The cells taxi ``a`` is counted in during the first slot, as a ``astar.cell_bit`` set in ``out``."""
     out[:] = 0
     for p in range(counted.ptr[a], counted.ptr[a + 1]):
         if counted.slot[p] == 0:
-            search.cell_bit(out, counted.cell[p])
+            astar.cell_bit(out, counted.cell[p])
     return out
 
 
 @compiled
 def _own_route(
-    kt: Kit, pb: Problem, tl: Tools, base_q: Costs, gd: search.Guide, lazy: Lazy, mine: Costs, leg: Drive
+    kt: Kit, pb: Problem, tl: Tools, base_q: Costs, gd: astar.Guide, lazy: Lazy, mine: Costs, leg: Drive
 ) -> tuple[float, float, float, int]:
     """Taxi ``leg.i``'s route under its own costs ``mine`` (``lazy``) to ``leg.target``, searched
     goal-directed by the in-tree (``base_q``, grown in ``tl.wsr`` to ``leg.limit``) that ``gd`` reads, and
     evaluated: gain, time, length, largest slot. Where the search stops at a node whose in-tree path enters
     none of the taxi's counted cells, the route is the path to it followed by that in-tree path
-    (``search.guided``)."""
+    (``astar.guided``)."""
     ed = kt.ed
-    meet = search.guided(kt.fg, ed, mine, leg.source, leg.target, tl.wsf, gd, lazy)
+    meet = astar.guided(kt.fg, ed, mine, leg.source, leg.target, tl.wsf, gd, lazy)
     if meet < 0:
-        search.unfold(kt.fg, ed, mine, INF, leg.target, tl.wsf)
-        edges = search.path_to(ed, 1, tl.wsf.pred, leg.source, leg.target)
+        unfolding.unfold(kt.fg, ed, mine, INF, leg.target, tl.wsf)
+        edges = unfolding.path_to(ed, 1, tl.wsf.pred, leg.source, leg.target)
     else:
         x = kt.fg.kept[meet]
-        search.unfold(kt.fg, ed, mine, INF, x, tl.wsf)
-        head = search.path_to(ed, 1, tl.wsf.pred, leg.source, x)
-        search.unfold(kt.rg, ed, base_q, leg.limit, x, tl.wsr)
-        edges = np.concatenate((head, search.walk(ed, tl.wsr.pred, x, leg.target)))
+        unfolding.unfold(kt.fg, ed, mine, INF, x, tl.wsf)
+        head = unfolding.path_to(ed, 1, tl.wsf.pred, leg.source, x)
+        unfolding.unfold(kt.rg, ed, base_q, leg.limit, x, tl.wsr)
+        edges = np.concatenate((head, unfolding.walk(ed, tl.wsr.pred, x, leg.target)))
     sid = tl.sc.next_stamp[0]
     tl.sc.next_stamp[0] = sid + 1
     g, _gq, t, length, ms = eval_path(ed, pb.gn, tl.sc.zmask, tl.sc.stamp, sid, edges, pb.depart_s)
@@ -376,7 +376,7 @@ def _kappas_to(
     """POI ``j``'s in-tree under each base kappa metric, grown to the farthest fastest route of a taxi in
     reach (not ``own``): each such taxi's route in it is its own unless it enters a cell the taxi is
     counted in; then the taxi is searched again under its own costs, goal-directed by the in-tree's labels
-    (``search.tree_guide``: they never exceed the taxi's own), and stopped where the in-tree's path enters
+    (``astar.tree_guide``: they never exceed the taxi's own), and stopped where the in-tree's path enters
     none of its counted cells (``_own_route``). Folded in kappa order. Returns the largest slot reached and
     the number of goal-directed searches."""
     ed = kt.ed
@@ -402,8 +402,8 @@ def _kappas_to(
         if kappa == 0.0 or base.umax <= 0.0:
             continue
         costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
-        search.run(kt.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), tl.wsr)
-        if not search.unfold_many(kt.rg, ed, costs, limit, nodes, tl.wsr, reached):
+        dijkstra.run(kt.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), tl.wsr)
+        if not unfolding.unfold_many(kt.rg, ed, costs, limit, nodes, tl.wsr, reached):
             raise AssertionError("a discounted route costs more than the fastest path's time")
         cells = False  # the in-tree's path cells, written at the first taxi searched again
         for r in range(n):
@@ -414,9 +414,9 @@ def _kappas_to(
                 if not cells:
                     stamp = sc.next_stamp[0]
                     sc.next_stamp[0] = stamp + 1
-                    search.path_cells(kt.rg, ed, tl.wsr, sc.cbits, sc.cdone, stamp, sc.cstack)
+                    astar.path_cells(kt.rg, ed, tl.wsr, sc.cbits, sc.cdone, stamp, sc.cstack)
                     cells = True
-                gd = search.tree_guide(tl.wsr, limit, sc.cbits, _zbits(pb.counted, a, sc.zbits))
+                gd = astar.tree_guide(tl.wsr, limit, sc.cbits, _zbits(pb.counted, a, sc.zbits))
                 mine, lazy = _own_metric(kt, sc, pb.gn, q, kappa, base.umax)
                 leg = Drive(a, nodes[r], root, limit)
                 g, t, length, ms = _own_route(kt, pb, tl, costs, gd, lazy, mine, leg)
@@ -448,12 +448,12 @@ def _from_taxi(
     grown = 0
     mark(sc.zmask, pb.counted, i, True)
     if fastest:
-        search.run(kt.fg, ed, kt.time_fwd, src, pb.reach_us, pb.targets, ws)
+        dijkstra.run(kt.fg, ed, kt.time_fwd, src, pb.reach_us, pb.targets, ws)
         grown += 1
         reached = np.empty(p, dtype=np.bool_)
-        search.unfold_many(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, reached)
+        unfolding.unfold_many(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, reached)
         label = np.empty((3, p), dtype=np.int64)
-        search.labels(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, label)
+        unfolding.labels(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, label)
         near = np.flatnonzero(reached)
         ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, pb.targets[near], pb.depart_s, sc.tree, out)
         max_slot = max(max_slot, ms)
@@ -472,9 +472,9 @@ def _from_taxi(
             if kappa == 0.0 or umax <= 0.0:
                 continue
             costs, lazy = _own_metric(kt, sc, pb.gn, q, kappa, umax)
-            search.grow(kt.fg, ed, costs, src, limit, nodes, ws, lazy)
+            dijkstra.grow(kt.fg, ed, costs, src, limit, nodes, ws, lazy)
             grown += 1
-            if not search.unfold_many(kt.fg, ed, costs, limit, nodes, ws, reached):
+            if not unfolding.unfold_many(kt.fg, ed, costs, limit, nodes, ws, reached):
                 raise AssertionError("a discounted route costs more than the fastest path's time")
             ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, nodes, pb.depart_s, sc.tree, out)
             max_slot = max(max_slot, ms)
@@ -584,35 +584,7 @@ def plan_routes(
     in_trees = guided = 0
     slots: list[int] = []
     if from_roots:
-
-        def fastest(js: Sequence[int]) -> list[int]:
-            with pads.take() as pad:
-                tl = tools(pad, gn)
-                return [_fastest_to(kt, pb, tl, best, j) for j in js]
-
-        slots += parallel_map(fastest, range(p), workers)
-        in_trees = p
-        with pads.take() as pad:
-            own = _own_normalized(kt, pb, base, tools(pad, gn).sc)
-        # A taxi whose fastest routes enter its counted cells on the way to many targets will likely need
-        # as many goal-directed searches per kappa: past GUIDED_PER_TREE of them, one tree of its own per
-        # kappa is cheaper (speed only: both give the canonical routes).
-        own |= best.touched.sum(axis=1) > GUIDED_PER_TREE
-        if 2 * p < f - int(own.sum()) and base.umax > 0.0:
-
-            def kappa_trees(js: Sequence[int]) -> list[tuple[int, int]]:
-                with pads.take() as pad:
-                    tl = tools(pad, gn)
-                    return [_kappas_to(kt, pb, base, own, tl, best, j) for j in js]
-
-            done = parallel_map(kappa_trees, range(p), workers)
-            slots += [ms for ms, _ in done]
-            guided = sum(n for _, n in done)
-            in_trees += p * int(np.count_nonzero(kap != 0.0))
-        else:
-            # The kappa > 0 in-trees pay only while they serve twice as many taxis as there are targets,
-            # as for kappa = 0 (speed only: both give the canonical routes).
-            own[:] = True
+        slots, own, in_trees, guided = _in_trees(kt, pb, base, best, workers, pads)
 
     def taxis(rows: Sequence[int]) -> list[tuple[int, int]]:
         with pads.take() as pad:
@@ -639,6 +611,47 @@ def plan_routes(
     )
 
 
+def _in_trees(
+    kt: Kit, pb: Problem, base: BaseKappa, best: Best, workers: int, pads: Pads
+) -> tuple[list[int], NDArray[np.bool_], int, int]:
+    """``plan_routes``'s routes from the targets' in-trees (into ``best``): one fastest in-tree per target,
+    then the kappa > 0 in-trees when they serve enough taxis. Returns the largest slots reached, which taxis
+    must still grow their own trees, and the numbers of in-trees grown and of goal-directed searches."""
+    gn, kap = pb.gn, pb.kappas
+    f, p = len(pb.sources), len(pb.targets)
+    guided = 0
+
+    def fastest(js: Sequence[int]) -> list[int]:
+        with pads.take() as pad:
+            tl = tools(pad, gn)
+            return [_fastest_to(kt, pb, tl, best, j) for j in js]
+
+    slots: list[int] = parallel_map(fastest, range(p), workers)
+    in_trees = p
+    with pads.take() as pad:
+        own = _own_normalized(kt, pb, base, tools(pad, gn).sc)
+    # A taxi whose fastest routes enter its counted cells on the way to many targets will likely need
+    # as many goal-directed searches per kappa: past GUIDED_PER_TREE of them, one tree of its own per
+    # kappa is cheaper (speed only: both give the canonical routes).
+    own |= best.touched.sum(axis=1) > GUIDED_PER_TREE
+    if 2 * p < f - int(own.sum()) and base.umax > 0.0:
+
+        def kappa_trees(js: Sequence[int]) -> list[tuple[int, int]]:
+            with pads.take() as pad:
+                tl = tools(pad, gn)
+                return [_kappas_to(kt, pb, base, own, tl, best, j) for j in js]
+
+        done = parallel_map(kappa_trees, range(p), workers)
+        slots += [ms for ms, _ in done]
+        guided = sum(n for _, n in done)
+        in_trees += p * int(np.count_nonzero(kap != 0.0))
+    else:
+        # The kappa > 0 in-trees pay only while they serve twice as many taxis as there are targets,
+        # as for kappa = 0 (speed only: both give the canonical routes).
+        own[:] = True
+    return slots, own, in_trees, guided
+
+
 def scratch(pad: Pad, gn: Gains) -> Scratch:
     """The pad's scratch for Algorithm 1 with tables shaped like ``gn`` (made on first need)."""
     key = ("algorithm1", gn.term.shape)
@@ -654,10 +667,10 @@ def scratch(pad: Pad, gn: Gains) -> Scratch:
             np.zeros(graph.n_edges, np.int64),
             np.zeros(graph.forward.se_tail.shape[0], np.int64),
             tree_scratch(graph.n_nodes, shape),
-            np.zeros((k, search.CLEAN_WORDS), np.uint64),
+            np.zeros((k, astar.CLEAN_WORDS), np.uint64),
             np.zeros(k, np.int64),
             np.zeros(k, np.int64),
-            np.zeros(search.CLEAN_WORDS, np.uint64),
+            np.zeros(astar.CLEAN_WORDS, np.uint64),
         )
     return got
 
@@ -747,16 +760,16 @@ class Drive(NamedTuple):
 
 
 @compiled
-def _path(kt: Kit, ws: search.Workspace, costs: Costs, lazy: Lazy, leg: Drive) -> NDArray[np.int64]:
+def _path(kt: Kit, ws: heaps.Workspace, costs: Costs, lazy: Lazy, leg: Drive) -> NDArray[np.int64]:
     """The canonical path of ``leg`` under ``costs`` (computed as the search goes when ``lazy.on``)
     (empty and ``ws.info[1] == -1`` when it is not reached within the leg's limit)."""
     tgt = np.empty(1, dtype=np.int64)
     tgt[0] = leg.target
-    search.grow(kt.fg, kt.ed, costs, leg.source, leg.limit, tgt, ws, lazy)
-    if not search.unfold(kt.fg, kt.ed, costs, leg.limit, leg.target, ws):
+    dijkstra.grow(kt.fg, kt.ed, costs, leg.source, leg.limit, tgt, ws, lazy)
+    if not unfolding.unfold(kt.fg, kt.ed, costs, leg.limit, leg.target, ws):
         ws.info[1] = -1
         return np.empty(0, dtype=np.int64)
-    return search.path_to(kt.ed, 1, ws.pred, leg.source, leg.target)
+    return unfolding.path_to(kt.ed, 1, ws.pred, leg.source, leg.target)
 
 
 @compiled

@@ -57,9 +57,7 @@ def improve_routes(
     total = pair_counts(pairs)
     slots_cells = functools.partial(_slots_cells, k0=k0, n_slots=n_slots)
     dense = [slots_cells(ps) for ps in pairs]
-    total_n = np.zeros((n_slots, city.grid.n_cells), dtype=np.int64)
-    for rows, cells in dense:
-        total_n[rows, cells] += 1  # a route's pairs are distinct
+    total_n = _dense_total(dense, n_slots, city.grid.n_cells)
     history = [joint_utility(city, counts.counts, total)]
     # no route of a taxi costs more under any kappa metric than its fastest path's travel time
     limits = [int(graph.edges.time_us[f].sum()) for f in fastest]
@@ -94,9 +92,7 @@ def improve_routes(
                 if np.array_equal(cand.edges, routes[a].edges):
                     continue
                 cand_pairs = route_pairs(city, cand.edges, visited[a], depart_s)
-                trial = total.copy()
-                trial.subtract(pairs[a])
-                trial.update(cand_pairs)
+                trial = _swapped(total, pairs[a], cand_pairs)
                 u_new = joint_utility(city, counts.counts, trial)
                 if u_new > history[-1] * (1 + 1e-12) + 1e-300:
                     routes[a] = cand
@@ -115,6 +111,26 @@ def improve_routes(
         if not changed:
             break
     return _own_gains(ep, counted, routes, accepted_by, n_slots), history, passes
+
+
+def _dense_total(
+    dense: Sequence[tuple[NDArray[np.int64], NDArray[np.int64]]], n_slots: int, n_cells: int
+) -> NDArray[np.int64]:
+    """The routes' planned visits as a dense count per (slot, cell), from each route's (slot, cell) pairs."""
+    total_n = np.zeros((n_slots, n_cells), dtype=np.int64)
+    for rows, cells in dense:
+        total_n[rows, cells] += 1  # a route's pairs are distinct
+    return total_n
+
+
+def _swapped(
+    total: Counter[tuple[int, int]], old: set[tuple[int, int]], new: set[tuple[int, int]]
+) -> Counter[tuple[int, int]]:
+    """``total`` (a copy) with one route's pairs ``old`` replaced by ``new``."""
+    trial = total.copy()
+    trial.subtract(old)
+    trial.update(new)
+    return trial
 
 
 def _next_batch(planned_at: Sequence[int], accepted: int, i: int, batch: int) -> tuple[list[int], int]:

@@ -20,7 +20,7 @@ from services.epoch import Epoch, until_fits
 from services.kernel.parallel import parallel_map
 from services.matching.assignment import lexicographic_assignment
 from services.model import Taxi
-from services.network import search
+from services.network import point_to_point
 from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
 from services.routing.algorithm1 import Drive, Plans, Route, plan_routes, problem, route_pair
 from services.sensing.gains import Counted, Gains, gain_table
@@ -46,19 +46,19 @@ class Step3:
 def step3_reach_us(city: City, graph: RoadGraph) -> int:
     """Step 3's reach in whole microseconds (``INF``: every taxi is a candidate for every POI): the city's
     ``step3_reach_s`` on a network that takes longer than ``step3_reach_above_s`` to cross
-    (``search.crossing_us``), none on a smaller one (docs/METHOD.md section 4, "Step 3 at scale")."""
+    (``point_to_point.crossing_us``), none on a smaller one (docs/METHOD.md section 4, "Step 3 at scale")."""
     p = city.params
-    if p.step3_reach_s is None or search.crossing_us(graph) <= p.step3_reach_above_s * US_PER_S:
+    if p.step3_reach_s is None or point_to_point.crossing_us(graph) <= p.step3_reach_above_s * US_PER_S:
         return INF
     return int(round(p.step3_reach_s * US_PER_S))
 
 
 def step3_reach(city: City) -> tuple[float | None, float]:
     """Step 3's reach on ``city`` in seconds (None: every taxi is a candidate for every POI) and the time the
-    network takes to cross (``search.crossing_us``), which decides whether the reach applies."""
+    network takes to cross (``point_to_point.crossing_us``), which decides whether the reach applies."""
     graph = road_graph(city)
     reach = step3_reach_us(city, graph)
-    return (None if reach >= INF else reach / US_PER_S), search.crossing_us(graph) / US_PER_S
+    return (None if reach >= INF else reach / US_PER_S), point_to_point.crossing_us(graph) / US_PER_S
 
 
 def _plans(

@@ -257,7 +257,7 @@ def eval_tree(
 ) -> int:
     """``eval_path`` for the forward-tree path to every target at once: gain, time and length per target
     into ``out``; returns the largest slot reached (``pred`` holds the tree's edges on those paths, as
-    ``search.unfold`` writes them).
+    ``unfolding.unfold`` writes them).
 
     The paths share their prefixes; a depth-first walk over the union of the paths carries each path's
     running state (time, gain, length, largest slot and the (slot, cell) pairs seen so far, undone on the
@@ -266,7 +266,6 @@ def eval_tree(
     order in which siblings are visited does not matter.
     """
     k = targets.shape[0]
-    n_slots = gn.term.shape[0]
     out_g, out_t, out_l = out.gain, out.time_s, out.length_m
     first_kid = ts.first_kid
     next_sib = ts.next_sib
@@ -284,18 +283,7 @@ def eval_tree(
     st_g = ts.st_g
     st_l = ts.st_l
     st_ms = ts.st_ms
-    st_node[0] = source
-    st_next[0] = first_kid[source]
-    st_log[0] = 0
-    st_t[0] = depart_s
-    st_g[0] = 0.0
-    st_l[0] = 0.0
-    st_ms[0] = 0
-    if first_of[source] >= 0:  # a target at the source: the empty path
-        i = first_of[source]
-        out_g[i] = 0.0
-        out_t[i] = 0.0
-        out_l[i] = 0.0
+    _tree_start(ts, source, depart_s, out)
     depth = 0
     while depth >= 0:
         w = st_next[depth]
@@ -307,21 +295,7 @@ def eval_tree(
             ms = st_ms[depth]
             te = ed.time_s[e]
             start = n_log
-            for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
-                slot = _slot(t + ed.ec_frac[j] * te, gn.shift_s, gn.interval_s, gn.k0)
-                if slot > ms:
-                    ms = slot
-                if slot >= n_slots:
-                    continue
-                c = ed.ec_cell[j]
-                if seen[slot, c]:
-                    continue
-                seen[slot, c] = True
-                log_s[n_log] = slot
-                log_c[n_log] = c
-                n_log += 1
-                if not zmask[slot, c]:
-                    g += gn.term[slot, c]
+            g, ms, n_log = _edge_cells(ed, gn, zmask, ts, e, t, g, ms, n_log)
             depth += 1
             st_node[depth] = w
             st_next[depth] = first_kid[w]
@@ -344,6 +318,61 @@ def eval_tree(
     max_slot = _repeated(first_of, targets, out, out_ms)
     _tree_restore(ed, pred, targets, ts, n_mem)
     return max_slot
+
+
+@compiled_inline
+def _tree_start(ts: TreeScratch, source: int, depart_s: float, out: TreeOut) -> None:
+    """Put the source on ``eval_tree``'s depth-first stack (at ``depart_s``, nothing gained or travelled)
+    and give a target at the source the empty path."""
+    ts.st_node[0] = source
+    ts.st_next[0] = ts.first_kid[source]
+    ts.st_log[0] = 0
+    ts.st_t[0] = depart_s
+    ts.st_g[0] = 0.0
+    ts.st_l[0] = 0.0
+    ts.st_ms[0] = 0
+    if ts.first_of[source] >= 0:  # a target at the source: the empty path
+        i = ts.first_of[source]
+        out.gain[i] = 0.0
+        out.time_s[i] = 0.0
+        out.length_m[i] = 0.0
+
+
+@compiled_inline
+def _edge_cells(
+    ed: Edges,
+    gn: Gains,
+    zmask: NDArray[np.bool_],
+    ts: TreeScratch,
+    e: int,
+    t: float,
+    g: float,
+    ms: int,
+    n_log: int,
+) -> tuple[float, int, int]:
+    """Carry ``eval_tree``'s running state along edge ``e`` entered at time ``t``: each cell it enters adds
+    its gain the first time its (slot, cell) pair is seen on the path (logged in ``ts`` to be undone on the
+    way back up), and the largest slot reached grows. Returns the gain, the largest slot and the log's
+    length after the edge."""
+    te = ed.time_s[e]
+    n_slots = gn.term.shape[0]
+    seen, log_s, log_c = ts.seen, ts.log_s, ts.log_c
+    for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
+        slot = _slot(t + ed.ec_frac[j] * te, gn.shift_s, gn.interval_s, gn.k0)
+        if slot > ms:
+            ms = slot
+        if slot >= n_slots:
+            continue
+        c = ed.ec_cell[j]
+        if seen[slot, c]:
+            continue
+        seen[slot, c] = True
+        log_s[n_log] = slot
+        log_c[n_log] = c
+        n_log += 1
+        if not zmask[slot, c]:
+            g += gn.term[slot, c]
+    return g, ms, n_log
 
 
 @compiled_inline

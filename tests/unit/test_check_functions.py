@@ -23,17 +23,17 @@ def _function(lines: int, decorators: int = 0, params: str = "") -> str:
 
 def test_a_function_of_the_limit_passes_and_one_line_more_is_reported(tmp_path: Path) -> None:
     limit = check_functions.MAX_LINES
-    assert check_functions.offenders([_write(tmp_path / "a", _function(limit))], []) == []
-    found = check_functions.offenders([_write(tmp_path / "b", _function(limit + 1))], [])
+    assert check_functions.offenders([_write(tmp_path / "a", _function(limit))]) == []
+    found = check_functions.offenders([_write(tmp_path / "b", _function(limit + 1))])
     assert len(found) == 1 and found[0].endswith(f"f: {limit + 1} lines, 0 parameters")
 
 
 def test_the_signature_and_docstring_count_the_decorators_do_not(tmp_path: Path) -> None:
     limit = check_functions.MAX_LINES
     text = _function(limit, decorators=3)
-    assert check_functions.offenders([_write(tmp_path / "a", text)], []) == []
+    assert check_functions.offenders([_write(tmp_path / "a", text)]) == []
     signature = "a,\n    b,\n"  # a signature over two more lines: the function is two lines longer
-    found = check_functions.offenders([_write(tmp_path / "b", _function(limit - 1, params=signature))], [])
+    found = check_functions.offenders([_write(tmp_path / "b", _function(limit - 1, params=signature))])
     assert len(found) == 1 and found[0].endswith(f"f: {limit + 1} lines, 2 parameters")
 
 
@@ -41,9 +41,9 @@ def test_parameters_count_all_but_self_and_cls(tmp_path: Path) -> None:
     cap = check_functions.MAX_PARAMS
     names = [f"p{i}" for i in range(cap - 2)]
     ok = f"self, {', '.join(names)}, *args, **kwargs"
-    assert check_functions.offenders([_write(tmp_path / "a", _function(3, params=ok))], []) == []
+    assert check_functions.offenders([_write(tmp_path / "a", _function(3, params=ok))]) == []
     over = f"cls, {', '.join(names)}, q, *args, k=1, **kwargs"
-    found = check_functions.offenders([_write(tmp_path / "b", _function(3, params=over))], [])
+    found = check_functions.offenders([_write(tmp_path / "b", _function(3, params=over))])
     assert len(found) == 1 and found[0].endswith(f"f: 3 lines, {cap + 2} parameters")
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.network import contraction, search
+from services.network import contraction, heaps, unfolding
 from services.network.graph import INF, RoadGraph, prepare, road_graph
 from tests.citymaker import make_city
 from tests.reference import canonical_tree, tree_path
@@ -133,9 +133,9 @@ def check(graph: RoadGraph, cost, s: int, reverse: bool, limit: int, targets, qu
     (never wrong)."""
     g = graph.reverse if reverse else graph.forward
     costs = prepare(g, np.asarray(cost, dtype=np.int64))
-    ws = search.workspace(graph, reverse)
+    ws = heaps.workspace(graph, reverse)
     out = np.zeros(len(queries), dtype=np.int64)
-    search.tree(g, graph.edges, costs, s, limit, targets, queries, ws, out)
+    unfolding.tree(g, graph.edges, costs, s, limit, targets, queries, ws, out)
     label, pred = canonical_tree(graph, cost, s, reverse)
     stopped = ws.info[1] == 0
     for q, got in zip(queries.tolist(), out.tolist(), strict=True):
@@ -144,8 +144,8 @@ def check(graph: RoadGraph, cost, s: int, reverse: bool, limit: int, targets, qu
             assert not exact or (stopped and q not in set(targets.tolist()))
             continue
         assert exact and got == label[q][0]
-        assert search.resolve(g, graph.edges, costs, limit, q, ws)[:3] == label[q]
-        assert search.path_to(graph.edges, g.towards, ws.pred, s, q).tolist() == tree_path(
+        assert unfolding.resolve(g, graph.edges, costs, limit, q, ws)[:3] == label[q]
+        assert unfolding.path_to(graph.edges, g.towards, ws.pred, s, q).tolist() == tree_path(
             graph, pred, s, q, reverse
         )
 

@@ -2,8 +2,8 @@
 
 Checked against the plain lexicographic Dijkstra of ``tests/reference.py`` (every ordered pair of the small
 networks: the same path, or the same failure to join) and against the service's own search
-(``search.fastest_paths``) on the bundled city and on the largest network of the suite, the generated
-metropolis, where every trip of a heavy epoch is compared.
+(``point_to_point.landmark_fastest_paths``) on the bundled city and on the largest network of the suite, the
+generated metropolis, where every trip of a heavy epoch is compared.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import pytest
 
 from bench import metro
 from services.citydata import load_city
-from services.network import hierarchy, search
+from services.network import heaps, hierarchy, point_to_point
 from services.network.graph import INF, RoadGraph, road_graph
 from services.network.pads import Pad
 from tests.citymaker import grid_city, make_city
@@ -79,7 +79,7 @@ def test_a_network_that_would_need_too_many_shortcuts_keeps_the_plain_search():
     assert hierarchy.hierarchy(graph) is None
     rng = np.random.default_rng(5)
     src, dst = rng.integers(graph.n_nodes, size=30), rng.integers(graph.n_nodes, size=30)
-    want = search.fastest_paths(graph, search.workspace(graph), src, dst)
+    want = point_to_point.landmark_fastest_paths(graph, heaps.workspace(graph), src, dst)
     assert [p.tolist() for p in _paths(graph, src, dst)] == [p.tolist() for p in want]
 
 
@@ -97,7 +97,7 @@ def test_chengdu_paths_are_the_searched_ones_interior_ends_included():
     src[:100] = rng.choice(interior, 100)
     dst[100:200] = rng.choice(interior, 100)
     src[300:310] = dst[300:310]  # the empty path
-    want = search.fastest_paths(graph, search.workspace(graph), src, dst)
+    want = point_to_point.landmark_fastest_paths(graph, heaps.workspace(graph), src, dst)
     got = _paths(graph, src, dst)
     assert [p.tolist() for p in got] == [p.tolist() for p in want]
 
@@ -123,7 +123,7 @@ def test_every_trip_on_the_metropolis_is_the_searched_path():
     assert h is not None
     rng = np.random.default_rng(20261127)
     src, dst = rng.integers(graph.n_nodes, size=800), rng.integers(graph.n_nodes, size=800)
-    want = search.fastest_paths(graph, search.workspace(graph), src, dst)
+    want = point_to_point.landmark_fastest_paths(graph, heaps.workspace(graph), src, dst)
     got = _paths(graph, src, dst)
     for a, b in zip(got, want, strict=True):
         assert a.tolist() == b.tolist()

@@ -12,7 +12,7 @@ import pytest
 
 from services.citydata import load_city
 from services.model import IntervalKey, TaxiId
-from services.network import search
+from services.network import heaps, point_to_point
 from services.network.graph import road_graph
 from services.sensing.gains import counted_csr, eval_pairs, fixed_point_unit, gain_table, pair_gains_q
 
@@ -39,8 +39,8 @@ def test_the_gains_by_leg_and_slot_are_the_gains_crossing_by_crossing(manhattan,
     lam[touched] = rng.integers(0, 40, touched.size)
     counts = {IntervalKey(k0): lam, IntervalKey(k0 + 1): lam // 3}
 
-    legs = search.fastest_paths(
-        graph, search.workspace(graph), rng.integers(n, size=60), rng.integers(n, size=60)
+    legs = point_to_point.landmark_fastest_paths(
+        graph, heaps.workspace(graph), rng.integers(n, size=60), rng.integers(n, size=60)
     )
     legs[0] = legs[0][:0]  # a leg of no edge (origin = destination)
     leg_ptr = np.zeros(len(legs) + 1, dtype=np.int64)

@@ -25,7 +25,7 @@ from services.dispatch import decide
 from services.ledger import Ledger, apply_decision, ledger_view
 from services.matching.assignment import lexicographic_assignment
 from services.model import CountsView, IntervalKey, Snapshot, Task
-from services.network import search
+from services.network import point_to_point
 from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
 from services.network.pads import Pads
 from services.routing.algorithm1 import Plans, plan_routes, problem
@@ -43,7 +43,7 @@ def test_no_reach_on_the_bundled_cities(name: str) -> None:
     taxi stays a candidate for every POI there: the paper-scale and city-scale decisions are the method's."""
     city = load_city(BUNDLES / name)
     graph = road_graph(city)
-    assert search.crossing_us(graph) < city.params.step3_reach_above_s * US_PER_S
+    assert point_to_point.crossing_us(graph) < city.params.step3_reach_above_s * US_PER_S
     assert step3_reach_us(city, graph) == INF
 
 
@@ -53,10 +53,10 @@ def test_the_reach_applies_on_the_metropolitan_city() -> None:
     reach applies. Its crossing time is a lower bound on its diameter: a path that long exists."""
     city = metro.metro_city()
     graph = road_graph(city)
-    crossing = search.crossing_us(graph)
+    crossing = point_to_point.crossing_us(graph)
     assert crossing > 3600 * US_PER_S
     assert step3_reach_us(city, graph) == int(city.params.step3_reach_s * US_PER_S)  # type: ignore[operator]
-    lm = search.landmarks(graph)
+    lm = point_to_point.landmarks(graph)
     assert (lm[lm < INF] <= crossing).all()
 
 

@@ -21,7 +21,7 @@ from services.dispatch import decide
 from services.epoch import Epoch
 from services.kernel.parallel import parallel_map
 from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
-from services.network import search
+from services.network import heaps, point_to_point, unfolding
 from services.network.graph import INF, prepare, road_graph
 from services.network.pads import Pads
 from services.routing import algorithm1
@@ -282,20 +282,20 @@ def test_eval_tree_equals_eval_path(seed: int) -> None:
     gn = gain_table(city, counts.counts, k0, 2, now)
     zmask = np.zeros(gn.term.shape, dtype=bool)
     zmask[0, rng.integers(0, city.grid.n_cells, 3)] = True
-    ws = search.workspace(graph)
+    ws = heaps.workspace(graph)
     src = int(rng.integers(graph.n_nodes))
     targets = np.concatenate([rng.integers(0, graph.n_nodes, 12), [src, src]]).astype(np.int64)
     cost = np.maximum(1, (ed.time_us * rng.uniform(0.2, 1.0, graph.n_edges)).astype(np.int64))
     costs = prepare(graph.forward, cost)
     out = np.zeros(len(targets), dtype=np.int64)
-    search.tree(graph.forward, ed, costs, src, int(INF), targets, targets, ws, out)
+    unfolding.tree(graph.forward, ed, costs, src, int(INF), targets, targets, ws, out)
     g, t, length = np.zeros(len(targets)), np.zeros(len(targets)), np.zeros(len(targets))
     ts = tree_scratch(graph.n_nodes, gn.term.shape)
     top = eval_tree(ed, gn, zmask, ws.pred, src, targets, now, ts, TreeOut(g, t, length))
     stamp = np.zeros(gn.term.shape, dtype=np.int64)
     tops = []
     for i, v in enumerate(targets.tolist()):
-        edges = search.path_to(ed, 1, ws.pred, src, v)
+        edges = unfolding.path_to(ed, 1, ws.pred, src, v)
         gi, _gq, ti, li, ms = eval_path(ed, gn, zmask, stamp, i + 1, edges, now)
         assert (g[i], t[i], length[i]) == (gi, ti, li)
         tops.append(ms)
@@ -411,12 +411,12 @@ def test_timed_pairs_and_g_route(seed: int) -> None:
     rng, city, *_ = instance(seed + 900)
     graph = road_graph(city)
     ed = graph.edges
-    ws = search.workspace(graph)
+    ws = heaps.workspace(graph)
     depart = T0 + 3600.0 * (seed % 3) - float(rng.uniform(0, 400))
     batch: list[tuple[np.ndarray, list[tuple[IntervalKey, int]], list[int]]] = []
     for trial in range(20):
         src, dst = (int(x) for x in rng.choice(graph.n_nodes, 2, replace=False))
-        edges = search.fastest_path(graph, ws, src, dst)
+        edges = point_to_point.fastest_path(graph, ws, src, dst)
         if trial % 5 == 0:
             edges = np.concatenate([edges, edges[::-1][: len(edges) // 2]]).astype(np.int64)
         if trial == 1:

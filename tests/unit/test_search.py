@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from services.citydata import load_city
-from services.network import search
+from services.network import astar, dijkstra, heaps, point_to_point, unfolding
 from services.network.graph import INF, RoadGraph, prepare, road_graph
 from tests.citymaker import make_city
 from tests.reference import canonical_tree as reference_tree
@@ -75,8 +75,8 @@ def test_every_node_gets_the_reference_label_and_path(graph, reverse, kind):
     g = graph.reverse if reverse else graph.forward
     cost = _costs(graph, kind)
     costs = prepare(g, cost)
-    assert (costs.span > search.RING) == (kind == "spread")
-    ws = search.workspace(graph, reverse)
+    assert (costs.span > heaps.RING) == (kind == "spread")
+    ws = heaps.workspace(graph, reverse)
     rng = np.random.default_rng(3)
     interior = np.flatnonzero(g.kept_of < 0)
     sources = list(rng.choice(graph.n_nodes, size=3, replace=False))
@@ -86,14 +86,14 @@ def test_every_node_gets_the_reference_label_and_path(graph, reverse, kind):
     out = np.zeros(graph.n_nodes, dtype=np.int64)
     for s in sources:
         label, pred = reference_tree(graph, cost, int(s), reverse)
-        search.tree(g, graph.edges, costs, int(s), int(INF), np.zeros(0, np.int64), everyone, ws, out)
+        unfolding.tree(g, graph.edges, costs, int(s), int(INF), np.zeros(0, np.int64), everyone, ws, out)
         for v in range(graph.n_nodes):
             if label[v] is None:
                 assert out[v] >= INF
                 continue
-            got = search.resolve(g, graph.edges, costs, int(INF), v, ws)
+            got = unfolding.resolve(g, graph.edges, costs, int(INF), v, ws)
             assert got[:3] == label[v]
-            path = search.path_to(graph.edges, g.towards, ws.pred, int(s), v).tolist()
+            path = unfolding.path_to(graph.edges, g.towards, ws.pred, int(s), v).tolist()
             assert path == tree_path(graph, pred, int(s), v, reverse)
 
 
@@ -101,23 +101,23 @@ def test_targets_and_limit_give_the_same_paths(graph):
     g = graph.forward
     cost = graph.edges.time_us
     costs = prepare(g, cost)
-    ws = search.workspace(graph)
+    ws = heaps.workspace(graph)
     rng = np.random.default_rng(11)
     for s in rng.choice(graph.n_nodes, size=5, replace=False):
         label, pred = reference_tree(graph, cost, int(s))
         reached = [v for v in range(graph.n_nodes) if label[v] is not None]
         targets = rng.choice(reached, size=min(7, len(reached)), replace=False).astype(np.int64)
         out = np.zeros(len(targets), dtype=np.int64)
-        search.tree(g, graph.edges, costs, int(s), int(INF), targets, targets, ws, out)
+        unfolding.tree(g, graph.edges, costs, int(s), int(INF), targets, targets, ws, out)
         for t, c in zip(targets, out, strict=True):
             assert c == label[int(t)][0]
-            assert search.path_to(graph.edges, 1, ws.pred, int(s), int(t)).tolist() == tree_path(
+            assert unfolding.path_to(graph.edges, 1, ws.pred, int(s), int(t)).tolist() == tree_path(
                 graph, pred, int(s), int(t), False
             )
         limit = int(np.median([label[v][0] for v in reached]))
         every = np.arange(graph.n_nodes, dtype=np.int64)
         out = np.zeros(graph.n_nodes, dtype=np.int64)
-        search.tree(g, graph.edges, costs, int(s), limit, np.zeros(0, np.int64), every, ws, out)
+        unfolding.tree(g, graph.edges, costs, int(s), limit, np.zeros(0, np.int64), every, ws, out)
         for v in range(graph.n_nodes):
             if label[v] is not None and label[v][0] <= limit:
                 assert out[v] == label[v][0]
@@ -133,7 +133,7 @@ def test_many_nodes_in_one_call_read_as_one_by_one(graph, reverse):
     g = graph.reverse if reverse else graph.forward
     cost = _costs(graph, "discounted")
     costs = prepare(g, cost)
-    ws = search.workspace(graph, reverse)
+    ws = heaps.workspace(graph, reverse)
     rng = np.random.default_rng(23)
     interior = np.flatnonzero(g.kept_of < 0)
     sources = list(rng.choice(graph.n_nodes, size=3, replace=False))
@@ -144,47 +144,47 @@ def test_many_nodes_in_one_call_read_as_one_by_one(graph, reverse):
         s = int(s)
         label, _pred = reference_tree(graph, cost, s, reverse)
         limit = int(np.median([x[0] for x in label if x is not None]))
-        search.run(g, graph.edges, costs, s, limit, np.zeros(0, np.int64), ws)
-        one = [search.resolve(g, graph.edges, costs, limit, v, ws)[:3] for v in range(graph.n_nodes)]
+        dijkstra.run(g, graph.edges, costs, s, limit, np.zeros(0, np.int64), ws)
+        one = [unfolding.resolve(g, graph.edges, costs, limit, v, ws)[:3] for v in range(graph.n_nodes)]
         many = np.zeros((3, graph.n_nodes), dtype=np.int64)
-        search.labels(g, graph.edges, costs, limit, every, ws, many)
+        unfolding.labels(g, graph.edges, costs, limit, every, ws, many)
         assert [tuple(c) for c in many.T.tolist()] == [tuple(x) for x in one]
         assert any(x[0] >= INF for x in one) and any(x[0] < INF for x in one)
         reached = np.zeros(graph.n_nodes, dtype=np.bool_)
         order = rng.permutation(graph.n_nodes).astype(np.int64)
-        all_reached = search.unfold_many(g, graph.edges, costs, limit, order, ws, reached)
+        all_reached = unfolding.unfold_many(g, graph.edges, costs, limit, order, ws, reached)
         assert reached.tolist() == [one[v][0] < INF for v in order.tolist()]
         assert not all_reached
         paths = {
-            v: search.path_to(graph.edges, g.towards, ws.pred, s, v).tolist()
+            v: unfolding.path_to(graph.edges, g.towards, ws.pred, s, v).tolist()
             for v in order.tolist()
             if one[v][0] < INF
         }
-        search.run(g, graph.edges, costs, s, limit, np.zeros(0, np.int64), ws)
+        dijkstra.run(g, graph.edges, costs, s, limit, np.zeros(0, np.int64), ws)
         for v, path in paths.items():
-            assert search.unfold(g, graph.edges, costs, limit, v, ws)
-            assert search.path_to(graph.edges, g.towards, ws.pred, s, v).tolist() == path
+            assert unfolding.unfold(g, graph.edges, costs, limit, v, ws)
+            assert unfolding.path_to(graph.edges, g.towards, ws.pred, s, v).tolist() == path
 
 
 def test_forward_and_reverse_trees_give_one_path(graph):
     """The point of canonical labels: the path from a to b is the same searched from either end."""
     rng = np.random.default_rng(5)
     cost = _costs(graph, "equal")  # the worst case for ties
-    fw = search.workspace(graph)
-    rv = search.workspace(graph, reverse=True)
+    fw = heaps.workspace(graph)
+    rv = heaps.workspace(graph, reverse=True)
     cf = prepare(graph.forward, cost)
     cr = prepare(graph.reverse, cost)
     pairs = rng.choice(graph.n_nodes, size=(10, 2))
     for a, b in pairs.tolist():
         one = np.array([b], dtype=np.int64)
         out = np.zeros(1, dtype=np.int64)
-        search.tree(graph.forward, graph.edges, cf, a, int(INF), one, one, fw, out)
+        unfolding.tree(graph.forward, graph.edges, cf, a, int(INF), one, one, fw, out)
         if out[0] >= INF:
             continue
-        p1 = search.path_to(graph.edges, 1, fw.pred, a, b)
+        p1 = unfolding.path_to(graph.edges, 1, fw.pred, a, b)
         src = np.array([a], dtype=np.int64)
-        search.tree(graph.reverse, graph.edges, cr, b, int(INF), src, src, rv, out)
-        p2 = search.walk(graph.edges, rv.pred, a, b)
+        unfolding.tree(graph.reverse, graph.edges, cr, b, int(INF), src, src, rv, out)
+        p2 = unfolding.walk(graph.edges, rv.pred, a, b)
         assert p1.tolist() == p2.tolist()
 
 
@@ -199,7 +199,7 @@ def test_a_goal_directed_search_finds_the_same_path(graph, kind):
     high = low.copy()
     raised = rng.random(graph.n_edges) < 0.2
     high[raised] += rng.integers(0, 3, int(raised.sum())) * low[raised]
-    fw, rv = search.workspace(graph), search.workspace(graph, reverse=True)
+    fw, rv = heaps.workspace(graph), heaps.workspace(graph, reverse=True)
     c_high = prepare(graph.forward, high)
     c_low_rev = prepare(graph.reverse, low)
     interior = np.flatnonzero(graph.forward.kept_of < 0)
@@ -211,51 +211,54 @@ def test_a_goal_directed_search_finds_the_same_path(graph, kind):
     fewer = 0
     for a, b in ends:
         a, b = int(a), int(b)
-        search.run(graph.reverse, graph.edges, c_low_rev, b, int(INF), np.zeros(0, np.int64), rv)
+        dijkstra.run(graph.reverse, graph.edges, c_low_rev, b, int(INF), np.zeros(0, np.int64), rv)
         pot = np.array(
-            [search.resolve(graph.reverse, graph.edges, c_low_rev, int(INF), int(v), rv)[:3] for v in kept],
+            [
+                unfolding.resolve(graph.reverse, graph.edges, c_low_rev, int(INF), int(v), rv)[:3]
+                for v in kept
+            ],
             dtype=np.int64,
         ).T.copy()
         zero = np.zeros_like(pot)
         zero[0] = np.where(pot[0] < INF, 0, INF)
 
         one = np.array([b], dtype=np.int64)
-        search.run(graph.forward, graph.edges, c_high, a, int(INF), one, fw)
-        want = search.resolve(graph.forward, graph.edges, c_high, int(INF), b, fw)
+        dijkstra.run(graph.forward, graph.edges, c_high, a, int(INF), one, fw)
+        want = unfolding.resolve(graph.forward, graph.edges, c_high, int(INF), b, fw)
         plain_settled = int((fw.state[fw.touched[: fw.info[2]]] == -2).sum())
-        reached = search.unfold(graph.forward, graph.edges, c_high, int(INF), b, fw)
-        want_path = search.path_to(graph.edges, 1, fw.pred, a, b).tolist() if reached else None
+        reached = unfolding.unfold(graph.forward, graph.edges, c_high, int(INF), b, fw)
+        want_path = unfolding.path_to(graph.edges, 1, fw.pred, a, b).tolist() if reached else None
         for p in (pot, zero):
-            search.run_guided(graph.forward, graph.edges, c_high, a, b, p, fw, np.zeros((0, 0), np.int64))
-            assert search.resolve(graph.forward, graph.edges, c_high, int(INF), b, fw)[:3] == want[:3]
+            astar.run_guided(graph.forward, graph.edges, c_high, a, b, p, fw, np.zeros((0, 0), np.int64))
+            assert unfolding.resolve(graph.forward, graph.edges, c_high, int(INF), b, fw)[:3] == want[:3]
             touched = fw.touched[: fw.info[2]]
             settled = touched[fw.state[touched] == -2]
             assert (p[0, settled] < INF).all()
             if p is pot:
                 fewer += int(len(settled) < plain_settled)
-            assert search.unfold(graph.forward, graph.edges, c_high, int(INF), b, fw) == reached
+            assert unfolding.unfold(graph.forward, graph.edges, c_high, int(INF), b, fw) == reached
             if reached:
-                assert search.path_to(graph.edges, 1, fw.pred, a, b).tolist() == want_path
+                assert unfolding.path_to(graph.edges, 1, fw.pred, a, b).tolist() == want_path
     assert fewer > 0
 
 
 def test_fastest_paths_guided_by_landmarks_are_the_plain_ones(graph):
     """Riders' trips and pickup legs search goal-directed toward the target by the landmarks' bounds
-    (``search.landmarks``): the same canonical paths as plain searches, on every city -- interior ends
+    (``point_to_point.landmarks``): the same canonical paths as plain searches, on every city -- interior ends
     included. The bound is a potential: never above the true travel time (INF exactly where the target
     cannot be reached), never dropping along an edge by more than the edge's time."""
     ed = graph.edges
-    lm = search.landmarks(graph)
-    assert lm.shape == (graph.n_nodes, 2 * min(search.LANDMARKS, graph.n_nodes))
-    assert search.landmarks(graph) is lm  # built once per graph
+    lm = point_to_point.landmarks(graph)
+    assert lm.shape == (graph.n_nodes, 2 * min(point_to_point.LANDMARKS, graph.n_nodes))
+    assert point_to_point.landmarks(graph) is lm  # built once per graph
     rng = np.random.default_rng(23)
-    rv = search.workspace(graph, reverse=True)
+    rv = heaps.workspace(graph, reverse=True)
     nodes = np.arange(graph.n_nodes, dtype=np.int64)
     exact = np.empty((3, graph.n_nodes), dtype=np.int64)
     for t in rng.choice(graph.n_nodes, 4).tolist():
-        search.run(graph.reverse, ed, graph.time_reverse, t, int(INF), np.zeros(0, np.int64), rv)
-        search.labels(graph.reverse, ed, graph.time_reverse, int(INF), nodes, rv, exact)
-        bound = np.array([search._bound(lm, lm[t], v) for v in range(graph.n_nodes)], dtype=np.int64)
+        dijkstra.run(graph.reverse, ed, graph.time_reverse, t, int(INF), np.zeros(0, np.int64), rv)
+        unfolding.labels(graph.reverse, ed, graph.time_reverse, int(INF), nodes, rv, exact)
+        bound = np.array([astar._bound(lm, lm[t], v) for v in range(graph.n_nodes)], dtype=np.int64)
         assert ((bound <= exact[0]) | (exact[0] >= INF)).all()
         assert ((bound < INF) | (exact[0] >= INF)).all() and bound[t] == 0
         finite = bound[ed.head] < INF
@@ -267,11 +270,11 @@ def test_fastest_paths_guided_by_landmarks_are_the_plain_ones(graph):
         src[:10] = rng.choice(interior, 10)
         dst[5:15] = rng.choice(interior, 10)
     plain = np.zeros((0, 0), dtype=np.int64)
-    ws = search.workspace(graph)
+    ws = heaps.workspace(graph)
     for a, b in zip(src.tolist(), dst.tolist(), strict=True):
         one, other = np.array([a]), np.array([b])
-        got = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, lm)
-        want = search.paths(graph.forward, ed, graph.time_forward, ws, one, other, plain)
+        got = unfolding.paths(graph.forward, ed, graph.time_forward, ws, one, other, lm)
+        want = unfolding.paths(graph.forward, ed, graph.time_forward, ws, one, other, plain)
         assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
 
 
@@ -287,16 +290,16 @@ def test_landmark_guided_paths_on_one_way_streets_and_an_unreachable_part():
     two_way = [e for e in two_way if e not in {(3, 7), (7, 11), (10, 11)}]
     city = make_city(nodes, [*two_way, *[(v, u) for u, v in two_way], *one_way], both_ways=False)
     graph = road_graph(city)
-    lm = search.landmarks(graph, count=3)
+    lm = point_to_point.landmarks(graph, count=3)
     assert (lm[12:] >= INF).any() and (lm[:12] < INF).all()  # the island reaches no landmark
-    ws = search.workspace(graph)
+    ws = heaps.workspace(graph)
     plain = np.zeros((0, 0), dtype=np.int64)
     joined = failed = 0
     for a in range(graph.n_nodes):
         for b in range(graph.n_nodes):
             one, other = np.array([a]), np.array([b])
-            got = search.paths(graph.forward, graph.edges, graph.time_forward, ws, one, other, lm)
-            want = search.paths(graph.forward, graph.edges, graph.time_forward, ws, one, other, plain)
+            got = unfolding.paths(graph.forward, graph.edges, graph.time_forward, ws, one, other, lm)
+            want = unfolding.paths(graph.forward, graph.edges, graph.time_forward, ws, one, other, plain)
             assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist(), (a, b)
             joined += int(want[0][1] >= 0)
             failed += int(want[0][1] < 0)

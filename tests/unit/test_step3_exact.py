@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from services.citydata import load_city
 from services.matching.assignment import lexicographic_assignment
 from services.model import CountsView, IntervalKey, TaxiId
-from services.network import search
+from services.network import astar, dijkstra
 from services.network.graph import INF, Costs, road_graph
 from services.network.pads import Pads
 from services.routing import algorithm1
@@ -171,7 +171,7 @@ def test_step3_at_the_apis_largest_size_equals_the_straightforward_computation()
 def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_cells_is_the_full_search() -> (
     None
 ):
-    """``search.guided`` with the in-tree's path cells stops short of the POI, and away from the taxi, in
+    """``astar.guided`` with the in-tree's path cells stops short of the POI, and away from the taxi, in
     many searches, and the route it gives (the path to where it stopped, then the in-tree's path) is the
     route of the search run to the POI, bit for bit."""
     rng = np.random.default_rng(7)
@@ -196,20 +196,18 @@ def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_c
         for root in pb.targets.tolist():
             for q in (1, 3):
                 costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
-                search.run(kt.rg, kt.ed, costs, root, INF - 1, np.zeros(0, np.int64), tl.wsr)
-                search.path_cells(kt.rg, kt.ed, tl.wsr, sc.cbits, sc.cdone, 10**9 + q, sc.cstack)
+                dijkstra.run(kt.rg, kt.ed, costs, root, INF - 1, np.zeros(0, np.int64), tl.wsr)
+                astar.path_cells(kt.rg, kt.ed, tl.wsr, sc.cbits, sc.cdone, 10**9 + q, sc.cstack)
                 for a, src in enumerate(sources.tolist()):
                     mark(sc.zmask, counted, a, True)
                     mine, lazy = algorithm1._own_metric(kt, sc, gn, q, KAPPAS[q], base.umax)
                     leg = Drive(a, src, root, INF - 1)
                     got = []
                     for clean in (sc.cbits, sc.cbits[:0]):
-                        gd = search.tree_guide(
-                            tl.wsr, INF - 1, clean, algorithm1._zbits(counted, a, sc.zbits)
-                        )
+                        gd = astar.tree_guide(tl.wsr, INF - 1, clean, algorithm1._zbits(counted, a, sc.zbits))
                         got.append(algorithm1._own_route(kt, pb, tl, costs, gd, lazy, mine, leg))
                         if clean.shape[0]:
-                            meet = search.guided(kt.fg, kt.ed, mine, src, root, tl.wsf, gd, lazy)
+                            meet = astar.guided(kt.fg, kt.ed, mine, src, root, tl.wsf, gd, lazy)
                             stopped += meet >= 0 and kt.fg.kept[meet] not in (root, src)
                     mark(sc.zmask, counted, a, False)
                     assert got[0] == got[1]

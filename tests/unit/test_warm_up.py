@@ -77,5 +77,5 @@ def test_after_the_warm_up_real_epochs_compile_nothing(scenario: str) -> None:
 
 def test_the_compiled_functions_are_found() -> None:
     found = compiled_functions()
-    assert "services.routing.algorithm1._from_taxi" in found and "services.network.search.run" in found
+    assert "services.routing.algorithm1._from_taxi" in found and "services.network.dijkstra.run" in found
     assert len(found) > 30

@@ -1,0 +1,432 @@
+"""The guided (A*) search: point-to-point searches toward one target under a potential, either the
+landmarks' lower bounds (``_bound``) or an in-tree's labels (:class:`Guide`), with the cells its path
+crosses. Same labels and tie rule as ``services.network.dijkstra``; the same canonical paths.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.kernel.jit import compiled, compiled_inline
+from services.network.dijkstra import _crossing_cost, _lazy_ends, _need_targets, _seed
+from services.network.graph import (
+    INF,
+    Costs,
+    Edges,
+    Lazy,
+    SearchGraph,
+    no_lazy,
+)
+from services.network.heaps import Workspace, _less, _reset
+
+__all__ = [
+    "Guide",
+    "CLEAN_WORDS",
+    "cell_bit",
+    "path_cells",
+    "tree_guide",
+    "run_guided",
+    "guided",
+]
+
+
+@compiled_inline
+def _put(
+    heap: NDArray[np.int64],
+    hkey: NDArray[np.int64],
+    state: NDArray[np.int64],
+    i: int,
+    k: int,
+    c: int,
+    a: int,
+    b: int,
+) -> None:
+    """Heap entry ``i`` := node ``k`` with key ``(c, a, b)``."""
+    heap[i] = k
+    hkey[i, 0] = c
+    hkey[i, 1] = a
+    hkey[i, 2] = b
+    state[k] = i
+
+
+@compiled_inline
+def _guided_up(
+    heap: NDArray[np.int64],
+    hkey: NDArray[np.int64],
+    state: NDArray[np.int64],
+    i: int,
+    k: int,
+    c: int,
+    a: int,
+    b: int,
+) -> None:
+    """Put node ``k`` with key ``(c, a, b)`` at heap position ``i`` (a free slot, or ``k``'s own with a key
+    no larger than before) and sift it up. Keys sit beside the entries: a comparison reads one row."""
+    while i > 0:
+        p = (i - 1) >> 1
+        if not _less(c, a, b, hkey[p, 0], hkey[p, 1], hkey[p, 2]):
+            break
+        _put(heap, hkey, state, i, heap[p], hkey[p, 0], hkey[p, 1], hkey[p, 2])
+        i = p
+    _put(heap, hkey, state, i, k, c, a, b)
+
+
+@compiled_inline
+def _guided_pop(heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray[np.int64], size: int) -> int:
+    """Remove the root of the binary heap (``heap[0]`` before the call); new size."""
+    size -= 1
+    if size == 0:
+        return 0
+    k, c0, c1, c2 = heap[size], hkey[size, 0], hkey[size, 1], hkey[size, 2]
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= size:
+            break
+        if c + 1 < size and _less(
+            hkey[c + 1, 0], hkey[c + 1, 1], hkey[c + 1, 2], hkey[c, 0], hkey[c, 1], hkey[c, 2]
+        ):
+            c += 1
+        if not _less(hkey[c, 0], hkey[c, 1], hkey[c, 2], c0, c1, c2):
+            break
+        _put(heap, hkey, state, i, heap[c], hkey[c, 0], hkey[c, 1], hkey[c, 2])
+        i = c
+    _put(heap, hkey, state, i, k, c0, c1, c2)
+    return size
+
+
+@compiled_inline
+def _bound(lm: NDArray[np.int64], tl: NDArray[np.int64], v: int) -> int:
+    """The landmarks' lower bound on the travel time from node ``v`` to the target whose row is ``tl``
+    (``landmarks``): ``d(v, L) - d(t, L)`` and ``d(L, t) - d(L, v)`` by the triangle inequality, the largest
+    over the landmarks (at least 0); ``INF`` when ``v`` cannot reach a landmark the target reaches, so
+    cannot reach the target. Each term grows along an edge by at most the edge's time, so the largest
+    does too: a potential for ``run_guided``."""
+    n = tl.shape[0] // 2
+    best = 0
+    for i in range(n):
+        to_t = tl[i]
+        if to_t < INF:
+            to_v = lm[v, i]
+            if to_v >= INF:
+                return INF
+            if to_v - to_t > best:
+                best = to_v - to_t
+        from_t = tl[n + i]
+        from_v = lm[v, n + i]
+        if from_t < INF and from_v < INF and from_t - from_v > best:
+            best = from_t - from_v
+    return best
+
+
+class Guide(NamedTuple):
+    """Where ``guided`` reads its potential (the first that is given): a landmark table ``lm`` (n, 2L)
+    (``landmarks``; the travel-time bound, ties 0); an in-tree's labels, the arrays of the reverse
+    workspace it was grown in (``tree_*``, (K,) each: kept indices are the same both ways), grown to
+    ``cutoff - 1`` and not stopped early, so that a node it did not settle costs at least ``cutoff``; or
+    ``pot`` (3, K), a label per kept node.
+
+    With an in-tree, ``clean`` (K, ``CLEAN_WORDS``) may hold the cells each settled node's in-tree path
+    enters (``path_cells``) and ``zbits`` the cells whose entering edges the searched metric prices
+    differently from the in-tree's (as ``cell_bit`` sets; ``clean`` of shape (0, W): no such test)."""
+
+    pot: NDArray[np.int64]
+    lm: NDArray[np.int64]
+    tree_cost: NDArray[np.int64]
+    tree_tie1: NDArray[np.int64]
+    tree_tie2: NDArray[np.int64]
+    tree_state: NDArray[np.int64]
+    cutoff: int
+    clean: NDArray[np.uint64]
+    zbits: NDArray[np.uint64]
+
+
+CLEAN_WORDS = 4
+"""Words of a cell set (``cell_bit``): cell ``c`` is bit ``c % (64 * CLEAN_WORDS)``, so on a network of more
+cells two cells may share a bit (a set then holds more cells than it should, never fewer)."""
+
+
+@compiled_inline
+def cell_bit(bits: NDArray[np.uint64], c: int) -> None:
+    """Add cell ``c`` to the cell set ``bits`` (``CLEAN_WORDS`` words)."""
+    b = c % (64 * CLEAN_WORDS)
+    bits[b >> 6] |= np.uint64(1) << np.uint64(b & 63)
+
+
+@compiled
+def path_cells(
+    g: SearchGraph,
+    ed: Edges,
+    tree: Workspace,
+    out: NDArray[np.uint64],
+    done: NDArray[np.int64],
+    stamp: int,
+    stack: NDArray[np.int64],
+) -> None:
+    """For every kept node the in-tree grown in ``tree`` (``run`` on the reverse graph ``g``) settled, the
+    cells its tree path to the root enters (each edge's cells but its first) into ``out[k]`` as a
+    ``cell_bit`` set; ``done[k] = stamp`` marks each node written. ``stack``: scratch of K entries."""
+    for i in range(tree.info[2]):
+        k0 = tree.touched[i]
+        if tree.state[k0] != -2 or done[k0] == stamp:
+            continue
+        top = 0
+        k = k0
+        while True:  # toward the root, to a node written or the root's super-edge
+            stack[top] = k
+            top += 1
+            s = tree.pse[k]
+            if s < 0 or tree.pstart[k] != 0:
+                break
+            k = g.se_tail[s]
+            if done[k] == stamp:
+                break
+        while top > 0:  # back, each node's set from the next node's toward the root
+            top -= 1
+            k = stack[top]
+            s = tree.pse[k]
+            for w in range(CLEAN_WORDS):
+                out[k, w] = 0
+            if s >= 0:
+                start = tree.pstart[k]
+                if start == 0:
+                    nxt = g.se_tail[s]
+                    for w in range(CLEAN_WORDS):
+                        out[k, w] = out[nxt, w]
+                for p in range(g.se_ptr[s] + start, g.se_ptr[s + 1]):
+                    e = g.se_edges[p]
+                    for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
+                        cell_bit(out[k], ed.ec_cell[j])
+            done[k] = stamp
+
+
+@compiled
+def tree_guide(tree: Workspace, limit: int, clean: NDArray[np.uint64], zbits: NDArray[np.uint64]) -> Guide:
+    """The ``Guide`` of the in-tree grown in ``tree`` to ``limit`` (``run`` with no targets), with its
+    nodes' path cells ``clean`` and the searched metric's cells ``zbits`` (``clean`` (0, W): no test)."""
+    return Guide(
+        np.zeros((3, 0), dtype=np.int64),
+        np.zeros((0, 0), dtype=np.int64),
+        tree.cost,
+        tree.tie1,
+        tree.tie2,
+        tree.state,
+        limit + 1,
+        clean,
+        zbits,
+    )
+
+
+@compiled_inline
+def _potential(gd: Guide, tl: NDArray[np.int64], v: int, h: int) -> tuple[int, int, int]:
+    """``guided``'s potential of kept node ``h`` (original node ``v``); ``tl`` is the target's row of the
+    landmark table (empty: no landmarks). An in-tree's potential is its label where it settled ``h``, else
+    ``(cutoff, 0, 0)``: no more than any unsettled node's label, and within one super-edge's cost of
+    every settled node's (each settled label is below ``cutoff``), so it never drops along a super-edge by
+    more than the super-edge's label under a metric no cheaper than the in-tree's."""
+    if tl.shape[0] > 0:
+        return _bound(gd.lm, tl, v), 0, 0
+    if gd.tree_state.shape[0] > 0:
+        if gd.tree_state[h] == -2:
+            return gd.tree_cost[h], gd.tree_tie1[h], gd.tree_tie2[h]
+        return gd.cutoff, 0, 0
+    return gd.pot[0, h], gd.pot[1, h], gd.pot[2, h]
+
+
+@compiled
+def run_guided(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    target: int,
+    pot: NDArray[np.int64],
+    ws: Workspace,
+    lm: NDArray[np.int64],
+) -> None:
+    """``guided`` with the potential ``pot`` or the landmark table ``lm`` (shape (0, 0): none), the metric
+    held in ``costs``."""
+    none = np.zeros(0, dtype=np.int64)
+    bits = np.zeros((0, CLEAN_WORDS), dtype=np.uint64)
+    gd = Guide(pot, lm, none, none, none, none, 0, bits, np.zeros(CLEAN_WORDS, dtype=np.uint64))
+    guided(g, ed, costs, source, target, ws, gd, no_lazy())
+
+
+@compiled_inline
+def _guided_label(
+    ws: Workspace,
+    h: int,
+    label: tuple[int, int, int],
+    s: int,
+    os: int,
+    pot: tuple[int, int, int],
+    size: int,
+    n_touched: int,
+) -> tuple[int, int]:
+    """Give kept node ``h`` the label ``(cost, tie1, tie2)`` through super-edge ``s`` (entered ``os`` edges
+    in) and queue it, or move it up the queue, keyed by label + potential ``pot``; returns the queue's size
+    and the touched nodes' count."""
+    c, a, b = label
+    if ws.cost[h] == INF and not ws.need[h]:
+        ws.touched[n_touched] = h
+        n_touched += 1
+    ws.cost[h] = c
+    ws.tie1[h] = a
+    ws.tie2[h] = b
+    ws.pse[h] = s
+    ws.pstart[h] = os
+    at = ws.state[h]
+    if at < 0:
+        at = size
+        size += 1
+    _guided_up(ws.nxt, ws.hkey, ws.state, at, h, c + pot[0], a + pot[1], b + pot[2])
+    return size, n_touched
+
+
+@compiled_inline
+def _guided_seed(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    ws: Workspace,
+    gd: Guide,
+    tl: NDArray[np.int64],
+    source: int,
+    n_touched: int,
+) -> tuple[int, int]:
+    """Queue the first labels of a guided search from ``source`` (keyed by label + potential); returns the
+    queue's size and the touched nodes' count."""
+    cost, tie1, tie2 = ws.cost, ws.tie1, ws.tie2
+    sk = g.kept_of[source]
+    size = 0
+    for j in range(1 if sk >= 0 else 2):
+        h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
+        if h < 0:
+            continue
+        p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
+        if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
+            continue
+        size, n_touched = _guided_label(ws, h, (c, a, b), s, os, (p0, p1, p2), size, n_touched)
+    return size, n_touched
+
+
+@compiled_inline
+def _meets(gd: Guide, k: int) -> bool:
+    """``guided`` stops at kept node ``k`` (just settled) when ``gd`` holds an in-tree's path cells and
+    ``k``'s in-tree path enters none of the cells ``gd.zbits`` holds: that path costs the searched metric
+    what it costs the in-tree's, and no other path from ``k`` costs less (the metric is nowhere cheaper
+    than the in-tree's), so ``k``'s key -- its label plus that path's label -- is the label of a path to
+    the target; no key taken later is smaller, so it is the target's label, and the canonical path is the
+    one to ``k`` (``unfold``) followed by the in-tree's path from ``k``."""
+    if gd.clean.shape[0] == 0 or gd.tree_state[k] != -2:
+        return False
+    hit = np.uint64(0)
+    for w in range(gd.zbits.shape[0]):
+        hit |= gd.clean[k, w] & gd.zbits[w]
+    return bool(hit == 0)
+
+
+@compiled_inline
+def _guided_start(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    ws: Workspace,
+    gd: Guide,
+    lazy: Lazy,
+    source: int,
+    target: int,
+) -> tuple[int, int, int, NDArray[np.int64]]:
+    """Start ``guided``'s search: reset ``ws``, mark the target, cost the lazy ends and queue the source's
+    first labels (none when the target is already resolved). Returns the queue's size, the touched nodes'
+    count, the number of nodes to settle and the target's landmark row (empty: no landmarks)."""
+    _reset(ws)
+    ws.info[0] = source
+    tgt = np.full(1, target, dtype=np.int64)
+    n_touched, remaining = _need_targets(g, source, tgt, ws)
+    tl = gd.lm[target] if gd.lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
+    if lazy.on:
+        _lazy_ends(g, ed, costs, lazy, source, tgt)
+    size = 0
+    if remaining > 0:
+        size, n_touched = _guided_seed(g, ed, costs, ws, gd, tl, source, n_touched)
+    return size, n_touched, remaining, tl
+
+
+@compiled
+def guided(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    target: int,
+    ws: Workspace,
+    gd: Guide,
+    lazy: Lazy,
+) -> int:
+    """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*).
+
+    The potential (``Guide``) is a label per kept node, ``(cost, tie1, tie2)`` (cost ``INF``: the node
+    cannot reach the target), that never drops by more than a super-edge's label along it:
+    ``pot[:, u] <= label(u, v) + pot[:, v]`` lexicographically. The labels to the target under any metric no
+    dearer on any edge are one (a lexicographic shortest-path label obeys the triangle inequality). Nodes
+    are taken in the order of label + potential, compared lexicographically: along a super-edge that key
+    never decreases, so the order is a plain Dijkstra's on those keys, and since the potential is the
+    same for every path to a node, each node's label -- read with ``resolve`` and ``unfold`` as after
+    ``run`` -- is the one ``run`` gives it. With the labels of the cheaper metric as potential, a search
+    whose metric differs from it nowhere on the canonical path goes straight along that path. The search
+    stops when the target can be resolved and settles no node that cannot reach it. ``lazy``: as in
+    ``grow``. Returns -1, or the kept node where it stopped before the target (``_meets``).
+    """
+    cost, tie1, tie2, state, heap, hkey = ws.cost, ws.tie1, ws.tie2, ws.state, ws.nxt, ws.hkey
+    se_cost = costs.se
+    lazy_on, fixed, zmask, term, umax, kappa = (
+        lazy.on,
+        lazy.fixed,
+        lazy.zmask,
+        lazy.term,
+        lazy.umax,
+        lazy.kappa,
+    )
+    se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
+    size, n_touched, remaining, tl = _guided_start(g, ed, costs, ws, gd, lazy, source, target)
+    complete, meet = 1, -1
+    while size > 0:
+        k = heap[0]
+        size = _guided_pop(heap, hkey, state, size)
+        state[k] = -2
+        if ws.need[k]:
+            remaining -= 1
+            if remaining == 0:
+                complete = 0
+                break
+        if _meets(gd, k):
+            complete, meet = 0, k
+            break
+        d = cost[k]
+        a0 = tie1[k]
+        b0 = tie2[k]
+        for s in range(g.indptr[k], g.indptr[k + 1]):
+            h = g.se_head[s]
+            st = state[h]
+            if st == -2:
+                continue
+            p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
+            if p0 >= INF:
+                continue
+            if not lazy_on:
+                c = d + se_cost[s]
+            elif fixed[s] >= 0:
+                c = d + fixed[s]
+            else:
+                c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
+            a = a0 + g.se_tie1[s]
+            b = b0 + g.se_tie2[s]
+            if _less(c, a, b, cost[h], tie1[h], tie2[h]):
+                size, n_touched = _guided_label(ws, h, (c, a, b), s, 0, (p0, p1, p2), size, n_touched)
+    ws.info[1] = complete
+    ws.info[2] = n_touched
+    return meet

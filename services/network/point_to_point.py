@@ -1,0 +1,163 @@
+"""Canonical fastest paths between given pairs with the landmark-guided search on the contracted graph,
+and the landmark table behind its bounds (the "ALT" bounds of Goldberg and Harrelson, 2005) and the
+network's crossing time. ``services.network.hierarchy.fastest_paths`` is the front door: these serve
+a network without a hierarchy (the same paths).
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+
+import numpy as np
+from numpy.typing import NDArray
+
+from services.network.dijkstra import run
+from services.network.graph import (
+    INF,
+    Costs,
+    RoadGraph,
+)
+from services.network.heaps import Workspace, workspace
+from services.network.unfolding import labels, path_to, paths, tree
+
+__all__ = [
+    "split_paths",
+    "landmark_fastest_paths",
+    "fastest_path",
+    "path",
+    "LANDMARKS",
+    "landmarks",
+    "crossing_us",
+]
+
+
+def split_paths(
+    ptr: NDArray[np.int64], flat: NDArray[np.int64], sources: NDArray[np.int64], targets: NDArray[np.int64]
+) -> list[NDArray[np.int64]]:
+    """The paths of a CSR ``(ptr, flat)`` as ``paths`` returns them, one array each.
+
+    Raises
+    ------
+    ValueError
+        When a pair could not be joined (its ``ptr`` is -1).
+    """
+    bad = np.flatnonzero(ptr[1:] < 0)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"node {int(targets[i])} cannot be reached from node {int(sources[i])}")
+    return [flat[ptr[i] : ptr[i + 1]] for i in range(len(sources))]
+
+
+def landmark_fastest_paths(
+    graph: RoadGraph, ws: Workspace, sources: NDArray[np.int64], targets: NDArray[np.int64]
+) -> list[NDArray[np.int64]]:
+    """The canonical fastest path of every (source, target) pair (one compiled call).
+
+    Raises
+    ------
+    ValueError
+        When a target cannot be reached from its source.
+    """
+    src = np.asarray(sources, dtype=np.int64)
+    tgt = np.asarray(targets, dtype=np.int64)
+    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt, landmarks(graph))
+    return split_paths(ptr, flat, src, tgt)
+
+
+def fastest_path(graph: RoadGraph, ws: Workspace, source: int, target: int) -> NDArray[np.int64]:
+    """Edges of the canonical fastest path from ``source`` to ``target`` (forward workspace ``ws``).
+
+    Raises
+    ------
+    ValueError
+        When ``target`` cannot be reached.
+    """
+    return path(graph, ws, graph.time_forward, source, target)
+
+
+def path(graph: RoadGraph, ws: Workspace, costs: Costs, source: int, target: int) -> NDArray[np.int64]:
+    """Edges of the canonical shortest path from ``source`` to ``target`` under ``costs`` (forward).
+
+    Raises
+    ------
+    ValueError
+        When ``target`` cannot be reached.
+    """
+    ed = graph.edges
+    tgt = np.array([target], dtype=np.int64)
+    out = np.zeros(1, dtype=np.int64)
+    tree(graph.forward, ed, costs, int(source), int(INF), tgt, tgt, ws, out)
+    if out[0] >= INF:
+        raise ValueError(f"node {target} cannot be reached from node {source}")
+    edges: NDArray[np.int64] = path_to(ed, 1, ws.pred, int(source), int(target))
+    return edges
+
+
+LANDMARKS = 8
+"""Landmarks per city for the goal-directed point-to-point searches (``landmarks``)."""
+
+_landmarks: weakref.WeakKeyDictionary[RoadGraph, NDArray[np.int64]] = weakref.WeakKeyDictionary()
+_landmarks_lock = threading.Lock()
+
+
+def landmarks(graph: RoadGraph, count: int = LANDMARKS) -> NDArray[np.int64]:
+    """The travel times between every node and ``count`` landmarks, as ``(n, 2 count)``: column ``i`` from
+    the node to landmark ``i``, column ``count + i`` from landmark ``i`` to the node (``INF``: no path);
+    built once per graph. Landmarks are picked farthest first (each the node farthest, there and back,
+    from the ones before, starting from node 0's farthest), so that for most pairs one lies beyond the
+    target and its bound (``_bound``) is close to the true time (the "ALT" bounds of Goldberg and
+    Harrelson, 2005). Only speed depends on the choice."""
+    count = min(count, graph.n_nodes)
+    with _landmarks_lock:
+        table = _landmarks.get(graph)
+        if table is None or table.shape[1] != 2 * count:
+            table = _landmarks[graph] = _landmark_table(graph, count)
+        return table
+
+
+def _landmark_table(graph: RoadGraph, count: int) -> NDArray[np.int64]:
+    n = graph.n_nodes
+    nodes = np.arange(n, dtype=np.int64)
+    table = np.full((n, 2 * count), INF, dtype=np.int64)
+    wf, wr = workspace(graph), workspace(graph, reverse=True)
+    out = np.empty((3, n), dtype=np.int64)
+    empty = np.zeros(0, dtype=np.int64)
+
+    def there_and_back(v: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        run(graph.reverse, graph.edges, graph.time_reverse, v, INF, empty, wr)
+        labels(graph.reverse, graph.edges, graph.time_reverse, INF, nodes, wr, out)
+        to_v = out[0].copy()
+        run(graph.forward, graph.edges, graph.time_forward, v, INF, empty, wf)
+        labels(graph.forward, graph.edges, graph.time_forward, INF, nodes, wf, out)
+        return to_v, out[0].copy()
+
+    to0, from0 = there_and_back(0)
+    spread = np.where((to0 < INF) & (from0 < INF), to0 + from0, -1)  # nodes that reach 0 and back
+    for i in range(count):
+        v = int(np.argmax(spread))
+        table[:, i], table[:, count + i] = there_and_back(v)
+        there, back = table[:, i], table[:, count + i]
+        both = np.where((there < INF) & (back < INF), there + back, -1)
+        spread = both if i == 0 else np.minimum(spread, both)
+    return table
+
+
+_crossing: weakref.WeakKeyDictionary[RoadGraph, int] = weakref.WeakKeyDictionary()
+
+
+def crossing_us(graph: RoadGraph) -> int:
+    """How long, at least, the network takes to cross: the longest fastest path to or from a landmark (each
+    picked farthest from the ones before, so one of them lies near the end of a longest path), in whole
+    microseconds. A lower bound on the diameter, the same every time for a network; found once per graph
+    (one scan of the whole landmark table) and kept, since every epoch's Step 3 reads it."""
+    with _landmarks_lock:
+        known = _crossing.get(graph)
+    if known is not None:
+        return known
+    table = landmarks(graph)
+    finite = table[table < INF]
+    value = int(finite.max()) if finite.size else 0
+    with _landmarks_lock:
+        _crossing[graph] = value
+    return value
