@@ -4,6 +4,7 @@ test module itself imports the whole simulation, which would make every pool sta
 from __future__ import annotations
 
 import os
+from typing import Any
 
 
 def square_unless_3(x: int) -> int:
@@ -38,7 +39,8 @@ def count_until_stopped(directory: str) -> int:
 
 def executor_then_die(directory: str) -> None:
     """In a process of its own: start a run on a ``ProcessExecutor``, write the run's pid to
-    ``directory/pid`` once it counts, then end abruptly (as a killed service would)."""
+    ``directory/pid`` once it counts (the pool's forkserver's to ``directory/forkserver``), then end
+    abruptly (as a killed service would)."""
     import pathlib
     import threading
     import time
@@ -57,4 +59,8 @@ def executor_then_die(directory: str) -> None:
     threading.Thread(target=run, daemon=True).start()
     while not ((here / "pid").exists() and (here / "count").exists()):
         time.sleep(0.01)
+    from multiprocessing import forkserver
+
+    server: Any = forkserver._forkserver  # the running forkserver, for the test to end it
+    (here / "forkserver").write_text(str(server._forkserver_pid))
     os._exit(0)
