@@ -54,3 +54,20 @@ def tasks() -> list[dict[str, Any]]:
         {"id": "poi-a", "location": {"node": node_id(0, 0)}, "scheduled_at": rfc(at(-10))},
         {"id": "poi-b", "location": {"lon": lon, "lat": lat}, "scheduled_at": rfc(at(30))},
     ]
+
+
+def both_kinds() -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Three open tasks and an epoch of three vacant instrumented taxis and an ordinary one: on the lattice
+    the real solver matches riders and sends idle instrumented taxis to POIs (both kinds of decision)."""
+    opened = rfc(at(-5))
+    open_tasks = [
+        {"id": f"poi{i}", "location": {"node": node_id(c, r)}, "scheduled_at": opened}
+        for i, (c, r) in enumerate([(4, 4), (0, 4), (2, 0)])
+    ]
+    taxis = [
+        {"id": "t0", "location": {"node": node_id(0, 1)}, "instrumented": True, "status": "vacant"},
+        {"id": "t1", "location": {"node": node_id(2, 2)}, "instrumented": False, "status": "vacant"},
+        {"id": "t2", "location": {"node": node_id(4, 0)}, "instrumented": True, "status": "vacant"},
+        {"id": "t3", "location": {"node": node_id(1, 3)}, "instrumented": True, "status": "vacant"},
+    ]
+    return open_tasks, epoch("e1", 0, taxis=taxis)

@@ -15,7 +15,7 @@ from services.dispatch import decide
 from tests import rfc7946
 from tests.api import payloads
 from tests.api.conftest import READ, MakeClient, auth, fingerprint
-from tests.api.fakes import CITY, T0, N, node_id
+from tests.api.fakes import CITY, N
 
 GEO = "application/geo+json"
 BASE = f"/v1/cities/{CITY}"
@@ -135,19 +135,9 @@ def test_the_exports_need_the_read_scope(make_client: MakeClient, path: str) -> 
 def test_routes_geojson_draws_the_decision(any_store: Store, make_client: MakeClient) -> None:
     """The real solver on the tiny lattice: riders matched and idle instrumented taxis sent to POIs."""
     client = make_client(store=any_store, decide=decide)
-    opened = (T0 - dt.timedelta(minutes=5)).isoformat()
-    tasks = [
-        {"id": f"poi{i}", "location": {"node": node_id(c, r)}, "scheduled_at": opened}
-        for i, (c, r) in enumerate([(4, 4), (0, 4), (2, 0)])
-    ]
-    assert client.post(f"{BASE}/tasks", json=tasks, headers=auth()).status_code == 200
-    taxis = [
-        {"id": "t0", "location": {"node": node_id(0, 1)}, "instrumented": True, "status": "vacant"},
-        {"id": "t1", "location": {"node": node_id(2, 2)}, "instrumented": False, "status": "vacant"},
-        {"id": "t2", "location": {"node": node_id(4, 0)}, "instrumented": True, "status": "vacant"},
-        {"id": "t3", "location": {"node": node_id(1, 3)}, "instrumented": True, "status": "vacant"},
-    ]
-    epoch = client.post(f"{BASE}/epochs", json=payloads.epoch("e1", 0, taxis=taxis), headers=auth()).json()
+    open_tasks, body = payloads.both_kinds()
+    assert client.post(f"{BASE}/tasks", json=open_tasks, headers=auth()).status_code == 200
+    epoch = client.post(f"{BASE}/epochs", json=body, headers=auth()).json()
     assert epoch["rider_matches"] and epoch["task_assignments"]  # the case exercises both kinds
 
     graph = client.get(f"{BASE}/graph", headers=auth()).json()

@@ -4,7 +4,6 @@ keeps every field the response shows, the routes' kappa included; on each store.
 
 from __future__ import annotations
 
-import datetime as dt
 import math
 
 from app.adapters.city_registry import CityRegistry
@@ -13,7 +12,7 @@ from app.schemas.dispatch import read_epoch
 from services.dispatch import decide
 from tests.api import payloads
 from tests.api.conftest import READ, MakeClient, auth
-from tests.api.fakes import CITY, T0, node_id
+from tests.api.fakes import CITY
 
 BASE = f"/v1/cities/{CITY}"
 
@@ -22,19 +21,9 @@ def test_the_stored_epoch_is_the_response(
     any_store: Store, make_client: MakeClient, registry: CityRegistry
 ) -> None:
     client = make_client(store=any_store, decide=decide)
-    opened = (T0 - dt.timedelta(minutes=5)).isoformat()
-    tasks = [
-        {"id": f"poi{i}", "location": {"node": node_id(c, r)}, "scheduled_at": opened}
-        for i, (c, r) in enumerate([(4, 4), (0, 4), (2, 0)])
-    ]
-    assert client.post(f"{BASE}/tasks", json=tasks, headers=auth()).status_code == 200
-    taxis = [
-        {"id": "t0", "location": {"node": node_id(0, 1)}, "instrumented": True, "status": "vacant"},
-        {"id": "t1", "location": {"node": node_id(2, 2)}, "instrumented": False, "status": "vacant"},
-        {"id": "t2", "location": {"node": node_id(4, 0)}, "instrumented": True, "status": "vacant"},
-        {"id": "t3", "location": {"node": node_id(1, 3)}, "instrumented": True, "status": "vacant"},
-    ]
-    posted = client.post(f"{BASE}/epochs", json=payloads.epoch("e1", 0, taxis=taxis), headers=auth())
+    open_tasks, body = payloads.both_kinds()
+    assert client.post(f"{BASE}/tasks", json=open_tasks, headers=auth()).status_code == 200
+    posted = client.post(f"{BASE}/epochs", json=body, headers=auth())
     assert posted.status_code == 200, posted.text
     response = posted.json()
     assert response["rider_matches"] and response["task_assignments"]  # the case has both kinds
@@ -78,5 +67,5 @@ def test_the_stored_epoch_is_the_response(
         assert math.isfinite(a.kappa) and a.kappa == doc["kappa"] and a.kappa in city.params.kappas
     assert [t.id for t in decision.tasks_completed] == [t["id"] for t in response["tasks_completed"]]
 
-    again = client.post(f"{BASE}/epochs", json=payloads.epoch("e1", 0, taxis=taxis), headers=auth())
+    again = client.post(f"{BASE}/epochs", json=body, headers=auth())
     assert again.headers.get("Idempotent-Replayed") == "true" and again.text == posted.text
