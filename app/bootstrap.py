@@ -41,7 +41,7 @@ from app.runs.executor import Foreground
 from app.schemas.fleet import render_recommendation
 from app.settings import Settings
 from app.usecases import CityCatalog, DecideFn, EpochLimits, SizingConfig, UseCases
-from app.usecases.fleet_solve import FleetSolver
+from app.usecases.fleet_solve import BundleCatalog, FleetSolver
 from app.worker.embedded import EmbeddedWorker
 from app.worker.heartbeat import Heartbeat, WorkerStatus
 from app.worker.service import AssembledWorker, FleetWorker, WorkerMetrics
@@ -272,7 +272,7 @@ def worker_cities(settings: Settings, registry: CityCatalog) -> tuple[list[str],
 def build_worker(
     settings: Settings,
     store: Store,
-    registry: CityRegistry,
+    registry: BundleCatalog,
     cities: Sequence[str],
     *,
     embedded: bool,
@@ -326,7 +326,7 @@ def embedded_worker(
     the cities (a ``CityRegistry`` also gives the bundles the runs read; any other catalog is replaced by
     the settings' registry). An unknown city in SD_WORKER_CITIES is logged and no worker starts (``None``:
     the API then answers solve requests with 503 no_worker)."""
-    bundles = registry if isinstance(registry, CityRegistry) else CityRegistry.from_settings(settings)
+    bundles = registry if isinstance(registry, BundleCatalog) else CityRegistry.from_settings(settings)
     cities, unknown = worker_cities(settings, bundles)
     if unknown:
         log.error(

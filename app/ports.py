@@ -352,8 +352,8 @@ class StreamStore(EpochStore, AdminStore, Protocol):
 
 
 class WorkerStore(FleetStore, TaskStore, EpochStore, Protocol):
-    """What the fleet worker's use cases read and write (``app.usecases.SizingService``): its records,
-    locks, requests and beats, the registered tasks and the demand recorded with the epochs."""
+    """What the fleet worker's use cases read and write (``app.usecases.fleet_solve.FleetSolver``): its
+    records, locks, requests and beats, the registered tasks and the demand recorded with the epochs."""
 
 
 class Store(EpochStore, TaskStore, AdminStore, FleetStore, Protocol):

@@ -465,13 +465,19 @@ def _flat_name(name: str, info: FieldInfo) -> str:
 def flat_names() -> dict[str, tuple[str | None, str]]:
     """Every setting by its flat name: ``(group, field)`` (group ``None``: a field of ``Settings``)."""
     table: dict[str, tuple[str | None, str]] = {}
+
+    def add(flat: str, where: tuple[str | None, str]) -> None:
+        if flat in table:
+            raise TypeError(f"two settings share the flat name {flat!r}: {table[flat]} and {where}")
+        table[flat] = where
+
     for name, info in Settings.model_fields.items():
         group = info.annotation
         if isinstance(group, type) and issubclass(group, _Group):
             for field, sub in group.model_fields.items():
-                table[_flat_name(field, sub)] = (name, field)
+                add(_flat_name(field, sub), (name, field))
         else:
-            table[_flat_name(name, info)] = (None, name)
+            add(_flat_name(name, info), (None, name))
     return table
 
 

@@ -495,7 +495,7 @@ def run_http(
     solve of the city is requested after the untimed first epoch, so that the timed epochs run beside the
     worker's simulation runs as on a platform at the top of an hour; its memory is sampled until that solve
     is over, for at most ``worker_wait_s`` after the last epoch. ``root``: the checkout whose service runs."""
-    from app.schemas.dispatch import decision_of
+    from app.usecases.epoch_record import decision_of
 
     city = load_city(sc)
     epochs = Epochs(sc, city)
@@ -545,7 +545,7 @@ def run_http_paired(sc: Scenario, n: int, redis_url: str | None, roots: list[Pat
     each under its own key prefix, or on the in-memory store; no worker), each epoch to every one of them in turn, the first poster
     changing from epoch to epoch, so that load on the machine weighs on every one alike; their decisions
     are checked equal epoch by epoch. One ``run_http``-like result per checkout."""
-    from app.schemas.dispatch import decision_of
+    from app.usecases.epoch_record import decision_of
 
     city = load_city(sc)
     epochs = Epochs(sc, city)

@@ -433,7 +433,7 @@ class MetroLoad:
         self.posted = 0
 
     def post(self, record: bool = True) -> None:
-        from app.schemas.dispatch import decision_of
+        from app.usecases.epoch_record import decision_of
         from bench.bench_epoch import _post_epoch
         from services.model import RiderId
 

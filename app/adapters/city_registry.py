@@ -24,7 +24,6 @@ __all__ = [
     "CityRegistry",
     "ImportKind",
     "import_city",
-    "build_city_bundle",
 ]
 
 BUNDLED_DIR = Path(__file__).resolve().parents[1] / "data" / "cities"
@@ -156,10 +155,30 @@ def _read(kind: str, inputs: Sequence[Path], default_speed_kmh: float) -> Import
     raise ValueError(f"unknown import kind {kind!r} (expected 'osm' or 'csv')")
 
 
-def build_city_bundle(
-    kind: ImportKind, inputs: Sequence[Path | str], meta: CityMeta, out_root: Path | str, *, overwrite: bool
+def import_city(
+    kind: ImportKind,
+    inputs: Sequence[Path | str],
+    meta: CityMeta,
+    out_root: Path | str,
+    *,
+    overwrite: bool = False,
 ) -> tuple[Path, ImportResult, City]:
-    """:func:`import_city`'s work: the bundle's directory, what was read and the city as loaded back."""
+    """Build a city bundle from OSM XML (``inputs=[file.osm]``) or CSV (``inputs=[nodes.csv, edges.csv]``).
+
+    ``meta`` names the city and holds its horizon, cell size, dispatch parameters and source (its
+    ``built_with`` is filled in here). The bundle is written to ``out_root/<meta.name>/``; a
+    :class:`CityRegistry` whose ``user_dir`` is ``out_root`` serves it by name. Returns the bundle's
+    directory, what was read and the city as loaded back.
+
+    Raises
+    ------
+    ValueError
+        On an invalid name, timezone, start or parameter.
+    CityDataError
+        On bad input data (naming file, row and problem).
+    FileExistsError
+        If the city exists and ``overwrite`` is false.
+    """
     validate_city_name(meta.name)
     name = meta.name
     paths = [Path(p) for p in inputs]
@@ -195,30 +214,3 @@ def build_city_bundle(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return target, result, city
-
-
-def import_city(
-    kind: ImportKind,
-    inputs: Sequence[Path | str],
-    meta: CityMeta,
-    out_root: Path | str,
-    *,
-    overwrite: bool = False,
-) -> Path:
-    """Build a city bundle from OSM XML (``inputs=[file.osm]``) or CSV (``inputs=[nodes.csv, edges.csv]``).
-
-    ``meta`` names the city and holds its horizon, cell size, dispatch parameters and source (its
-    ``built_with`` is filled in here). The bundle is written to ``out_root/<meta.name>/``; a
-    :class:`CityRegistry` whose ``user_dir`` is ``out_root`` serves it by name.
-
-    Raises
-    ------
-    ValueError
-        On an invalid name, timezone, start or parameter.
-    CityDataError
-        On bad input data (naming file, row and problem).
-    FileExistsError
-        If the city exists and ``overwrite`` is false.
-    """
-    target, _, _ = build_city_bundle(kind, inputs, meta, out_root, overwrite=overwrite)
-    return target

@@ -197,12 +197,6 @@ class RedisStore:
             raise ValueError(f"invalid city name {city!r}")
         return ":".join((self._prefix, "{" + city + "}", *parts))
 
-    def _count_key(self, city: str, interval: IntervalKey) -> str:
-        return self._key(city, "count", str(int(interval)))
-
-    def _visit_key(self, city: str, interval: IntervalKey, taxi: TaxiId) -> str:
-        return self._key(city, "visit", str(int(interval)), str(taxi))
-
     @contextmanager
     def _guard(self, doing: str) -> Iterator[None]:
         try:
@@ -273,12 +267,10 @@ class RedisStore:
         """The load script's reply for the keys ``held`` lacks (``LOAD_STATE_LUA``)."""
         tag = self._key(city)
         keys = [f"{tag}:meta", f"{tag}:tasks", f"{tag}:tasks:rev"]
-        keys += [f"{tag}:count:{int(k)}" for k, have in zip(ks, held.counts, strict=True) if have is None]
+        keys += [_count_key(tag, k) for k, have in zip(ks, held.counts, strict=True) if have is None]
         n_counts = len(keys) - 3
         keys += [
-            f"{tag}:visit:{int(k)}:{t}"
-            for (k, t), have in zip(pairs, held.visits, strict=True)
-            if have is None
+            _visit_key(tag, k, t) for (k, t), have in zip(pairs, held.visits, strict=True) if have is None
         ]
         args = [str(n_counts), held.rev, held.tasks_rev, str(held.n_tasks), str(held.version)]
         try:
@@ -388,8 +380,8 @@ class RedisStore:
 
         visits = [
             [
-                key_index(f"{tag}:count:{int(v.interval)}"),
-                key_index(f"{tag}:visit:{int(v.interval)}:{v.taxi_id}"),
+                key_index(_count_key(tag, v.interval)),
+                key_index(_visit_key(tag, v.interval, v.taxi_id)),
                 str(int(v.cell)),
                 str(int(v.interval)),
             ]
@@ -520,7 +512,7 @@ class RedisStore:
     def interval_counts(self, city: str, interval: IntervalKey) -> dict[int, int]:
         """Lambda by cell for one interval (cells with zero count absent)."""
         with self._guard("reading counts"):
-            raw = cast(dict[str, str], self._client.hgetall(self._count_key(city, interval)))
+            raw = cast(dict[str, str], self._client.hgetall(_count_key(self._key(city), interval)))
         return _int_fields(raw)
 
     def list_intervals(self, city: str) -> list[IntervalKey]:
@@ -531,8 +523,9 @@ class RedisStore:
             if not ks:
                 return []
             pipe = self._client.pipeline(transaction=False)
+            tag = self._key(city)
             for k in ks:
-                pipe.exists(self._count_key(city, k))
+                pipe.exists(_count_key(tag, k))
             alive = pipe.execute()
         return [k for k, n in zip(ks, alive, strict=True) if n]
 
@@ -650,6 +643,16 @@ class RedisStore:
         with self._connect_lock:
             if self._conn is not None:
                 self._conn.close()
+
+
+def _count_key(tag: str, interval: IntervalKey) -> str:
+    """The hash of the counts of ``interval`` under the city's key ``tag`` (``RedisStore._key(city)``)."""
+    return f"{tag}:count:{int(interval)}"
+
+
+def _visit_key(tag: str, interval: IntervalKey, taxi: TaxiId) -> str:
+    """The set of cells ``taxi`` is counted in during ``interval``, under the city's key ``tag``."""
+    return f"{tag}:visit:{int(interval)}:{taxi}"
 
 
 def _glob_escape(text: str) -> str:

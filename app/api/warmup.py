@@ -10,23 +10,13 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
-from typing import Protocol, runtime_checkable
 
 from app.usecases import CityCatalog
+from app.usecases.fleet_solve import BundleCatalog
 
 __all__ = ["GC_THRESHOLD", "warm", "compile_apart"]
 
 log = logging.getLogger(__name__)
-
-
-@runtime_checkable
-class _Bundles(Protocol):
-    """A catalog whose cities are bundles on disk (``app.adapters.city_registry.CityRegistry``)."""
-
-    def names(self) -> list[str]: ...
-
-    def bundle_dir(self, name: str) -> Path: ...
 
 
 GC_THRESHOLD = (10_000, 10, 10)
@@ -52,7 +42,7 @@ def compile_apart(registry: CityCatalog) -> str | None:
     fresh install would otherwise carry in the service for good. With the cache already filled the child
     only reads it (a few seconds). A child that fails is logged; the warm-up then compiles here. The name
     of the city warmed in the child, ``None`` when it failed or no bundle is served."""
-    if not isinstance(registry, _Bundles) or not registry.names():
+    if not isinstance(registry, BundleCatalog) or not registry.names():
         return None
     bundles = [registry.bundle_dir(name) for name in registry.names()]
     smallest = min(bundles, key=lambda d: (d / "network.npz").stat().st_size)

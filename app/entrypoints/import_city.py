@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from app.adapters.city_registry import ImportKind, build_city_bundle
+from app.adapters.city_registry import ImportKind, import_city
 from services.citydata import CityDataError, CityMeta
 
 __all__ = ["import_city_cli"]
@@ -115,7 +115,7 @@ def import_city_cli(
             source=args.source,
             fleet=fleet,
         )
-        target, result, city = build_city_bundle(kind, inputs, meta, args.out, overwrite=args.overwrite)
+        target, result, city = import_city(kind, inputs, meta, args.out, overwrite=args.overwrite)
     except CityDataError as exc:
         print(f"import-city: {exc}", file=err)
         return 1

@@ -17,8 +17,7 @@ import httpx
 import numpy as np
 from numpy.typing import NDArray
 
-from app.schemas.dispatch import decision_of
-from app.schemas.tasks import task_of
+from app.usecases.epoch_record import decision_of, task_of
 from services.city import City
 from services.model import IntervalKey, RiderId, Snapshot, Task, TaskId
 from services.rfc3339 import format_time

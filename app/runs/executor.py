@@ -125,14 +125,14 @@ START_WAIT_S = 5.0
 """How long an outcome waits for its item's start to come through the queue."""
 
 
-def _watch_service(service_pid: int, every_s: float = 1.0) -> None:
+def _watch_service(service_pid: int) -> None:
     """In a pool process: end this process once the service that started the pool has ended, so a service
     killed mid-solve leaves no simulation running on without it (the forkserver between them lives as long
     as its children do, so the kernel's parent-death signal would never come)."""
 
     def watch() -> None:
         while True:
-            time.sleep(every_s)
+            time.sleep(1.0)
             try:
                 os.kill(service_pid, 0)
             except ProcessLookupError:
@@ -143,11 +143,10 @@ def _watch_service(service_pid: int, every_s: float = 1.0) -> None:
     threading.Thread(target=watch, name="watch-service", daemon=True).start()
 
 
-def _init_pool_process(started: Any, nice: int = 0, service_pid: int | None = None) -> None:
+def _init_pool_process(started: Any, nice: int, service_pid: int) -> None:
     global _started
     _started = started
-    if service_pid is not None:
-        _watch_service(service_pid)
+    _watch_service(service_pid)
     if nice > 0:
         os.nice(nice)  # the runs yield the CPU to the service's epochs (CFS weighs nice 10 at ~1/10)
 

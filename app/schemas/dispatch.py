@@ -25,15 +25,7 @@ from app.schemas.common import (
 )
 from app.schemas.tasks import TaskOut
 from app.usecases import EpochResult
-from app.usecases.epoch_record import _core_stats as _core_stats
-from app.usecases.epoch_record import _ext_paths as _ext_paths
-from app.usecases.epoch_record import assignment_doc, match_doc
-from app.usecases.epoch_record import decision_of as decision_of
-from app.usecases.epoch_record import epoch_doc as epoch_doc
-from app.usecases.epoch_record import read_epoch as read_epoch
-from app.usecases.epoch_record import render_epoch as render_epoch
-from services.city import City
-from services.model import RiderMatch, TaskAssignment
+from app.usecases.epoch_record import epoch_doc
 from services.rfc3339 import MAX_YEAR, MIN_YEAR
 
 __all__ = [
@@ -48,10 +40,6 @@ __all__ = [
     "RiderMatchOut",
     "TaskAssignmentOut",
     "EpochOut",
-    "epoch_doc",
-    "render_epoch",
-    "decision_of",
-    "read_epoch",
 ]
 
 
@@ -281,11 +269,6 @@ class RiderMatchOut(ResponseModel):
     path: list[int] = Field(description="External node ids from the taxi via the pickup to the dropoff.")
     cells: list[tuple[int, int]] = Field(description="G-route of the path, [col, row] in order.")
 
-    @classmethod
-    def of(cls, city: City, m: RiderMatch) -> RiderMatchOut:
-        """Render a core match."""
-        return cls.model_validate(match_doc(city, m))
-
 
 class TaskAssignmentOut(ResponseModel):
     """A vacant instrumented taxi sent along a sensing route to a POI (Step 3)."""
@@ -300,11 +283,6 @@ class TaskAssignmentOut(ResponseModel):
     efficiency: float = Field(description="sensing_gain / travel_time_s (Eq. 12).")
     cost_cny: float
     kappa: float = Field(description="The trade-off kappa the route was planned with (Algorithm 1).")
-
-    @classmethod
-    def of(cls, city: City, a: TaskAssignment) -> TaskAssignmentOut:
-        """Render a core assignment."""
-        return cls.model_validate(assignment_doc(city, a))
 
 
 class EpochOut(ResponseModel):

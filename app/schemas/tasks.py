@@ -8,12 +8,11 @@ from pydantic import Field
 
 from app.ports import PutTasksResult
 from app.schemas.common import Identifier, LocationIn, ResponseModel, Rfc3339, TimedRequest
-from app.usecases.epoch_record import task_doc as task_doc
-from app.usecases.epoch_record import task_of as task_of
+from app.usecases.epoch_record import task_doc
 from services.city import City
 from services.model import Task
 
-__all__ = ["TaskIn", "TaskOut", "TasksOut", "TasksPutOut", "task_doc", "task_of"]
+__all__ = ["TaskIn", "TaskOut", "TasksOut", "TasksPutOut"]
 
 
 class TaskIn(TimedRequest):

@@ -115,7 +115,7 @@ class UseCases:
         """Every use case of the API over ``store``; ``clock`` (POSIX seconds) is the epoch time window's
         and the worker heartbeats' (``worker_stale_s``: a worker not seen for longer is gone); ``sizing`` is
         the fleet worker's settings (M and the look-back of the fleet status); ``foreground`` is held
-        around every epoch's solve (the embedded fleet worker pauses its runs meanwhile)."""
+        by every epoch's request (the embedded fleet worker pauses its runs meanwhile)."""
         return cls(
             cities=cities,
             epochs=EpochService(

@@ -39,8 +39,6 @@ __all__ = [
     "EpochReader",
     "task_doc",
     "task_of",
-    "match_doc",
-    "assignment_doc",
     "epoch_doc",
     "render_epoch",
     "decision_of",
@@ -197,20 +195,10 @@ def _assignment_doc(a: TaskAssignment, path: list[int], cells: list[tuple[int, i
     }
 
 
-def match_doc(city: City, m: RiderMatch) -> dict[str, Any]:
-    """One core match as the record writes it."""
-    return _match_doc(m, _ext_paths(city, [m.path])[0], _cells_of([m.cells])[0])
-
-
-def assignment_doc(city: City, a: TaskAssignment) -> dict[str, Any]:
-    """One core assignment as the record writes it."""
-    return _assignment_doc(a, _ext_paths(city, [a.path])[0], _cells_of([a.cells])[0])
-
-
 def epoch_doc(result: EpochResult) -> dict[str, Any]:
     """A decided epoch as an ``EpochOut`` document of plain JSON values (external node ids, local times),
     with the model's fields in the model's order: ``EpochOut.model_validate`` keeps it as it is, so its
-    JSON is byte for byte ``EpochOut.of(result).model_dump_json()`` (tests/api/test_usecases.py)."""
+    JSON is byte for byte ``EpochOut.of(result).model_dump_json()`` (tests/api/test_render.py)."""
     city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
     matches, routes = decision.rider_matches, decision.task_assignments
     stats = _core_stats(decision)

@@ -171,7 +171,8 @@ class EpochService:
         clock: Callable[[], float] = time.time,
         foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
     ) -> None:
-        """``foreground`` is held around every epoch's solve (the embedded fleet worker pauses its runs)."""
+        """``foreground``: what an epoch's request holds from its parsing to its response (the embedded fleet
+        worker's runs stay stopped meanwhile); the API enters it, around ``submit_epoch`` and the rest."""
         self.cities = cities
         self.store = store
         self.decide = decide
@@ -250,18 +251,16 @@ class EpochService:
                 "once; retry later"
             )
         try:
-            with self.foreground():
-                return self._solve_and_commit(name, city, epoch)
+            return self._solve_and_commit(name, city, epoch)
         finally:
             self._solve_slots.release()
 
     def _solver(
-        self, name: str, city: City, snapshot: Snapshot
+        self, name: str, city: City, snapshot: Snapshot, k0: int, instrumented: list[TaxiId]
     ) -> Callable[[_Loaded], tuple[_Solved, _Loaded | None]]:
-        """One solve of ``snapshot`` against the intervals loaded so far, asking for the intervals it reached
-        and read as zero (loaded with the rest: the solve runs again on them), none when it reached none."""
-        instrumented = [t.id for t in snapshot.taxis if t.instrumented]
-        k0 = city.horizon.interval_of(snapshot.time_s)
+        """One solve of ``snapshot`` (interval ``k0``) against the intervals loaded so far, asking for the
+        intervals it reached and read as zero (loaded with the rest: the solve runs again on them), none when
+        it reached none."""
 
         def solve(loaded: _Loaded) -> tuple[_Solved, _Loaded | None]:
             intervals, state = loaded
@@ -292,7 +291,9 @@ class EpochService:
         for attempt in range(1, self.commit_attempts + 1):
             loaded = self._load(name, intervals, instrumented, snapshot.time_s, k0)
             started = time.perf_counter()
-            solved, (intervals, state) = until_fits(self._solver(name, city, snapshot), (intervals, loaded))
+            solved, (intervals, state) = until_fits(
+                self._solver(name, city, snapshot, k0, instrumented), (intervals, loaded)
+            )
             counts, expired, decision = solved.counts, solved.expired, solved.decision
             solve_ms = (time.perf_counter() - started) * 1000.0
             before, after = _gamma_before_after(city, counts, decision, day)

@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Literal, Protocol, runtime_checkable
 
 from app.ports import FleetRecord, SolveRequest, WorkerBeat, WorkerStore
 from app.runs import ExecutorUnavailable, ProgressFn, RunBatch, RunJob, RunResult, RunSpec, TaskTemplate
@@ -80,6 +80,7 @@ def lock_name(interval: int) -> str:
     return f"fleet-solve:{int(interval)}"
 
 
+@runtime_checkable
 class BundleCatalog(CityCatalog, Protocol):
     """The served cities and where each one's bundle lies (the runs read it;
     ``app.adapters.city_registry.CityRegistry``)."""

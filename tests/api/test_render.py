@@ -13,17 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.schemas.dispatch import (
-    EpochOut,
-    RiderMatchOut,
-    TaskAssignmentOut,
-    _core_stats,
-    _ext_paths,
-    epoch_doc,
-    render_epoch,
-)
+from app.schemas.dispatch import EpochOut, RiderMatchOut, TaskAssignmentOut
 from app.schemas.tasks import TaskOut
 from app.usecases import EpochCommand, EpochResult
+from app.usecases.epoch_record import _core_stats, _ext_paths, epoch_doc, render_epoch
 from services.city import City
 from services.dispatch import decide
 from services.model import (

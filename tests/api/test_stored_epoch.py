@@ -8,7 +8,7 @@ import math
 
 from app.adapters.city_registry import CityRegistry
 from app.ports import Store
-from app.schemas.dispatch import read_epoch
+from app.usecases.epoch_record import read_epoch
 from services.dispatch import decide
 from tests.api import payloads
 from tests.api.conftest import READ, MakeClient, auth

@@ -97,7 +97,9 @@ def test_import_then_serve_by_name(tmp_path: Path) -> None:
     user = tmp_path / "cities"
     reg = CityRegistry(user_dir=user)
     assert "tiny" not in reg.names()
-    path = import_city("csv", _csv(tmp_path), CityMeta("tiny", timezone="Asia/Shanghai", start="07:00"), user)
+    path, _, _ = import_city(
+        "csv", _csv(tmp_path), CityMeta("tiny", timezone="Asia/Shanghai", start="07:00"), user
+    )
     assert path == user / "tiny"
     assert "tiny" in reg.names() and "chengdu" in reg.names()
     city = reg.get("tiny")
