@@ -450,7 +450,7 @@ def decide(
 def warm_up(city: City) -> None:
     """Solve a few tiny seeded epochs on ``city`` so that every compiled kernel a real epoch calls is compiled
     (or loaded from numba's on-disk cache), and the city's search structures (``road_graph``,
-    ``search.landmarks``, the contraction hierarchy of ``services.network.hierarchy``) built, before the first
+    ``point_to_point.landmarks``, the contraction hierarchy of ``services.network.hierarchy``) built, before the first
     real request: a kernel first met in a real epoch would
     otherwise be compiled inside it (seconds on a fresh install). The epochs cover riders matched in Steps 1
     and 2, Step 3 from the POIs' side (fewer than half as many POIs as taxis) with taxis counted in cells

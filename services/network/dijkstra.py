@@ -1,4 +1,5 @@
-"""Canonical shortest paths on a contracted search graph (compiled kernels and their wrappers).
+"""Canonical shortest paths on a contracted search graph: the one Dijkstra (compiled; its wrappers for a
+few point-to-point paths are ``point_to_point``'s).
 
 One Dijkstra serves every search of an epoch: the fastest-path trees of riders and POIs, the pickup
 searches bounded by the matching radius, the utility-discounted trees of Algorithm 1 and the legs of

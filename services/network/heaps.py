@@ -1,5 +1,6 @@
-"""A search's workspace and its queues: the binary heap keyed on ``(cost, tie1, tie2)`` and the bucket
-queue (a ring of buckets with an occupancy bitmap), shared by every search of ``services.network``.
+"""A search's workspace and its queues: the 4-ary heap keyed on the cost alone and the bucket queue (a
+ring of buckets with an occupancy bitmap), with the label order ``(cost, tie1, tie2)``, shared by every
+search of ``services.network`` (the guided search's binary heap on whole labels is ``astar``'s own).
 
 A search's state lives in a :class:`Workspace` of the caller's (one per thread); ``pred`` holds original
 edge ids: the edge entering a node on its path from the source in a forward search, the edge leaving it
