@@ -20,7 +20,7 @@ from services.network.graph import (
     SearchGraph,
     no_lazy,
 )
-from services.network.heaps import Workspace, _less, _reset
+from services.network.heaps import Workspace, _less, _offset_on, _reset
 
 __all__ = [
     "Guide",
@@ -315,18 +315,62 @@ def _guided_seed(
 
 @compiled_inline
 def _meets(gd: Guide, k: int) -> bool:
-    """``guided`` stops at kept node ``k`` (just settled) when ``gd`` holds an in-tree's path cells and
+    """``guided`` may stop at kept node ``k`` (just settled) when ``gd`` holds an in-tree's path cells and
     ``k``'s in-tree path enters none of the cells ``gd.zbits`` holds: that path costs the searched metric
     what it costs the in-tree's, and no other path from ``k`` costs less (the metric is nowhere cheaper
     than the in-tree's), so ``k``'s key -- its label plus that path's label -- is the label of a path to
-    the target; no key taken later is smaller, so it is the target's label, and the canonical path is the
-    one to ``k`` (``unfold``) followed by the in-tree's path from ``k``."""
+    the target. Every path whose last kept node is not settled yet costs at least that key (keys leave the
+    queue in order); the others reach an interior target inside its chain, from the source in it or from a
+    settled end of it, and are never queued. ``guided`` stops only where the key is better than the best of
+    those (``_into_target``): then it is the target's label, and the canonical path is the one to ``k``
+    (``unfold``) followed by the in-tree's path from ``k``."""
     if gd.clean.shape[0] == 0 or gd.tree_state[k] != -2:
         return False
     hit = np.uint64(0)
     for w in range(gd.zbits.shape[0]):
         hit |= gd.clean[k, w] & gd.zbits[w]
     return bool(hit == 0)
+
+
+@compiled_inline
+def _into_target(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    source: int,
+    target: int,
+    k: int,
+    label: tuple[int, int, int],
+    best: tuple[int, int, int],
+) -> tuple[int, int, int]:
+    """The better of ``best`` and the paths that reach the interior ``target`` along one of its super-edges
+    from kept node ``k`` (its tail, settled with ``label``), or from the source inside it (``k`` -1, the
+    source before the target): no search queues those paths (the target is no kept node; its label is
+    read afterwards, ``unfolding.resolve``). ``costs`` holds the super-edges' edges' costs (under a lazy
+    metric, once ``_lazy_ends`` has written them)."""
+    best_c, best_a, best_b = best
+    for j in range(2):
+        s = g.pos_se[target, j]
+        if s < 0:
+            continue
+        start = 0
+        if k < 0:
+            start = _offset_on(g.pos_se, g.pos_off, source, s) if g.kept_of[source] < 0 else -1
+            if start < 0 or start >= g.pos_off[target, j]:
+                continue
+            c, a, b = 0, 0, 0
+        elif g.se_tail[s] == k:
+            c, a, b = label
+        else:
+            continue
+        for p in range(g.se_ptr[s] + start, g.se_ptr[s] + g.pos_off[target, j]):
+            e = g.se_edges[p]
+            c += costs.edge[e]
+            a += ed.tie1[e]
+            b += ed.tie2[e]
+        if _less(c, a, b, best_c, best_a, best_b):
+            best_c, best_a, best_b = c, a, b
+    return best_c, best_a, best_b
 
 
 @compiled_inline
@@ -339,10 +383,12 @@ def _guided_start(
     lazy: Lazy,
     source: int,
     target: int,
-) -> tuple[int, int, int, NDArray[np.int64]]:
+) -> tuple[int, int, int, NDArray[np.int64], tuple[int, int, int]]:
     """Start ``guided``'s search: reset ``ws``, mark the target, cost the lazy ends and queue the source's
     first labels (none when the target is already resolved). Returns the queue's size, the touched nodes'
-    count, the number of nodes to settle and the target's landmark row (empty: no landmarks)."""
+    count, the number of nodes to settle, the target's landmark row (empty: no landmarks) and the label of
+    the path from the source to the target inside their chain (``_into_target``; ``INF``: none, or no
+    early stop to hold against it)."""
     _reset(ws)
     ws.info[0] = source
     tgt = np.full(1, target, dtype=np.int64)
@@ -351,9 +397,12 @@ def _guided_start(
     if lazy.on:
         _lazy_ends(g, ed, costs, lazy, source, tgt)
     size = 0
+    direct = (INF, 0, 0)
     if remaining > 0:
         size, n_touched = _guided_seed(g, ed, costs, ws, gd, tl, source, n_touched)
-    return size, n_touched, remaining, tl
+        if gd.clean.shape[0] > 0 and g.kept_of[target] < 0:
+            direct = _into_target(g, ed, costs, source, target, -1, direct, direct)
+    return size, n_touched, remaining, tl, direct
 
 
 @compiled
@@ -379,7 +428,9 @@ def guided(
     ``run`` -- is the one ``run`` gives it. With the labels of the cheaper metric as potential, a search
     whose metric differs from it nowhere on the canonical path goes straight along that path. The search
     stops when the target can be resolved and settles no node that cannot reach it. ``lazy``: as in
-    ``grow``. Returns -1, or the kept node where it stopped before the target (``_meets``).
+    ``grow``. Returns -1, or the kept node where it stopped before the target (``_meets``): only where that
+    node's key is better than every path to an interior target found so far and never queued
+    (``_into_target``: inside the source's chain, or from a settled end of the target's).
     """
     cost, tie1, tie2, state, heap, hkey = ws.cost, ws.tie1, ws.tie2, ws.state, ws.nxt, ws.hkey
     se_cost = costs.se
@@ -392,10 +443,12 @@ def guided(
         lazy.kappa,
     )
     se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
-    size, n_touched, remaining, tl = _guided_start(g, ed, costs, ws, gd, lazy, source, target)
+    size, n_touched, remaining, tl, found = _guided_start(g, ed, costs, ws, gd, lazy, source, target)
+    watch = gd.clean.shape[0] > 0 and g.kept_of[target] < 0
     complete, meet = 1, -1
     while size > 0:
         k = heap[0]
+        kc, ka, kb = hkey[0, 0], hkey[0, 1], hkey[0, 2]
         size = _guided_pop(heap, hkey, state, size)
         state[k] = -2
         if ws.need[k]:
@@ -403,9 +456,11 @@ def guided(
             if remaining == 0:
                 complete = 0
                 break
-        if _meets(gd, k):
+        if _meets(gd, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
             complete, meet = 0, k
             break
+        if watch and ws.need[k]:
+            found = _into_target(g, ed, costs, source, target, k, (cost[k], tie1[k], tie2[k]), found)
         d = cost[k]
         a0 = tie1[k]
         b0 = tie2[k]

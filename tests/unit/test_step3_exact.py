@@ -9,7 +9,9 @@ platform's heavy load late in an interval, where most in-tree routes enter a cel
 in). Everything Step 3 reads must be identical, bit for bit: the kappa, gain, time and length of every
 pair, the fastest path's cost and the largest slot any route reaches (it sizes the gain table); Step 3's
 assignment reads nothing else (phi and the candidate pairs are derived from them), so it is the same too. On
-lattices with equal blocks (ties everywhere) and jittered ones.
+lattices with equal blocks (ties everywhere) and jittered ones, with straight streets or streets bent through
+degree-2 nodes (chains, whose interior taxis and POIs the searches reach only through the chains' ends); and
+the re-searched routes' early stop on small hand-built cities whose routes end inside a chain.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from numpy.typing import NDArray
 
 from services.citydata import load_city
 from services.model import CountsView, IntervalKey, TaxiId
-from services.network import astar, dijkstra
-from services.network.graph import INF, Costs, road_graph
+from services.network import astar, dijkstra, unfolding
+from services.network.graph import INF, Costs, no_lazy, prepare, road_graph
+from services.network.heaps import workspace
 from services.network.pads import Pads
 from services.routing import algorithm1
 from services.routing.algorithm1 import Drive, Plans, plan_routes, problem
@@ -36,9 +39,10 @@ KAPPAS = (0.0, 0.3, 0.6, 0.9)
 FIELDS = ("kappa_index", "gain", "time_s", "length_m", "d0_us")
 
 
-def _lattice(rng: np.random.Generator, n: int, jitter: float):
+def _lattice(rng: np.random.Generator, n: int, jitter: float, split: float = 0.0):
     """An ``n x n`` lattice of two-way streets 250 m apart in 1 km cells, off the cell edges (jitter 0:
-    every block equal)."""
+    every block equal); a share ``split`` of the streets bent through 1-3 nodes of degree 2 each (up to 60 m
+    off the straight line), so that the searches run over chains of interior nodes too."""
     nodes = {
         r * n + c: (
             110.0 + c * 250.0 + rng.uniform(-jitter, jitter),
@@ -49,7 +53,43 @@ def _lattice(rng: np.random.Generator, n: int, jitter: float):
     }
     edges = [(r * n + c, r * n + c + 1) for r in range(n) for c in range(n - 1)]
     edges += [(r * n + c, (r + 1) * n + c) for r in range(n - 1) for c in range(n)]
+    if split > 0:
+        bent = []
+        for u, v in edges:
+            prev = u
+            if rng.random() < split:
+                (x0, y0), (x1, y1) = nodes[u], nodes[v]
+                m = int(rng.integers(1, 4))
+                for i in range(1, m + 1):
+                    f = i / (m + 1)
+                    w = len(nodes)
+                    nodes[w] = (
+                        x0 + f * (x1 - x0) + rng.uniform(-60, 60),
+                        y0 + f * (y1 - y0) + rng.uniform(-60, 60),
+                    )
+                    bent.append((prev, w))
+                    prev = w
+            bent.append((prev, v))
+        edges = bent
     return make_city(nodes, edges)
+
+
+def _on_chains(
+    rng: np.random.Generator, graph, targets: NDArray[np.int64], sources: NDArray[np.int64]
+) -> None:
+    """Put half the taxis on the chains the POIs lie inside (taxi and POI inside one chain, or the taxi
+    inside the chain whose end the search toward the POI settles), where they are on a bent lattice."""
+    fg = graph.forward
+    on = [
+        int(v)
+        for t in targets.tolist()
+        for s in fg.pos_se[t].tolist()
+        if s >= 0
+        for v in fg.se_node[fg.se_ptr[s] : fg.se_ptr[s + 1]].tolist()
+    ]
+    if on:
+        half = len(sources) // 2
+        sources[:half] = rng.choice(on, half)
 
 
 def _same(got: Plans, straight: Plans) -> None:
@@ -82,12 +122,15 @@ def _plans_both(graph, gn, counted, sources: NDArray[np.int64], targets: NDArray
 
 
 @pytest.mark.parametrize("seed", range(10))
-@pytest.mark.parametrize("jitter", [40.0, 0.0])
-def test_step3_without_reach_equals_one_tree_per_taxi_and_kappa(seed: int, jitter: float) -> None:
-    """60 taxis, each counted in 5-35 % of the cells, and 2-9 POIs on a 14 x 14 lattice: the plans are the
-    straightforward computation's; a few taxis' routes are the book's too."""
+@pytest.mark.parametrize(("jitter", "split"), [(40.0, 0.0), (0.0, 0.0), (40.0, 0.5), (0.0, 0.5)])
+def test_step3_without_reach_equals_one_tree_per_taxi_and_kappa(
+    seed: int, jitter: float, split: float
+) -> None:
+    """60 taxis, each counted in 5-35 % of the cells, and 2-9 POIs on a 14 x 14 lattice, straight or with
+    half its streets bent through interior nodes (half the taxis then inside the POIs' chains): the plans
+    are the straightforward computation's; a few taxis' routes are the book's too."""
     rng = np.random.default_rng(seed)
-    city = _lattice(rng, 14, jitter)
+    city = _lattice(rng, 14, jitter, split)
     graph = road_graph(city)
     now = T0 + 3600 - 300.0 * (seed % 4)  # some routes run into the next interval
     k0 = city.horizon.interval_of(now)
@@ -97,6 +140,8 @@ def test_step3_without_reach_equals_one_tree_per_taxi_and_kappa(seed: int, jitte
     counted = counted_csr(view.visited, taxis, k0)
     sources = rng.choice(graph.n_nodes, len(taxis), replace=True).astype(np.int64)  # taxis may share nodes
     targets = rng.choice(graph.n_nodes, int(rng.integers(2, 10)), replace=False).astype(np.int64)
+    if split > 0:
+        _on_chains(rng, graph, targets, sources)
     got, straight = _plans_both(graph, gn, counted, sources, targets, now)
     _same(got, straight)
     assert (got.kappa_index > 0).any()
@@ -152,14 +197,16 @@ def test_step3_at_the_apis_largest_size_equals_the_straightforward_computation()
         _same(got, straight)
 
 
-def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_cells_is_the_full_search() -> (
-    None
-):
+@pytest.mark.parametrize("split", [0.0, 0.5])
+def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_cells_is_the_full_search(
+    split: float,
+) -> None:
     """``astar.guided`` with the in-tree's path cells stops short of the POI, and away from the taxi, in
     many searches, and the route it gives (the path to where it stopped, then the in-tree's path) is the
-    route of the search run to the POI, bit for bit."""
+    route of the search run to the POI, bit for bit; on a straight lattice and on a bent one with half the
+    taxis inside the POIs' chains."""
     rng = np.random.default_rng(7)
-    city = _lattice(rng, 14, 0.0)
+    city = _lattice(rng, 14, 0.0, split)
     graph = road_graph(city)
     now = T0 + 1200.0
     k0 = city.horizon.interval_of(now)
@@ -168,9 +215,10 @@ def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_c
     gn = gain_table(city, view.counts, k0, 2, now)
     counted = counted_csr(view.visited, taxis, k0)
     sources = rng.choice(graph.n_nodes, len(taxis), replace=True).astype(np.int64)
-    pb = problem(
-        gn, counted, sources, rng.choice(graph.n_nodes, 3, replace=False).astype(np.int64), KAPPAS, now
-    )
+    targets = rng.choice(graph.n_nodes, 3, replace=False).astype(np.int64)
+    if split > 0:
+        _on_chains(rng, graph, targets, sources)
+    pb = problem(gn, counted, sources, targets, KAPPAS, now)
     kt = algorithm1.kit(graph, KAPPAS)
     base = algorithm1._base_kappa(kt, gn, pb.kappas, True)
     stopped = searched = 0
@@ -197,3 +245,127 @@ def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_c
                     assert got[0] == got[1]
                     searched += 1
     assert stopped > searched // 4
+
+
+def _route(g, mine: Costs, base_rev: Costs, wsf, wsr, gd: astar.Guide, src: int, dst: int) -> list[int]:
+    """``_own_route``'s route: the guided search's path, or the path to where it stopped, then the
+    in-tree's."""
+    ed = g.edges
+    meet = astar.guided(g.forward, ed, mine, src, dst, wsf, gd, no_lazy())
+    if meet < 0:
+        assert unfolding.unfold(g.forward, ed, mine, INF, dst, wsf)
+        return unfolding.path_to(ed, 1, wsf.pred, src, dst).tolist()
+    x = int(g.forward.kept[meet])
+    unfolding.unfold(g.forward, ed, mine, INF, x, wsf)
+    head = unfolding.path_to(ed, 1, wsf.pred, src, x).tolist()
+    unfolding.unfold(g.reverse, ed, base_rev, INF - 1, x, wsr)
+    return head + unfolding.walk(ed, wsr.pred, x, dst).tolist()
+
+
+def _every_pair(
+    order: str,
+    xy: dict[str, tuple[float, float]],
+    base_ms: dict[str, int],
+    mine_ms: dict[str, int],
+    kept: str,
+    both_ways: bool = True,
+) -> dict[tuple[str, str], tuple[list[tuple[str, str]], int]]:
+    """On the city of nodes ``xy`` (one letter each, numbered in ``order``) and streets ``base_ms`` (role
+    pair: the in-tree's cost in ms, either way on two-way streets), where the taxi's own costs are the base's
+    but ``mine_ms`` on the edges entering the cell above (its counted cell): every pair's route of the
+    guided search with the early stop (``_own_route``'s) is the full search's and the plain search's, bit
+    for bit. Returns each pair's route (as role pairs) and its cost under the taxi's costs (us)."""
+    node = {r: i for i, r in enumerate(order)}
+    city = make_city(
+        {node[r]: p for r, p in xy.items()}, [(node[p[0]], node[p[1]]) for p in base_ms], both_ways=both_ways
+    )
+    g = road_graph(city)
+    ed = g.edges
+    assert sorted(g.forward.kept.tolist()) == sorted(node[r] for r in kept)
+    edge = {(order[a], order[b]): e for e, (a, b) in enumerate(zip(ed.tail, ed.head, strict=True))}
+    base = np.zeros(g.n_edges, dtype=np.int64)
+    for (a, b), e in edge.items():
+        base[e] = base_ms.get(a + b, base_ms.get(b + a, 0)) * 1000
+    mine = base.copy()
+    zbits = np.zeros(astar.CLEAN_WORDS, dtype=np.uint64)
+    for (a, b), ms in mine_ms.items():
+        if (a, b) in edge:
+            e = edge[a, b]
+            mine[e] = ms * 1000
+            for c in ed.ec_cell[ed.ec_ptr[e] + 1 : ed.ec_ptr[e + 1]].tolist():
+                astar.cell_bit(zbits, c)
+    for e in range(g.n_edges):  # the taxi's costs differ from the base's exactly on the counted cell's edges
+        entered = ed.ec_cell[ed.ec_ptr[e] + 1 : ed.ec_ptr[e + 1]].tolist()
+        assert base[e] > 0
+        assert (mine[e] != base[e]) == any(int(zbits[c // 64]) >> (c % 64) & 1 for c in entered)
+    base_rev, mine_fwd = prepare(g.reverse, base), prepare(g.forward, mine)
+    wsf, wsr = workspace(g), workspace(g, reverse=True)
+    k = g.forward.kept.shape[0]
+    clean = np.zeros((k, astar.CLEAN_WORDS), dtype=np.uint64)
+    stopped = 0
+    routes = {}
+    for dst in range(g.n_nodes):
+        dijkstra.run(g.reverse, ed, base_rev, dst, INF - 1, np.zeros(0, np.int64), wsr)
+        astar.path_cells(g.reverse, ed, wsr, clean, np.zeros(k, np.int64), 1, np.zeros(k, np.int64))
+        for src in range(g.n_nodes):
+            dijkstra.run(g.forward, ed, mine_fwd, src, INF - 1, np.array([dst]), wsf)
+            if not unfolding.unfold(g.forward, ed, mine_fwd, INF, dst, wsf):
+                continue  # a spur's end, on one-way streets
+            plain = unfolding.path_to(ed, 1, wsf.pred, src, dst).tolist()
+            full_gd = astar.tree_guide(wsr, INF - 1, clean[:0], zbits)
+            full = _route(g, mine_fwd, base_rev, wsf, wsr, full_gd, src, dst)
+            assert full == plain
+            gd = astar.tree_guide(wsr, INF - 1, clean, zbits)
+            stopped += astar.guided(g.forward, ed, mine_fwd, src, dst, wsf, gd, no_lazy()) >= 0
+            assert _route(g, mine_fwd, base_rev, wsf, wsr, gd, src, dst) == full, (order[src], order[dst])
+            route = [(order[ed.tail[e]], order[ed.head[e]]) for e in full]
+            routes[order[src], order[dst]] = route, int(mine[full].sum())
+    assert stopped > 0
+    return routes
+
+
+# A chain T - s - d - t - H whose edge s -> d (and t -> d, two-way) enters the cell above (the taxi's counted
+# cell; every other edge stays in the cell below), a bypass H - q - T (q interior too) and a spur at T and
+# at H, so that T and H are kept.
+_CHAIN_XY = {"T": (100, 500), "s": (300, 500), "d": (500, 1500), "t": (700, 500), "H": (900, 500)}
+_CHAIN_XY |= {"q": (500, 100), "u": (100, 100), "w": (900, 100)}
+_CHAIN_BASE = {"Ts": 20, "sd": 1, "dt": 1, "tH": 2, "Hq": 5, "qT": 5, "Tu": 5, "Hw": 5}
+_CHAIN_MINE = {"sd": 29, "td": 29}
+
+
+@pytest.mark.parametrize("both_ways", [True, False])
+@pytest.mark.parametrize("order", ["TsdtHquw", "wuqHtdsT"])
+def test_a_re_searched_route_between_two_nodes_of_one_chain_is_the_full_search(
+    order: str, both_ways: bool
+) -> None:
+    """Taxi ``s`` and POI ``t`` inside one two-way chain, a counted cell between them, and a bypass: the
+    path along the chain (30 ms under the taxi's costs) passes no kept node, so it is never queued; T
+    settles with a key (20 + 12 ms) below H's (30 + 2 + 2) and its in-tree path (the bypass, 10 + 2 ms,
+    under the in-tree's 20 + 2 along the chain) enters no counted cell, but stopping there would give
+    s -> T -> q -> H -> t (32 ms). The guided search with the early stop gives the full search's route and
+    the plain search's, bit for bit, for that pair and every other (the POI before the taxi on the chain,
+    the POI at an end of it, either node kept), on the two-way chain and on a one-way one (one-way loop
+    T -> H -> q -> T); ``order`` numbers the nodes both ways, so each direction of the chain is the first
+    super-edge in turn."""
+    routes = _every_pair(order, _CHAIN_XY, _CHAIN_BASE, _CHAIN_MINE, "THuw", both_ways)
+    assert routes["s", "t"] == ([("s", "d"), ("d", "t")], 30_000)
+
+
+# POI t inside the chain A - d - t - B, whose edge A -> d (and t -> d) enters the cell above (the taxi's
+# counted cell; every other edge stays in the cell below); the taxi at kept X, joined to A and, dearer, to
+# k, which is next to B; a spur at X, A, B and k, so that they are kept.
+_END_XY = {"X": (100, 500), "A": (300, 500), "d": (400, 1500), "t": (500, 500), "B": (700, 500)}
+_END_XY |= {"k": (400, 100), "u": (100, 800), "v": (300, 800), "w": (700, 800), "z": (400, 300)}
+_END_BASE = {"XA": 1, "Ad": 1, "dt": 1, "tB": 10, "Xk": 12, "kB": 1, "Xu": 5, "Av": 5, "Bw": 5, "kz": 5}
+_END_MINE = {"Ad": 5, "td": 5}
+
+
+@pytest.mark.parametrize("order", ["XAdtBkuvwz", "zwvukBtdAX"])
+def test_a_re_searched_route_through_a_settled_end_of_the_pois_chain_is_the_full_search(order: str) -> None:
+    """Taxi X, POI t inside a chain: the search settles the chain's end A first (key 1 + 2 ms), and the path
+    on from A to t (7 ms under the taxi's costs) is never queued; then k, with a key of 12 + 11 ms and an
+    in-tree path k -> B -> t that enters no counted cell, before B (whose label comes through k); stopping
+    at k would give X -> k -> B -> t (23 ms). The guided search with the early stop gives the full search's
+    route and the plain search's, bit for bit, for that pair and every other."""
+    routes = _every_pair(order, _END_XY, _END_BASE, _END_MINE, "XABkuvwz")
+    assert routes["X", "t"] == ([("X", "A"), ("A", "d"), ("d", "t")], 7_000)
