@@ -528,6 +528,7 @@ def report(res: dict[str, Any]) -> str:
     sim, window = rec["simulation"], rec["data_window"]
     chosen = rec["chosen"]
 
+    reading = _reading(rec)
     rh = ", ".join(f"{h['interval'][-5:]} {h['size']}" for h in rec["dro_rh_by_hour"]) or "-"
     ok = all(res["checks"].values())
     rss = res.get("peak_rss_mb") or {}
@@ -589,7 +590,29 @@ def report(res: dict[str, Any]) -> str:
             f"Checks ({'all pass' if ok else 'FAILED'}): "
             + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in res["checks"].items())
             + ". Raw numbers: docs/perf_fleet_own_city.json.",
+            *(["", reading] if reading else []),
         ]
+    )
+
+
+def _reading(rec: dict[str, Any]) -> str:
+    """A sentence when DRO's choice is an end of the candidate range: the sizes beyond it were not simulated."""
+    sizes, dro = rec["sizes"], rec["chosen"]["dro"]
+    if dro not in (sizes[0], sizes[-1]):
+        return ""
+    end = "smallest" if dro == sizes[0] else "largest"
+    c = {x["size"]: x for x in rec["candidates"]}
+    step3 = {
+        x: c[x]["mean_cost_cny_per_h"] - rec["subsidy_cny_per_vehicle_hour"] * x
+        for x in (sizes[0], sizes[-1])
+    }
+    return (
+        f"Reading: DRO picks the {end} candidate, {dro}; the recommendation does not say that the choice sits at "
+        "an end of the range, and no size beyond it was simulated (`fleet.sizes` in the city's `city.json` "
+        f"sets others). Between {sizes[0]} and {sizes[-1]} instrumented taxis the mean Step 3 cost goes from "
+        f"{step3[sizes[0]]:.1f} to {step3[sizes[-1]]:.1f} CNY/h while the subsidy "
+        f"(ζ = {rec['subsidy_cny_per_vehicle_hour']:g}) adds "
+        f"{rec['subsidy_cny_per_vehicle_hour'] * (sizes[-1] - sizes[0]):.0f} CNY/h."
     )
 
 
@@ -617,7 +640,7 @@ def main() -> int:
         print(m, flush=True)
 
     res = measure(args, log)
-    res["args"] = vars(args) | {"json_out": str(args.json_out)}
+    res["args"] = {k: v for k, v in vars(args).items() if k not in ("json_out", "report_only")}
     res["stamp"] = stamp(" ".join(["python -m bench.bench_fleet_own_city", *sys.argv[1:]]))
     log(json.dumps({k: v for k, v in res.items() if k != "service_log_tail"}, indent=1, default=str))
     if not args.no_write:
