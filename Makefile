@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service bench-fleet-own-city openapi dashboard
 
 install: $(STAMP)
 
@@ -55,7 +55,7 @@ fleet-experiment: $(STAMP)
 
 # Every benchmark; each writes its own section of docs/PERFORMANCE.md (the Redis one needs a redis-server at
 # REDIS_URL, default the local one).
-bench: bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service
+bench: bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service bench-fleet-own-city
 
 # BASELINE=DIR (a checkout of the previous code, e.g. `git worktree add ../base main`) also times its decide on
 # the same epochs: the same-run ratio to the previous code.
@@ -89,6 +89,12 @@ bench-fleet-metro: $(STAMP)
 # also the README's dashboard screenshot.
 bench-fleet-service: $(STAMP)
 	$(PY) -m bench.bench_fleet_service
+
+# An imported city sized end to end through the API: a generated 60 x 60 street grid imported from CSV, 10 days
+# of a 600-taxi platform's epochs posted, a solve to the recommendation (a few minutes). ARGS="--side 10 --taxis
+# 24 --days 2 --no-write": a smoke run.
+bench-fleet-own-city: $(STAMP)
+	$(PY) -m bench.bench_fleet_own_city $(ARGS)
 
 # The hardening probes: hostile body, stalled connection, frozen Redis, schemathesis, Redis Cluster replay.
 bench-hardening: $(STAMP)

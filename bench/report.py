@@ -26,6 +26,7 @@ ORDER = (
     "dro",
     "worker",
     "fleet-service",
+    "fleet-own-city",
     "cluster",
     "fleet-metro",
     "hardening",
