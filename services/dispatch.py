@@ -450,12 +450,12 @@ def decide(
 def warm_up(city: City) -> None:
     """Solve a few tiny seeded epochs on ``city`` so that every compiled kernel a real epoch calls is compiled
     (or loaded from numba's on-disk cache), and the city's search structures (``road_graph``,
-    ``point_to_point.landmarks``, the contraction hierarchy of ``services.network.hierarchy``) built, before the first
-    real request: a kernel first met in a real epoch would
-    otherwise be compiled inside it (seconds on a fresh install). The epochs cover riders matched in Steps 1
-    and 2, Step 3 from the POIs' side (fewer than half as many POIs as taxis) with taxis counted in cells
-    (their own costs, goal-directed searches) and from the taxis' side, and Algorithm 2's re-plans, on one
-    thread and on two (``tests/unit/test_warm_up.py`` checks that later epochs compile nothing new)."""
+    ``point_to_point.landmarks``, the contraction hierarchy of ``services.network.hierarchy``) built, before
+    the first real request: a kernel first met in a real epoch would otherwise be compiled inside it (seconds
+    on a fresh install). The epochs cover riders matched in Steps 1 and 2, Step 3 from the POIs' side (fewer
+    than half as many POIs as taxis) with taxis counted in cells (their own costs, goal-directed searches) and
+    from the taxis' side, and Algorithm 2's re-plans, on one thread and on two (``tests/unit/test_warm_up.py``
+    checks that later epochs compile nothing new)."""
     rng = np.random.default_rng(7)
     n = city.network.n_nodes
     hz = city.horizon  # a minute into a day's first interval of the horizon, where cells have a gain

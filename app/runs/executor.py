@@ -279,14 +279,26 @@ class ProcessExecutor:
             if broken:
                 self.close()
 
+    def abandon(self) -> None:
+        """End the processes now, the runs in progress lost (their service is ending): the batch being
+        mapped fails what they held, and ``close`` then waits for no run."""
+        with self._signal_lock:
+            for pid in self._pids():
+                for sig in (signal.SIGTERM, signal.SIGCONT):  # a stopped process takes the first when resumed
+                    try:
+                        os.kill(pid, sig)
+                    except ProcessLookupError:
+                        break
+
     def close(self) -> None:
-        """Stop the processes."""
-        if self._pool is not None:
-            self.resume()  # a stopped process would never take its shutdown
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
-            self._started.close()
-            self._started = None
+        """Stop the processes once their runs in progress are over (``abandon`` first not to wait)."""
+        self.resume()  # a stopped process would never take its shutdown
+        with self._signal_lock:
+            pool, started = self._pool, self._started
+            self._pool = self._started = None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+            started.close()
 
 
 class Foreground:

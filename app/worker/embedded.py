@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import threading
 
+from app.runs import ProcessExecutor
 from app.worker.service import AssembledWorker
 
 __all__ = ["EmbeddedWorker"]
@@ -41,11 +42,16 @@ class EmbeddedWorker:
                     return
         self.parts.worker.run(self._stop)
 
-    def stop(self, timeout_s: float = 10.0) -> None:
-        """Stop the loop after its current step (a solve in progress is abandoned when it outlasts
-        ``timeout_s``: the process is ending) and the heartbeat; close the run processes."""
+    def stop(self, grace_s: float = 2.0, timeout_s: float = 10.0) -> None:
+        """Stop the loop and the heartbeat, and close the run processes. A loop still busy after
+        ``grace_s`` is in a solve: its runs are abandoned (the process is ending; a metropolitan run lasts
+        minutes) and the loop is given ``timeout_s`` more to see them fail."""
         self._stop.set()
         self.parts.heartbeat.stop()
         if self._thread is not None:
-            self._thread.join(timeout=timeout_s)
+            self._thread.join(timeout=grace_s)
+            executor = self.parts.runner.executor
+            if self._thread.is_alive() and isinstance(executor, ProcessExecutor):
+                executor.abandon()
+                self._thread.join(timeout=timeout_s)
         self.parts.runner.close()

@@ -38,7 +38,7 @@ def cache_dir(root: Path = SERVICES) -> str:
     return os.path.join(base, digest.hexdigest()[:16])
 
 
-numba.config.CACHE_DIR = cache_dir()  # read when each kernel below is decorated
+numba.config.CACHE_DIR = cache_dir()  # type: ignore[attr-defined]  # read as each kernel is decorated
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 

@@ -10,7 +10,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import pytest
 
@@ -259,6 +259,35 @@ def test_paused_processes_make_no_progress_until_resumed(tmp_path: Path) -> None
     assert not runs.is_alive()
 
 
+def test_abandoned_runs_fail_their_batch_and_close_waits_for_none(tmp_path: Path) -> None:
+    """A service ending mid-solve (the embedded worker's stop): a run that would go on until told, paused
+    by an epoch in flight as well, is ended at once; its batch reports it failed and closing the executor
+    waits for no run."""
+    executor = ProcessExecutor(1)
+    events: list[Any] = []
+    runs = threading.Thread(
+        target=lambda: events.extend(executor.map_unordered(count_until_stopped, [str(tmp_path)]))
+    )
+    runs.start()
+    try:
+        _until(lambda: _count(tmp_path) > 5 and any(isinstance(e, Started) for e in events))
+        pid = next(e.pid for e in events if isinstance(e, Started))
+        executor.pause()
+        executor.abandon()
+        runs.join(timeout=60)
+        assert not runs.is_alive()  # the batch ended without the run's stop file
+        executor.close()
+    finally:
+        (tmp_path / "stop").touch()
+        executor.close()
+    finished = [e for e in events if isinstance(e, Finished)]
+    assert len(finished) == 1 and finished[0].error is not None and "BrokenProcessPool" in finished[0].error
+    assert not _alive(pid)
+    counted = _count(tmp_path)
+    time.sleep(0.3)
+    assert _count(tmp_path) == counted  # nothing counts on
+
+
 def _alive(pid: int) -> bool:
     """Whether ``pid`` is a process that has not ended (a zombie has ended)."""
     try:
@@ -314,3 +343,46 @@ def test_the_first_epoch_in_flight_pauses_and_the_last_resumes() -> None:
     with pytest.raises(RuntimeError), gate.epoch():
         raise RuntimeError("an epoch that fails still resumes the runs")
     assert first.calls == ["pause", "resume", "pause", "resume"]
+
+
+class _Parts:
+    """An embedded worker's parts whose loop is in a solve: a run that goes on until told."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.executor = ProcessExecutor(1)
+        self.runner = self
+        self.heartbeat = self
+        self.worker = self
+        self.events: list[Any] = []
+
+    def start(self) -> None:
+        """The heartbeat's start."""
+
+    def stop(self) -> None:
+        """The heartbeat's stop."""
+
+    def run(self, stop: threading.Event) -> None:
+        self.events.extend(self.executor.map_unordered(count_until_stopped, [str(self.directory)]))
+
+    def close(self) -> None:
+        self.executor.close()
+
+
+def test_stopping_the_embedded_worker_mid_solve_abandons_its_runs(tmp_path: Path) -> None:
+    """The service's shutdown (``EmbeddedWorker.stop``) with a solve's run under way: the run is ended, the
+    loop sees it fail and the worker stops, instead of waiting for the run (minutes on a metropolis)."""
+    from app.worker.embedded import EmbeddedWorker
+
+    parts = _Parts(tmp_path)
+    worker = EmbeddedWorker(cast(Any, parts))
+    worker.start()
+    try:
+        _until(lambda: _count(tmp_path) > 5)
+        worker.stop(grace_s=0.5, timeout_s=60)
+        assert worker._thread is not None and not worker._thread.is_alive()
+    finally:
+        (tmp_path / "stop").touch()
+        parts.executor.close()
+    finished = [e for e in parts.events if isinstance(e, Finished)]
+    assert len(finished) == 1 and "BrokenProcessPool" in (finished[0].error or "")

@@ -16,6 +16,7 @@ the re-searched routes' early stop on small hand-built cities whose routes end i
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -254,17 +255,17 @@ def _route(g, mine: Costs, base_rev: Costs, wsf, wsr, gd: astar.Guide, src: int,
     meet = astar.guided(g.forward, ed, mine, src, dst, wsf, gd, no_lazy())
     if meet < 0:
         assert unfolding.unfold(g.forward, ed, mine, INF, dst, wsf)
-        return unfolding.path_to(ed, 1, wsf.pred, src, dst).tolist()
+        return [int(e) for e in unfolding.path_to(ed, 1, wsf.pred, src, dst)]
     x = int(g.forward.kept[meet])
     unfolding.unfold(g.forward, ed, mine, INF, x, wsf)
-    head = unfolding.path_to(ed, 1, wsf.pred, src, x).tolist()
+    head = [int(e) for e in unfolding.path_to(ed, 1, wsf.pred, src, x)]
     unfolding.unfold(g.reverse, ed, base_rev, INF - 1, x, wsr)
-    return head + unfolding.walk(ed, wsr.pred, x, dst).tolist()
+    return head + [int(e) for e in unfolding.walk(ed, wsr.pred, x, dst)]
 
 
 def _every_pair(
     order: str,
-    xy: dict[str, tuple[float, float]],
+    xy: Mapping[str, tuple[float, float]],
     base_ms: dict[str, int],
     mine_ms: dict[str, int],
     kept: str,
@@ -288,7 +289,8 @@ def _every_pair(
         base[e] = base_ms.get(a + b, base_ms.get(b + a, 0)) * 1000
     mine = base.copy()
     zbits = np.zeros(astar.CLEAN_WORDS, dtype=np.uint64)
-    for (a, b), ms in mine_ms.items():
+    for pair, ms in mine_ms.items():
+        a, b = pair[0], pair[1]
         if (a, b) in edge:
             e = edge[a, b]
             mine[e] = ms * 1000
