@@ -22,15 +22,15 @@ __all__ = ["cache_dir", "compiled", "compiled_inline"]
 SERVICES = Path(__file__).resolve().parents[1]
 
 
-def cache_dir(root: Path = SERVICES) -> str:
-    """Where the compiled kernels of the sources below ``root`` are cached: ``$NUMBA_CACHE_DIR`` (else
-    ``root/__pycache__/numba``, else ``~/.cache/sensedispatch/numba`` when ``root`` is read-only) and a
-    digest of the sources' names and contents."""
+def cache_dir(root: Path = SERVICES, base: str = "") -> str:
+    """Where the compiled kernels of the sources below ``root`` are cached: in ``base`` (else
+    ``root/__pycache__/numba``, else ``~/.cache/sensedispatch/numba`` when ``root`` is read-only), the
+    directory named by a digest of the sources' names and contents."""
     digest = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
         digest.update(path.relative_to(root).as_posix().encode())
         digest.update(path.read_bytes())
-    base = os.environ.get("NUMBA_CACHE_DIR") or (
+    base = base or (
         str(root / "__pycache__" / "numba")
         if os.access(root, os.W_OK)
         else str(Path.home() / ".cache" / "sensedispatch" / "numba")
@@ -38,7 +38,8 @@ def cache_dir(root: Path = SERVICES) -> str:
     return os.path.join(base, digest.hexdigest()[:16])
 
 
-numba.config.CACHE_DIR = cache_dir()  # type: ignore[attr-defined]  # read as each kernel is decorated
+# numba read $NUMBA_CACHE_DIR at its import; its config is read again as each kernel below is decorated
+numba.config.CACHE_DIR = cache_dir(SERVICES, numba.config.CACHE_DIR)  # type: ignore[attr-defined]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
