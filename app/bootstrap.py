@@ -27,7 +27,7 @@ from starlette.types import ASGIApp
 
 from app.adapters.bounded import BoundedStore
 from app.adapters.city_registry import CityRegistry
-from app.api import admin, cities, dashboard, dispatch, dro, epochs, fleet, ops
+from app.api import admin, cities, dashboard, dro, epochs, fleet, ops, writes
 from app.api.bodies import openapi_components
 from app.api.handlers import error_response, install_error_handlers
 from app.api.inputs import Limits
@@ -186,7 +186,7 @@ def create_app(
         timeout_s=settings.server.body_timeout_s,
         render=render,
     )
-    for router in (ops, cities, dispatch, dro, fleet, epochs, admin, dashboard):
+    for router in (ops, cities, writes, dro, fleet, epochs, admin, dashboard):
         app.include_router(router.router)
     dashboard.mount_assets(app)
     _declare_request_bodies(app, Limits.from_settings(settings))

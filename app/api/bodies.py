@@ -27,7 +27,7 @@ from app.api.handlers import from_validation_errors
 from app.api.inputs import Limits
 from app.errors import BadRequest, FieldIssue, InvalidInput, UnsupportedMediaType
 from app.schemas.admin import ResetIn, RewindIn
-from app.schemas.dispatch import EpochIn, PlainRiders, PlainTaxis, plain_riders, plain_taxis
+from app.schemas.decision import EpochIn, PlainRiders, PlainTaxis, plain_riders, plain_taxis
 from app.schemas.dro import MAX_SAMPLES, WorstCaseIn
 from app.schemas.tasks import TaskIn
 

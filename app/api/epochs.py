@@ -11,7 +11,7 @@ from app.api.deps import CityName, EpochsDep, ReadAccess
 from app.api.geojson import dump, geojson_responses, respond
 from app.api.responses import READ_ERRORS
 from app.schemas.common import ID_MAX_LEN
-from app.schemas.dispatch import EpochOut
+from app.schemas.decision import EpochOut
 from app.schemas.epochs import EpochLogOut
 from services.geojson import routes_geojson
 from services.rfc3339 import format_time

@@ -13,7 +13,7 @@ import numpy as np
 
 from app.errors import InvalidInput
 from app.schemas.common import LABEL_PATTERN, RFC3339_PATTERN, LocationIn
-from app.schemas.dispatch import EpochIn, PlainRiders, PlainTaxis, body_hash
+from app.schemas.decision import EpochIn, PlainRiders, PlainTaxis, body_hash
 from app.schemas.tasks import TaskIn
 from app.settings import Settings
 from app.usecases import EpochCommand

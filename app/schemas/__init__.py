@@ -1,7 +1,7 @@
 """Request and response models of the HTTP API, one module per router, and their conversion from the core.
 
 ``common`` holds what the routers share (base classes, identifiers, RFC 3339 times, locations, the error
-shape); ``ops``, ``cities``, ``tasks``, ``dispatch``, ``coverage``, ``fleet`` and ``dro`` the models of
+shape); ``ops``, ``cities``, ``tasks``, ``decision``, ``coverage``, ``fleet`` and ``dro`` the models of
 their routes. The names below are re-exported for ``from app.schemas import EpochIn``.
 """
 
@@ -27,7 +27,7 @@ from app.schemas.common import (
     parse_rfc3339,
 )
 from app.schemas.coverage import CellCountOut, CoverageOut
-from app.schemas.dispatch import EpochIn, EpochOut, RiderIn, RiderMatchOut, TaskAssignmentOut, TaxiIn
+from app.schemas.decision import EpochIn, EpochOut, RiderIn, RiderMatchOut, TaskAssignmentOut, TaxiIn
 from app.schemas.ops import HealthOut, ReadyOut
 from app.schemas.tasks import TaskIn, TaskOut, TasksOut, TasksPutOut
 

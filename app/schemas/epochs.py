@@ -1,5 +1,5 @@
 """Models of the committed-epoch routes (``app.api.epochs``): the epoch log. A stored epoch is served as the
-``EpochOut`` document its post returned (``app.schemas.dispatch``)."""
+``EpochOut`` document its post returned (``app.schemas.decision``)."""
 
 from __future__ import annotations
 

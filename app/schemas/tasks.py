@@ -1,4 +1,4 @@
-"""Models of the task routes: registering (``app.api.dispatch``) and listing (``app.api.cities``) POIs."""
+"""Models of the task routes: registering (``app.api.writes``) and listing (``app.api.cities``) POIs."""
 
 from __future__ import annotations
 

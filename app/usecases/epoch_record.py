@@ -1,7 +1,7 @@
 """The epoch's record: a posted epoch as the use case takes it, its decided result, and the document that
 records it (external node ids, local times), written once when the epoch commits, stored with it, answered
 to the post and to every replay and read of it (``GET /epochs/{id}``), and read back into core types here.
-``app.schemas.dispatch.EpochOut`` describes the same document (its fields in the same order)."""
+``app.schemas.decision.EpochOut`` describes the same document (its fields in the same order)."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ __all__ = [
 class EpochCommand:
     """One posted epoch, validated and resolved to node indices at the edge (``app.api.inputs``).
 
-    ``body_hash`` is the sha256 of the request's canonical JSON (``app.schemas.dispatch.body_hash``, computed
+    ``body_hash`` is the sha256 of the request's canonical JSON (``app.schemas.decision.body_hash``, computed
     by the API from the validated request model). It is stored with the commit: a later post of the same
     epoch id is a replay only if its hash is equal, so its definition never changes. ``time_text`` is the
     epoch time as posted (RFC 3339 with the client's offset), echoed in the response and the recorded demand.

@@ -412,7 +412,7 @@ def test_the_whole_epoch_request_holds_the_foreground(
         held.append(depth[0])
         return epoch_post(*args)
 
-    monkeypatch.setattr("app.api.dispatch.epoch_post", parse_seen)
+    monkeypatch.setattr("app.api.writes.epoch_post", parse_seen)
     r = client.post(URL, json=payloads.epoch(), headers=auth())
     assert r.status_code == 200, r.text
     assert held == [1] and depth[0] == 0

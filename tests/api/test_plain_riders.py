@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from app.schemas.dispatch import EpochIn, body_hash, plain_riders, plain_taxis
+from app.schemas.decision import EpochIn, body_hash, plain_riders, plain_taxis
 from app.usecases import EpochCommand
 from services.city import City
 from tests.api.fakes import lonlat, node_id

@@ -18,7 +18,7 @@ from app.adapters.city_registry import CityRegistry
 from app.api.bodies import _json, _validate, epoch_post
 from app.api.inputs import Limits, epoch_command, snapshot_of
 from app.errors import ServiceError
-from app.schemas.dispatch import EpochIn, body_hash, plain_taxis
+from app.schemas.decision import EpochIn, body_hash, plain_taxis
 from app.usecases import EpochCommand
 from services.city import City
 from tests.api.fakes import CITY, lonlat, node_id

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.schemas.dispatch import EpochOut, RiderMatchOut, TaskAssignmentOut
+from app.schemas.decision import EpochOut, RiderMatchOut, TaskAssignmentOut
 from app.schemas.tasks import TaskOut
 from app.usecases import EpochCommand, EpochResult
 from app.usecases.epoch_record import _core_stats, _ext_paths, epoch_doc, render_epoch

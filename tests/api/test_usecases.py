@@ -13,7 +13,7 @@ import pytest
 from app.adapters import MemoryStore
 from app.adapters.city_registry import CityRegistry
 from app.errors import EpochConflict, NoData, TaskConflict, UnknownEpoch
-from app.schemas.dispatch import EpochIn, body_hash
+from app.schemas.decision import EpochIn, body_hash
 from app.usecases import EpochCommand, EpochResult, StoredDecision, UseCases
 from services.city import City
 from services.model import (

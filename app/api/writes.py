@@ -11,7 +11,7 @@ from app.api.deps import CitiesDep, CityName, DispatchAccess, EpochsDep, LimitsD
 from app.api.inputs import epoch_command, tasks_of
 from app.api.responses import WRITE_ERRORS
 from app.errors import ServiceError
-from app.schemas.dispatch import EpochIn, EpochOut
+from app.schemas.decision import EpochIn, EpochOut
 from app.schemas.tasks import TasksPutOut
 
 __all__ = ["router"]

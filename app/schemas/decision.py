@@ -1,4 +1,4 @@
-"""Models of the epoch route (``app.api.dispatch``): the posted epoch, its canonical hash, and the decision
+"""Models of the epoch route (``app.api.writes``): the posted epoch, its canonical hash, and the decision
 as the response document renders it (stored with the commit and returned verbatim to replays)."""
 
 from __future__ import annotations
