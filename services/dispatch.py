@@ -19,6 +19,7 @@ canonical shortest path of its cost (``services.network.graph``).
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -45,7 +46,6 @@ from services.model import (
     Taxi,
     TaxiId,
     Visit,
-    matches_by_step,
 )
 from services.network import hierarchy
 from services.network.graph import RoadGraph, road_graph
@@ -340,7 +340,8 @@ def _stats(
     ep: Epoch, snapshot: Snapshot, tally: _Tally, found: dict[TaskId, Reach]
 ) -> dict[str, float | int]:
     """The decision's per-step diagnostics."""
-    history, by_step = tally.history, matches_by_step(tally.matches)
+    history = tally.history
+    by_step = Counter(m.step for m in tally.matches)  # Decision.matches_by_step reads these two counts
     return {
         "interval": ep.k0,
         "riders": len(snapshot.riders),

@@ -6,7 +6,6 @@ the shell converts ids and lon/lat to indices at the edge. Times are POSIX secon
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal, NewType
 
@@ -30,7 +29,6 @@ __all__ = [
     "RiderMatch",
     "TaskAssignment",
     "Decision",
-    "matches_by_step",
 ]
 
 TaxiId = NewType("TaxiId", str)
@@ -162,13 +160,6 @@ class Decision:
 
     @property
     def matches_by_step(self) -> dict[int, int]:
-        """How many riders Step 1 and Step 2 matched (``{1: n1, 2: n2}``)."""
-        return matches_by_step(self.rider_matches)
-
-
-def matches_by_step(matches: Iterable[RiderMatch]) -> dict[int, int]:
-    """How many of ``matches`` each step made (``{1: n1, 2: n2}``)."""
-    steps = {1: 0, 2: 0}
-    for m in matches:
-        steps[m.step] += 1
-    return steps
+        """How many riders Step 1 and Step 2 matched (``{1: n1, 2: n2}``): the counts ``decide`` keeps in
+        ``stats`` as ``step1_matches`` and ``step2_matches``, the one count of them an epoch makes."""
+        return {1: int(self.stats["step1_matches"]), 2: int(self.stats["step2_matches"])}

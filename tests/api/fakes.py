@@ -155,5 +155,11 @@ class FakeDecide:
             expired_rider_ids=tuple(expired),
             visits=tuple(visits),
             intervals_touched=tuple(touched),
-            stats={"gamma": 0.25, "n_candidates": len(matches)},
+            stats={
+                "gamma": 0.25,
+                "n_candidates": len(matches),
+                # what decide counts for Decision.matches_by_step
+                "step1_matches": sum(1 for m in matches if m.step == 1),
+                "step2_matches": sum(1 for m in matches if m.step == 2),
+            },
         )

@@ -195,6 +195,8 @@ def test_awkward_values_render_as_the_validated_models_do() -> None:
         "nan": math.nan,
         "inf": np.float64(-np.inf),
         "s": "text",
+        "step1_matches": np.int64(1),  # decide's count of the one Step 1 match (Decision.matches_by_step)
+        "step2_matches": 0,
     }
     done = (
         Task(TaskId("k1"), 4, T0 - 60.0),
