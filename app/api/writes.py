@@ -33,7 +33,8 @@ def post_tasks(
     registered: TasksDep,
 ) -> TasksPutOut:
     """Register tasks: an id already stored with the same content is unchanged, with other content 409."""
-    return TasksPutOut.of(registered.put_tasks(city, tasks_of(catalog.get(city), tasks)))
+    served = catalog.get(city)  # the one look-up: the tasks' node indices and their registration use it
+    return TasksPutOut.of(registered.put_tasks(served, tasks_of(served, tasks)))
 
 
 @router.post(
@@ -75,9 +76,9 @@ def _post_epoch(
     epoch = epoch_post(raw, limits)  # on this threadpool thread, before anything is counted
     started = time.perf_counter()
     try:
-        served = catalog.get(city)
+        served = catalog.get(city)  # the one look-up: the epoch's node indices and its solve use it
         command = epoch_command(served, epoch.body, epoch.taxis, epoch.riders)
-        outcome = epochs.submit_epoch(city, command, served=served)
+        outcome = epochs.submit_epoch(served, command)
     except ServiceError as err:  # StoreUnavailable included: its kind is store_unavailable
         metrics.epochs.labels(outcome=err.kind).inc()
         raise

@@ -232,13 +232,13 @@ class EpochService:
                 "(SD_EPOCH_MAX_AHEAD_S)",
             )
 
-    def submit_epoch(self, name: str, epoch: EpochCommand, *, served: City | None = None) -> EpochOutcome:
-        """Solve and commit one epoch exactly once (docs/DESIGN.md, "Exactly-once epochs"). At most
-        ``max_solves`` epochs are solved at once: one finding every slot taken waits ``solve_queue_s``, then
-        is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot. ``served``:
-        the city ``name`` names when the caller has already resolved it (the epoch's node indices are
-        that city's), so it is not looked up again."""
-        city = served if served is not None else self.cities.get(name)
+    def submit_epoch(self, city: City, epoch: EpochCommand) -> EpochOutcome:
+        """Solve and commit one epoch of ``city`` exactly once (docs/DESIGN.md, "Exactly-once epochs"). At
+        most ``max_solves`` epochs are solved at once: one finding every slot taken waits ``solve_queue_s``,
+        then is refused (``Busy``, a 503) having read and written nothing; a replay needs no slot. ``city``
+        is the served city the caller resolved the epoch's node indices against (``CityCatalog.get``): it
+        is not looked up again."""
+        name = city.name
         snapshot = epoch.snapshot
         self._check_window(city, snapshot.time_s)
         stored = self.store.get_epoch(name, snapshot.epoch_id)

@@ -21,10 +21,11 @@ class TaskService:
         self.cities = cities
         self.store = store
 
-    def put_tasks(self, name: str, tasks: Sequence[Task]) -> PutTasksResult:
-        """Register tasks, idempotent per id (409 naming the conflicting ids' positions; nothing written)."""
-        self.cities.get(name)
-        result = self.store.put_tasks(name, tasks)
+    def put_tasks(self, city: City, tasks: Sequence[Task]) -> PutTasksResult:
+        """Register tasks of ``city``, idempotent per id (409 naming the conflicting ids' positions; nothing
+        written). ``city`` is the served city the caller resolved the tasks' node indices against
+        (``CityCatalog.get``): it is not looked up again."""
+        result = self.store.put_tasks(city.name, tasks)
         if result.conflicts:
             index = {t.id: i for i, t in enumerate(tasks)}
             raise TaskConflict(

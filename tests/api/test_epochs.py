@@ -419,3 +419,26 @@ def test_the_whole_epoch_request_holds_the_foreground(
     r = client.post(URL, content=b"{not json", headers={**auth(), "Content-Type": "application/json"})
     assert r.status_code in (400, 422), r.text
     assert held == [1, 1] and depth[0] == 0
+
+
+def test_each_write_resolves_its_city_once(make_client: MakeClient, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A task registration and an epoch post, committed or replayed, look their city up once: the node
+    indices of the request and its use case read the same City."""
+    from app.adapters.city_registry import CityRegistry
+
+    client = make_client()
+    looked_up: list[str] = []
+    get = CityRegistry.get
+
+    def counted(self: CityRegistry, name: str) -> Any:
+        looked_up.append(name)
+        return get(self, name)
+
+    monkeypatch.setattr(CityRegistry, "get", counted)
+    assert client.post(f"/v1/cities/{CITY}/tasks", json=payloads.tasks(), headers=auth()).status_code == 200
+    assert looked_up == [CITY]
+    for replay in (False, True):
+        looked_up.clear()
+        r = client.post(URL, json=payloads.epoch(), headers=auth())
+        assert r.status_code == 200 and ("Idempotent-Replayed" in r.headers) is replay, r.text
+        assert looked_up == [CITY]

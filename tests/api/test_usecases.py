@@ -75,7 +75,7 @@ def command(registry: CityRegistry, epoch_id: str, minutes: float, digest: str =
 
 def test_an_epoch_is_rendered_once_and_replayed_verbatim(registry: CityRegistry) -> None:
     uc, store, render = service(registry)
-    first = uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0))
+    first = uc.epochs.submit_epoch(registry.get(CITY), command(registry, "e1", 0.0))
     assert not first.replayed and first.matches_by_step == {1: 1, 2: 0} and first.attempts == 1
     assert first.response_json == '{"rendered": "e1", "n": 1}'
     stored = store.get_epoch(CITY, "e1")
@@ -86,17 +86,17 @@ def test_an_epoch_is_rendered_once_and_replayed_verbatim(registry: CityRegistry)
     assert result.epoch.time_text == "as posted" and len(result.decision.rider_matches) == 1
     assert result.gamma_after > result.gamma_before == 0.0  # the taxi's cells are the first counted
 
-    again = uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0))
+    again = uc.epochs.submit_epoch(registry.get(CITY), command(registry, "e1", 0.0))
     assert again.replayed and again.response_json == first.response_json and len(render.results) == 1
     with pytest.raises(EpochConflict):
-        uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0, digest="h2"))
+        uc.epochs.submit_epoch(registry.get(CITY), command(registry, "e1", 0.0, digest="h2"))
 
 
 def test_coverage_of_the_last_epoch_and_of_a_given_interval(registry: CityRegistry) -> None:
     uc, store, _ = service(registry)
     with pytest.raises(NoData):
         uc.coverage.coverage(CITY, None)
-    uc.epochs.submit_epoch(CITY, command(registry, "e1", 0.0))
+    uc.epochs.submit_epoch(registry.get(CITY), command(registry, "e1", 0.0))
     cov = uc.coverage.coverage(CITY, None)
     k = registry.get(CITY).horizon.interval_of(T0.timestamp())
     assert cov.interval == k and cov.city.name == CITY
@@ -111,10 +111,10 @@ def test_task_conflicts_name_their_positions(registry: CityRegistry) -> None:
     uc, _, _ = service(registry)
     node = registry.get(CITY).network.index_of(node_id(2, 2))
     a, b = Task(TaskId("a"), node, T0.timestamp()), Task(TaskId("b"), node, T0.timestamp())
-    assert uc.tasks.put_tasks(CITY, [a]).created == ["a"]
+    assert uc.tasks.put_tasks(registry.get(CITY), [a]).created == ["a"]
     moved = Task(TaskId("a"), node, T0.timestamp() + 60.0)
     with pytest.raises(TaskConflict) as err:
-        uc.tasks.put_tasks(CITY, [b, moved])
+        uc.tasks.put_tasks(registry.get(CITY), [b, moved])
     assert [(f.loc, f.msg) for f in err.value.fields] == [
         ("[1].id", "task 'a' exists with different content")
     ]
@@ -154,8 +154,8 @@ def test_committed_epochs_are_read_back_through_the_reader(registry: CityRegistr
     log = uc.epochs.epoch_log(CITY)
     assert (log.committed, log.last_epoch_id, log.last_epoch_time_s) == (0, None, None)
     store.put_tasks(CITY, [Task(TaskId("a"), 3, T0.timestamp() - 60.0)])
-    uc.epochs.submit_epoch(CITY, command(registry, "e1", 0))
-    uc.epochs.submit_epoch(CITY, command(registry, "e2", 4))
+    uc.epochs.submit_epoch(registry.get(CITY), command(registry, "e1", 0))
+    uc.epochs.submit_epoch(registry.get(CITY), command(registry, "e2", 4))
     log = uc.epochs.epoch_log(CITY)
     assert (log.committed, log.last_epoch_id, log.last_epoch_time_s) == (2, "e2", T0.timestamp() + 240.0)
     assert json.loads(uc.epochs.stored_epoch(CITY, "e1").response_json) == {"rendered": "e1", "n": 1}
