@@ -3,9 +3,9 @@ city (``bench.metro.metro_city``), and what the city's search structures and a d
 hold.
 
 Every search runs on the project's own code paths, as an epoch runs them: ``road_graph``'s contracted forward
-graph, a workspace of the city's pads (``pads_for(graph).take()``), ``dijkstra.run`` under the travel time
+graph, a workspace of the city's scratch pool (``scratch_pool(graph).take()``), ``dijkstra.run`` under the travel time
 prepared for the graph, and a taxi's kappa tree with its costs computed as the search goes (``graph.Lazy``,
-built as ``algorithm1._own_metric`` builds it, from the kit of the city's kappa family). Measured:
+built as ``algorithm1._own_metric`` builds it, from the kappa graph of the city's kappa family). Measured:
 
 1. the network's nodes and edges, the kept nodes (searched after contraction) and super-edges;
 2. forward trees under the travel time from the sources, bounded by Step 3's reach (900 s) and unbounded:
@@ -17,7 +17,7 @@ built as ``algorithm1._own_metric`` builds it, from the kit of the city's kappa 
    whole network, as ``algorithm1._base_kappa`` prepares the in-trees' base metrics): the time to prepare it,
    its size, and the two trees' times (their labels are checked equal);
 5. memory (numpy ``nbytes``): the city's network and grid crossings, the two search graphs, the landmark
-   table, and one pad (a forward and a reverse workspace and Algorithm 1's scratch);
+   table, and one scratch (a forward and a reverse workspace and Algorithm 1's scratch);
 6. one scipy reverse tree over the whole network, as the epoch benchmark's floor grows one per new task;
 7. the ``limits`` scenario's Step 1 candidate pairs: its first epoch decided once (seeded: exact);
 8. the contraction hierarchy under the travel time (``services.network.hierarchy``): its build time (once),
@@ -60,9 +60,9 @@ from services.ledger import Ledger, ledger_view
 from services.model import IntervalKey
 from services.network import dijkstra, heaps, hierarchy, point_to_point
 from services.network.graph import INF, US_PER_S, Costs, Lazy, RoadGraph, road_graph
-from services.network.pads import Pad, pads_for
+from services.network.scratch import Scratch, scratch_pool
 from services.routing import algorithm1
-from services.routing.algorithm1 import Kit, kit
+from services.routing.algorithm1 import KappaGraph, kappa_graph
 from services.sensing.gains import Gains, gain_table
 
 SEED = 20261123
@@ -140,7 +140,7 @@ def gains(city: City) -> Gains:
     return gain_table(city, {}, k0, INITIAL_SLOTS, hz.interval_start_s(k0) + 60.0)
 
 
-def sizes(graph: RoadGraph, kt: Kit) -> dict[str, float]:
+def sizes(graph: RoadGraph, kt: KappaGraph) -> dict[str, float]:
     """Items 1 and 3: the network's and the search graph's sizes, the shares of super-edges that enter no
     cell and of edges that enter one."""
     fg = graph.forward
@@ -163,11 +163,11 @@ def _settled(ws: heaps.Workspace) -> tuple[NDArray[np.int64], NDArray[np.int64]]
 
 
 def time_trees(
-    graph: RoadGraph, pad: Pad, src: NDArray[np.int64], reach_us: int, repeats: int
+    graph: RoadGraph, scratch: Scratch, src: NDArray[np.int64], reach_us: int, repeats: int
 ) -> dict[str, Any]:
     """Item 2: per source, the forward tree under the travel time bounded by ``reach_us`` and the whole
     tree: nodes settled and the best time of ``repeats``."""
-    fg, ed, costs, ws = graph.forward, graph.edges, graph.time_forward, pad.forward
+    fg, ed, costs, ws = graph.forward, graph.edges, graph.time_forward, scratch.forward
     none = np.zeros(0, dtype=np.int64)
     out: dict[str, list[float]] = {
         "bounded_ms": [],
@@ -185,26 +185,26 @@ def time_trees(
     return {k: summary(v) for k, v in out.items()} | {"raw": out}
 
 
-def precomputed_metric(kt: Kit, gn: Gains, kappa: float) -> Costs:
+def precomputed_metric(kt: KappaGraph, gn: Gains, kappa: float) -> Costs:
     """Taxi's kappa metric (a taxi counted in no cell: the base one) prepared for the whole forward graph
     beforehand, as ``algorithm1._base_kappa`` prepares the in-trees' base metrics for the reverse one."""
     base = algorithm1._base_kappa(kt._replace(rg=kt.fg), gn, np.array([kappa]), True)
     return Costs(base.edge[0], base.se[0], int(base.width[0]), int(base.span[0]))
 
 
-def lazy_metric(kt: Kit, pad: Pad, gn: Gains, q: int, kappa: float) -> tuple[Costs, Lazy]:
+def lazy_metric(kt: KappaGraph, scratch: Scratch, gn: Gains, q: int, kappa: float) -> tuple[Costs, Lazy]:
     """Taxi's kappa ``kappas[q]`` metric computed as the search goes, as ``algorithm1._own_metric`` builds
     it in an epoch (a taxi counted in no cell: its zero mask clear)."""
-    sc = algorithm1.tools(pad, gn).sc
+    sc = algorithm1.route_scratch(scratch, gn)
     umax = float(algorithm1._umax_scan(kt, gn, sc.zmask))
     costs = Costs(sc.edge_cost, sc.se_cost, int(kt.floor_width[q]), int(kt.floor_span[q]))
     return costs, Lazy(True, kappa, umax, gn.term[0], sc.zmask[0], kt.fixed)
 
 
 def kappa_trees(
-    kt: Kit,
+    kt: KappaGraph,
     kappas: tuple[float, ...],
-    pad: Pad,
+    scratch: Scratch,
     gn: Gains,
     src: NDArray[np.int64],
     limit: int,
@@ -216,8 +216,8 @@ def kappa_trees(
     q = kappas.index(KAPPA)
     pre = precomputed_metric(kt, gn, KAPPA)  # untimed: kernel loaded
     build_ms = [best_of(partial(precomputed_metric, kt, gn, KAPPA), 1) for _ in range(repeats + 2)]
-    costs, lazy = lazy_metric(kt, pad, gn, q, KAPPA)
-    fg, ed, ws = kt.fg, kt.ed, pad.forward
+    costs, lazy = lazy_metric(kt, scratch, gn, q, KAPPA)
+    fg, ed, ws = kt.fg, kt.ed, scratch.forward
     none = np.zeros(0, dtype=np.int64)
     out: dict[str, list[float]] = {"lazy_ms": [], "precomputed_ms": [], "ratio": [], "settled": []}
     dijkstra.grow(fg, ed, costs, int(src[0]), limit, none, ws, lazy)  # untimed: kernels warm
@@ -244,24 +244,26 @@ def kappa_trees(
     return res
 
 
-def memory(city: City, graph: RoadGraph, kt: Kit, pad: Pad, gn: Gains) -> dict[str, float]:
+def memory(city: City, graph: RoadGraph, kt: KappaGraph, scratch: Scratch, gn: Gains) -> dict[str, float]:
     """Item 5, in MB: the city's network and grid crossings, the search graphs (edges, forward and reverse,
-    the travel time prepared for each), Algorithm 1's kit, the landmark table, and one pad."""
-    sc = algorithm1.scratch(pad, gn)
+    the travel time prepared for each), Algorithm 1's kappa graph, the landmark table, and one scratch."""
+    sc = algorithm1.route_scratch(scratch, gn)
     out = {
         "network": nbytes(city.network) / MB,
         "grid_crossings": nbytes(city.edge_cells, city.cell_weight, city.interval_weight) / MB,
         "search_graphs": nbytes(graph) / MB,
-        "kit": nbytes(kt.fixed, kt.floor_width, kt.floor_span) / MB,
+        "kappa_graph": nbytes(kt.fixed, kt.floor_width, kt.floor_span) / MB,
         "landmarks": nbytes(point_to_point.landmarks(graph)) / MB,
-        "forward_workspace": nbytes(pad.forward) / MB,
-        "reverse_workspace": nbytes(pad.reverse) / MB,
+        "forward_workspace": nbytes(scratch.forward) / MB,
+        "reverse_workspace": nbytes(scratch.reverse) / MB,
         "algorithm1_scratch": nbytes(sc) / MB,
         "gain_slots": float(gn.term.shape[0]),
         "cells": float(gn.term.shape[1]),
     }
-    out["city_and_graphs"] = out["network"] + out["grid_crossings"] + out["search_graphs"] + out["kit"]
-    out["pad"] = out["forward_workspace"] + out["reverse_workspace"] + out["algorithm1_scratch"]
+    out["city_and_graphs"] = (
+        out["network"] + out["grid_crossings"] + out["search_graphs"] + out["kappa_graph"]
+    )
+    out["scratch"] = out["forward_workspace"] + out["reverse_workspace"] + out["algorithm1_scratch"]
     return out
 
 
@@ -275,7 +277,7 @@ def floor_trees(city: City, src: NDArray[np.int64]) -> dict[str, Any]:
     return summary(ms) | {"raw": ms}
 
 
-def trips(graph: RoadGraph, pad: Pad, n: int, seed: int) -> dict[str, Any]:
+def trips(graph: RoadGraph, scratch: Scratch, n: int, seed: int) -> dict[str, Any]:
     """Item 8: the hierarchy's build, size and memory, and ``n`` trips through it and goal-directed (the
     same paths, checked)."""
     started = time.perf_counter()
@@ -285,13 +287,13 @@ def trips(graph: RoadGraph, pad: Pad, n: int, seed: int) -> dict[str, Any]:
         return {"build_s": build_s, "arcs": None}
     rng = np.random.default_rng(seed)
     src, dst = rng.integers(graph.n_nodes, size=n), rng.integers(graph.n_nodes, size=n)
-    hierarchy.fastest_paths(graph, pad, src[:1], dst[:1])
-    point_to_point.landmark_fastest_paths(graph, pad.forward, src[:1], dst[:1])
+    hierarchy.fastest_paths(graph, scratch, src[:1], dst[:1])
+    point_to_point.landmark_fastest_paths(graph, scratch.forward, src[:1], dst[:1])
     started = time.perf_counter()
-    through = hierarchy.fastest_paths(graph, pad, src, dst)
+    through = hierarchy.fastest_paths(graph, scratch, src, dst)
     ch_s = time.perf_counter() - started
     started = time.perf_counter()
-    guided = point_to_point.landmark_fastest_paths(graph, pad.forward, src, dst)
+    guided = point_to_point.landmark_fastest_paths(graph, scratch.forward, src, dst)
     alt_s = time.perf_counter() - started
     if any(not np.array_equal(a, b) for a, b in zip(through, guided, strict=True)):
         raise AssertionError("the hierarchy's paths differ from the search's")
@@ -300,7 +302,7 @@ def trips(graph: RoadGraph, pad: Pad, n: int, seed: int) -> dict[str, Any]:
         "arcs": int(h.arc_tail.shape[0]),
         "arcs_per_edge": h.arc_tail.shape[0] / graph.n_edges,
         "hierarchy_mb": nbytes(h) / MB,
-        "lanes_mb": nbytes(pad.extra[hierarchy.Lanes]) / MB,
+        "lanes_mb": nbytes(scratch.extra[hierarchy.Lanes]) / MB,
         "trips": n,
         "through_s": ch_s,
         "guided_s": alt_s,
@@ -338,11 +340,13 @@ def measure(
     point_to_point.landmarks(graph)
     print(f"graph and landmarks: {time.perf_counter() - started:.1f} s", flush=True)
     kappas = tuple(float(k) for k in city.params.kappas)
-    kt = kit(graph, kappas)  # Algorithm 1's kit for the city's kappa family, as an epoch gets it
+    kt = kappa_graph(
+        graph, kappas
+    )  # Algorithm 1's kappa graph for the city's kappa family, as an epoch gets it
     gn = gains(city)
     src = sources(city, n_sources, seed, spread_m)
     reach_us = int(round(reach_s * US_PER_S))
-    with pads_for(graph).take() as pad:
+    with scratch_pool(graph).take() as scratch:
         res: dict[str, Any] = {
             "inputs": {
                 "city": city.name,
@@ -355,12 +359,12 @@ def measure(
             },
             "sizes": sizes(graph, kt),
         }
-        res["travel_time"] = time_trees(graph, pad, src, reach_us, repeats)
+        res["travel_time"] = time_trees(graph, scratch, src, reach_us, repeats)
         print("travel-time trees done", flush=True)
-        res["kappa"] = kappa_trees(kt, kappas, pad, gn, src, reach_us, repeats)
+        res["kappa"] = kappa_trees(kt, kappas, scratch, gn, src, reach_us, repeats)
         print("kappa trees done", flush=True)
-        res["memory"] = memory(city, graph, kt, pad, gn)
-        res["hierarchy"] = trips(graph, pad, TRIPS, seed)
+        res["memory"] = memory(city, graph, kt, scratch, gn)
+        res["hierarchy"] = trips(graph, scratch, TRIPS, seed)
         print("hierarchy done", flush=True)
     res["floor"] = floor_trees(city, src[:floor_n])
     print("floor trees done", flush=True)
@@ -383,7 +387,7 @@ def write_report(res: dict[str, Any], doc: Path = PERFORMANCE) -> Path:
         stamp("python -m bench.bench_search"),
         "",
         "One search of an epoch on the generated metropolitan city (`bench/metro.py`, `metro.metro_city()`), run",
-        "as an epoch runs it: `road_graph`'s contracted forward graph, a workspace of the city's pads,",
+        "as an epoch runs it: `road_graph`'s contracted forward graph, a workspace of the city's scratch pool,",
         f"`dijkstra.run` under the travel time. Sources: {inp['sources']} nodes drawn around the city's centres",
         f"(`metro.near_centres`, {inp['spread_m']:,.0f} m spread, seed {inp['seed']}), where the epoch benchmark's",
         f"taxis are; each of the service's searches timed as the best of {inp['repeats']} after an untimed one,",
@@ -433,13 +437,13 @@ def write_report(res: dict[str, Any], doc: Path = PERFORMANCE) -> Path:
         f"| network | node ids, lon/lat, x/y, edge ends, lengths, times, CSR | {mem['network']:.1f} |",
         f"| grid crossings | cells each edge enters (CSR), cell and interval weights | {mem['grid_crossings']:.1f} |",
         f"| search graphs | `RoadGraph`: per-edge arrays, forward and reverse contracted graphs, the travel time prepared for each | {mem['search_graphs']:.1f} |",
-        f"| Algorithm 1's kit | `Lazy.fixed` and the kappa family's bucket bounds | {mem['kit']:.1f} |",
+        f"| Algorithm 1's kappa graph | `Lazy.fixed` and the kappa family's bucket bounds | {mem['kappa_graph']:.1f} |",
         f"| **city and search graphs** | the four above | **{mem['city_and_graphs']:.1f}** |",
         f"| landmark table | travel times to and from 8 landmarks per node | {mem['landmarks']:.1f} |",
         f"| forward workspace | labels, queue, touched list, predecessor edges | {mem['forward_workspace']:.1f} |",
         f"| reverse workspace | the same for in-trees | {mem['reverse_workspace']:.1f} |",
         f"| Algorithm 1's scratch | zero mask and stamps over {mem['gain_slots']:.0f} x {mem['cells']:,.0f} cells, a lazy metric's edge and super-edge costs, tree evaluation | {mem['algorithm1_scratch']:.1f} |",
-        f"| **one pad (per dispatch thread)** | the three above | **{mem['pad']:.1f}** |",
+        f"| **one scratch (per dispatch thread)** | the three above | **{mem['scratch']:.1f}** |",
         "",
         "The raw numbers of the last run are in `docs/perf_search.json`.",
     ]

@@ -49,7 +49,7 @@ from services.model import (
 )
 from services.network import hierarchy
 from services.network.graph import RoadGraph, road_graph
-from services.network.pads import pads_for
+from services.network.scratch import scratch_pool
 from services.routing.algorithm1 import Route
 from services.routing.algorithm2 import improve_routes
 from services.routing.step3 import step3_monitoring_routes
@@ -149,7 +149,7 @@ def _pickups(ep: Epoch, tally: _Tally) -> tuple[Pickups, Pickups]:
     origins = np.array([r.origin for r in tally.riders], dtype=np.int64)
     fleet = tally.instrumented + tally.ordinary
     taxi_nodes = np.array([t.node for t in fleet], dtype=np.int64)
-    pk = pickups(ep.graph, xy, origins, taxi_nodes, ep.city.params.radius_m, ep.workers, ep.pads)
+    pk = pickups(ep.graph, xy, origins, taxi_nodes, ep.city.params.radius_m, ep.workers, ep.pool)
     n = len(tally.instrumented)
     ordinary = select(pk, pk.taxi >= n)
     return select(pk, pk.taxi < n), dataclasses.replace(ordinary, taxi=ordinary.taxi - n)
@@ -161,7 +161,7 @@ def _trips(ep: Epoch, riders: list[Rider], cands: Sequence[Pickups]) -> list[Leg
     for pk in cands:
         has_pair[pk.rider] = True
     rows = np.flatnonzero(has_pair)
-    legs = trips(ep.graph, [(riders[j].origin, riders[j].destination) for j in rows], ep.workers, ep.pads)
+    legs = trips(ep.graph, [(riders[j].origin, riders[j].destination) for j in rows], ep.workers, ep.pool)
     service: list[Leg] = [Leg(np.zeros(0, dtype=np.int64), 0.0, 0.0)] * len(riders)
     for j, leg in zip(rows.tolist(), legs, strict=True):
         service[j] = leg
@@ -176,10 +176,10 @@ def _rides(ep: Epoch, tally: _Tally, s1: Step1, s2: list[Match], cands: tuple[Pi
         (2, tally.ordinary, cands[1], s2),
     )
     chosen = [(step, fleet[m.taxi], pk, m) for step, fleet, pk, matches in steps for m in matches]
-    with ep.pads.take() as pad:
+    with ep.pool.take() as scratch:
         legs_in = hierarchy.fastest_paths(
             ep.graph,
-            pad,
+            scratch,
             np.array([taxi.node for _, taxi, _, _ in chosen], dtype=np.int64),
             np.array([tally.riders[m.rider].origin for *_, m in chosen], dtype=np.int64),
         )
@@ -427,7 +427,7 @@ def decide(
         snapshot.time_s,
         int(city.horizon.interval_of(snapshot.time_s)),
         workers,
-        pads_for(graph),
+        scratch_pool(graph),
     )
     tally = _present(snapshot, city.params.patience_s)
     instrumented, ordinary = _pickups(ep, tally)

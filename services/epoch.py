@@ -9,7 +9,7 @@ from typing import TypeVar
 from services.city import City
 from services.model import CountsView
 from services.network.graph import RoadGraph
-from services.network.pads import Pads
+from services.network.scratch import ScratchPool
 
 __all__ = ["Epoch", "until_fits"]
 
@@ -20,7 +20,7 @@ _S = TypeVar("_S")
 @dataclass(frozen=True, slots=True)
 class Epoch:
     """One epoch's shared inputs: the city and its search graph, the counts as of the epoch's start, the
-    epoch's time and interval, the threads for the independent searches and their scratch pads.
+    epoch's time and interval, the threads for the independent searches and their scratch pool.
 
     Attributes
     ----------
@@ -30,7 +30,7 @@ class Epoch:
     now : the epoch's time (seconds); every path of the epoch departs then.
     k0 : the interval ``now`` falls in.
     workers : threads for the independent searches (no result depends on it).
-    pads : per-thread search scratch for ``graph``.
+    pool : per-thread search scratch for ``graph``.
     """
 
     city: City
@@ -39,7 +39,7 @@ class Epoch:
     now: float
     k0: int
     workers: int
-    pads: Pads
+    pool: ScratchPool
 
 
 def until_fits(attempt: Callable[[_S], tuple[_R, _S | None]], size: _S) -> tuple[_R, _S]:

@@ -16,7 +16,7 @@ from services.kernel.jit import compiled
 from services.kernel.parallel import parallel_map
 from services.network import dijkstra, heaps, hierarchy, unfolding
 from services.network.graph import US_PER_S, Costs, Edges, RoadGraph, SearchGraph
-from services.network.pads import Pads
+from services.network.scratch import ScratchPool
 
 __all__ = ["Pickups", "pickups", "trips", "Leg"]
 
@@ -46,7 +46,7 @@ _Found = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArra
 
 
 class _Tree(NamedTuple):
-    """The reverse search the pickups grow their in-trees with: the edges, the reverse graph, the pad's
+    """The reverse search the pickups grow their in-trees with: the edges, the reverse graph, the scratch's
     reverse workspace and the travel-time costs."""
 
     ed: Edges
@@ -151,7 +151,7 @@ def pickups(
     taxi_nodes: NDArray[np.int64],
     radius_m: float,
     workers: int,
-    pads: Pads,
+    pool: ScratchPool,
 ) -> Pickups:
     """Every (taxi, rider) pair whose fastest pickup path is at most ``radius_m`` long.
 
@@ -187,8 +187,8 @@ def pickups(
         w_us = np.zeros(len(flat), dtype=np.int64)
         w_s = np.zeros(len(flat))
         length = np.zeros(len(flat))
-        with pads.take() as pad:
-            tree = _Tree(ed, graph.reverse, pad.reverse, graph.time_reverse)
+        with pool.take() as scratch:
+            tree = _Tree(ed, graph.reverse, scratch.reverse, graph.time_reverse)
             _within_many(tree, orig, ptr, nodes, limit_us, float(radius_m), _Hits(ok, w_us, w_s, length))
         out = []
         for q in range(len(rs)):
@@ -214,7 +214,7 @@ def _leg(ed: Edges, edges: NDArray[np.int64]) -> Leg:
     )
 
 
-def trips(graph: RoadGraph, pairs: Sequence[tuple[int, int]], workers: int, pads: Pads) -> list[Leg]:
+def trips(graph: RoadGraph, pairs: Sequence[tuple[int, int]], workers: int, pool: ScratchPool) -> list[Leg]:
     """The fastest path of each (from, to) pair.
 
     Raises
@@ -226,7 +226,7 @@ def trips(graph: RoadGraph, pairs: Sequence[tuple[int, int]], workers: int, pads
     def chunk(ps: Sequence[tuple[int, int]]) -> list[Leg]:
         src = np.array([a for a, _ in ps], dtype=np.int64)
         dst = np.array([b for _, b in ps], dtype=np.int64)
-        with pads.take() as pad:
-            return [_leg(graph.edges, e) for e in hierarchy.fastest_paths(graph, pad, src, dst)]
+        with pool.take() as scratch:
+            return [_leg(graph.edges, e) for e in hierarchy.fastest_paths(graph, scratch, src, dst)]
 
     return parallel_map(chunk, pairs, workers)

@@ -10,7 +10,7 @@
 * ``unfolding``: results read off a search (resolve, unfold, labels, paths) and the batch searches.
 * ``point_to_point``: fastest paths between pairs with the landmark bounds; the landmarks; the crossing
   time.
-* ``pads``: per-thread search scratch.
+* ``scratch``: per-thread search scratch (``Scratch``) lent by a pool (``ScratchPool``).
 """
 
 from services.network import astar, dijkstra, heaps, point_to_point, unfolding
@@ -42,8 +42,8 @@ from services.network.network import (
     lonlat_of,
     utm_crs,
 )
-from services.network.pads import Pad, Pads, pads_for
 from services.network.point_to_point import crossing_us, fastest_path, landmark_fastest_paths, landmarks
+from services.network.scratch import Scratch, ScratchPool, scratch_pool
 
 __all__ = [
     "heaps",
@@ -80,7 +80,7 @@ __all__ = [
     "landmark_fastest_paths",
     "landmarks",
     "crossing_us",
-    "Pad",
-    "Pads",
-    "pads_for",
+    "Scratch",
+    "ScratchPool",
+    "scratch_pool",
 ]

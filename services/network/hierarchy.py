@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from services.kernel.jit import compiled, compiled_inline
 from services.network import point_to_point, unfolding
 from services.network.graph import INF, RoadGraph
-from services.network.pads import Pad
+from services.network.scratch import Scratch
 
 __all__ = ["Hierarchy", "Lanes", "hierarchy", "lanes", "ch_paths", "fastest_paths"]
 
@@ -683,10 +683,10 @@ def ch_paths(
 
 
 def fastest_paths(
-    graph: RoadGraph, pad: Pad, sources: NDArray[np.int64], targets: NDArray[np.int64]
+    graph: RoadGraph, scratch: Scratch, sources: NDArray[np.int64], targets: NDArray[np.int64]
 ) -> list[NDArray[np.int64]]:
     """The canonical fastest path of every (source, target) pair: through the graph's hierarchy, or with
-    ``point_to_point.landmark_fastest_paths`` (the same paths) on a network that has none; ``pad``: the
+    ``point_to_point.landmark_fastest_paths`` (the same paths) on a network that has none; ``scratch``: the
     thread's scratch.
 
     Raises
@@ -696,10 +696,10 @@ def fastest_paths(
     """
     h = hierarchy(graph)
     if h is None:
-        return point_to_point.landmark_fastest_paths(graph, pad.forward, sources, targets)
-    ln = pad.extra.get(Lanes)
+        return point_to_point.landmark_fastest_paths(graph, scratch.forward, sources, targets)
+    ln = scratch.extra.get(Lanes)
     if not isinstance(ln, Lanes):
-        ln = pad.extra[Lanes] = lanes(graph.n_nodes)
+        ln = scratch.extra[Lanes] = lanes(graph.n_nodes)
     src = np.asarray(sources, dtype=np.int64)
     tgt = np.asarray(targets, dtype=np.int64)
     ptr, flat = ch_paths(h, ln, src, tgt)

@@ -50,7 +50,7 @@ from services.network.graph import (
     no_lazy,
     prepare_into,
 )
-from services.network.pads import Pad, Pads
+from services.network.scratch import Scratch, ScratchPool
 from services.sensing.gains import (
     Counted,
     Gains,
@@ -68,23 +68,26 @@ __all__ = [
     "problem",
     "Route",
     "Drive",
-    "Scratch",
-    "scratch",
+    "RouteScratch",
+    "route_scratch",
     "plan_routes",
     "plan_one",
     "route_pair",
     "evaluate",
-    "kit",
+    "kappa_graph",
 ]
 
 
-GUIDED_PER_TREE = 16
+GUIDED_PER_TREE = 32
 """About how many goal-directed searches (``astar.guided``) from a taxi to one POI cost as much as one
-tree from the taxi to every POI, on a metropolitan street grid (``bench/bench_epoch.py``); only speed
-depends on it."""
+tree from the taxi to every POI in its reach; only speed depends on it. Measured on the heaviest load of
+``bench/bench_epoch.py`` (processor time, one thread): on a uniform street grid that takes 53 minutes to
+cross a tree costs 15-30 searches (there a search settles 400-800 nodes: many paths tie on cost), on
+metro250k about 160 (a search settles about 90 nodes); no taxi there has more than 21 targets whose
+fastest routes enter its counted cells."""
 
 
-class Kit(NamedTuple):
+class KappaGraph(NamedTuple):
     """The network as Algorithm 1's kernels take it: the edges, both search graphs with the travel time
     prepared for each, the edges that enter a cell (the only ones whose utility can be positive), and the
     bucket queue's geometry of any taxi's kappa metric (row q: kappa ``kappas[q]``; width: the cheapest
@@ -101,11 +104,14 @@ class Kit(NamedTuple):
     floor_span: NDArray[np.int64]
 
 
-class Scratch(NamedTuple):
-    """One thread's scratch: a zero mask and an evaluation stamp over the gain table and the next stamp, a
-    lazy metric's costs per edge and super-edge, the tree evaluation's scratch, and the cell sets of
-    ``astar.guided``'s stop (per kept node of an in-tree, and of a taxi)."""
+class RouteScratch(NamedTuple):
+    """What one thread's Algorithm 1 kernels work in: a forward and a reverse search workspace, a zero mask
+    and an evaluation stamp over the gain table and the next stamp, a lazy metric's costs per edge and
+    super-edge, the tree evaluation's scratch, and the cell sets of ``astar.guided``'s stop (per kept node
+    of an in-tree, and of a taxi)."""
 
+    forward: heaps.Workspace
+    reverse: heaps.Workspace
     zmask: NDArray[np.bool_]
     stamp: NDArray[np.int64]
     next_stamp: NDArray[np.int64]  # (1,)
@@ -116,14 +122,6 @@ class Scratch(NamedTuple):
     cdone: NDArray[np.int64]  # (K,) and the stamp of the in-tree they were written for
     cstack: NDArray[np.int64]  # (K,)
     zbits: NDArray[np.uint64]  # (astar.CLEAN_WORDS,) a taxi's counted cells
-
-
-class Tools(NamedTuple):
-    """What one thread's kernels work in: a forward and a reverse workspace and the scratch."""
-
-    wsf: heaps.Workspace
-    wsr: heaps.Workspace
-    sc: Scratch
 
 
 class Problem(NamedTuple):
@@ -179,61 +177,61 @@ class BaseKappa(NamedTuple):
 
 
 @compiled
-def _base_kappa(kt: Kit, gn: Gains, kappas: NDArray[np.float64], in_trees: bool) -> BaseKappa:
+def _base_kappa(net: KappaGraph, gains: Gains, kappas: NDArray[np.float64], in_trees: bool) -> BaseKappa:
     """The epoch's ``BaseKappa`` (its reverse metrics only when ``in_trees``). Only the edges that enter a
     cell have a utility; every other edge's kappa cost is its travel time."""
-    ed = kt.ed
-    nc = kt.crossing.shape[0]
+    ed = net.ed
+    nc = net.crossing.shape[0]
     u = np.zeros(nc)
     umax = 0.0
     for r in range(nc):
-        e = kt.crossing[r]
+        e = net.crossing[r]
         s = 0.0
         for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
-            s += gn.term[0, ed.ec_cell[j]]
+            s += gains.term[0, ed.ec_cell[j]]
         u[r] = s
         umax = max(umax, s)
-    top = kt.crossing[u == umax] if umax > 0.0 else np.zeros(0, dtype=np.int64)
+    top = net.crossing[u == umax] if umax > 0.0 else np.zeros(0, dtype=np.int64)
     nk = kappas.shape[0] if in_trees else 0
     m = ed.time_s.shape[0] if in_trees else 0
     edge = np.zeros((nk, m), dtype=np.int64)
-    se = np.zeros((nk, kt.rg.se_tail.shape[0] if in_trees else 0), dtype=np.int64)
+    se = np.zeros((nk, net.rg.se_tail.shape[0] if in_trees else 0), dtype=np.int64)
     width = np.ones(nk, dtype=np.int64)
     span = np.ones(nk, dtype=np.int64)
     for q in range(nk):
         if kappas[q] != 0.0 and umax > 0.0:
             edge[q] = ed.time_us
             for r in range(nc):
-                e = kt.crossing[r]
+                e = net.crossing[r]
                 edge[q, e] = kappa_cost(ed.time_s[e], u[r], umax, kappas[q])
-            c = prepare_into(kt.rg, edge[q], se[q])
+            c = prepare_into(net.rg, edge[q], se[q])
             width[q] = c.width
             span[q] = c.span
     return BaseKappa(umax, top, edge, se, width, span)
 
 
 @compiled
-def _umax_scan(kt: Kit, gn: Gains, zmask: NDArray[np.bool_]) -> float:
+def _umax_scan(net: KappaGraph, gains: Gains, zmask: NDArray[np.bool_]) -> float:
     """The largest entered utility of the taxi whose zero mask is ``zmask``: over the edges that enter a
     cell, the first slot's terms of the cells the edge enters that the mask leaves open (``u_e`` of
     ``graph.Lazy``)."""
-    ed = kt.ed
+    ed = net.ed
     top = 0.0
-    for e in kt.crossing:
+    for e in net.crossing:
         s = 0.0
         for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
             c = ed.ec_cell[j]
             if not zmask[0, c]:
-                s += gn.term[0, c]
+                s += gains.term[0, c]
         top = max(top, s)
     return top
 
 
 @compiled
-def _umax_of(kt: Kit, gn: Gains, zmask: NDArray[np.bool_], base: BaseKappa) -> float:
+def _umax_of(net: KappaGraph, gains: Gains, zmask: NDArray[np.bool_], base: BaseKappa) -> float:
     """``_umax_scan`` of the taxi, the base's largest when one edge attaining it enters no cell the taxi
-    is counted in (``base`` made from the same ``gn``)."""
-    ed = kt.ed
+    is counted in (``base`` made from the same ``gains``)."""
+    ed = net.ed
     for e in base.top:
         clear = True
         for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
@@ -242,39 +240,47 @@ def _umax_of(kt: Kit, gn: Gains, zmask: NDArray[np.bool_], base: BaseKappa) -> f
                 break
         if clear:
             return base.umax
-    return _umax_scan(kt, gn, zmask)
+    return _umax_scan(net, gains, zmask)
 
 
 @compiled_inline
-def _own_metric(kt: Kit, sc: Scratch, gn: Gains, q: int, kappa: float, umax: float) -> tuple[Costs, Lazy]:
-    """The kappa metric of the taxi whose zero mask ``sc`` holds, computed as a search reaches it."""
-    costs = Costs(sc.edge_cost, sc.se_cost, kt.floor_width[q], kt.floor_span[q])
-    return costs, Lazy(True, kappa, umax, gn.term[0], sc.zmask[0], kt.fixed)
+def _own_metric(
+    net: KappaGraph, scratch: RouteScratch, gains: Gains, kappa_row: int, kappa: float, umax: float
+) -> tuple[Costs, Lazy]:
+    """The kappa metric of the taxi whose zero mask ``scratch`` holds, computed as a search reaches it."""
+    costs = Costs(scratch.edge_cost, scratch.se_cost, net.floor_width[kappa_row], net.floor_span[kappa_row])
+    return costs, Lazy(True, kappa, umax, gains.term[0], scratch.zmask[0], net.fixed)
 
 
 @compiled_inline
-def _fold(best: Best, a: int, j: int, q: int, g: float, t: float, length: float) -> None:
-    """Keep route (kappa ``q``, gain ``g``, time ``t``, length) for (taxi ``a``, POI ``j``) if its phi is
-    larger than the best so far (phi 0 for a zero-length route)."""
+def _fold(best: Best, taxi: int, target: int, kappa_row: int, g: float, t: float, length: float) -> None:
+    """Keep route (kappa ``kappa_row``, gain ``g``, time ``t``, length) for (``taxi``, POI ``target``) if its
+    phi is larger than the best so far (phi 0 for a zero-length route)."""
     phi = g / t if t > 0 else 0.0
-    if phi > best.phi[a, j]:
-        best.phi[a, j] = phi
-        best.kappa[a, j] = q
-        best.gain[a, j] = g
-        best.time_s[a, j] = t
-        best.length_m[a, j] = length
+    if phi > best.phi[taxi, target]:
+        best.phi[taxi, target] = phi
+        best.kappa[taxi, target] = kappa_row
+        best.gain[taxi, target] = g
+        best.time_s[taxi, target] = t
+        best.length_m[taxi, target] = length
 
 
 @compiled
 def _eval_walk(
-    ed: Edges, gn: Gains, sc: Scratch, succ: NDArray[np.int64], start: int, root: int, depart_s: float
+    edges: Edges,
+    gains: Gains,
+    scratch: RouteScratch,
+    succ: NDArray[np.int64],
+    start: int,
+    root: int,
+    depart_s: float,
 ) -> tuple[float, float, float, int, bool]:
     """``gains.eval_path`` along the in-tree path from ``start`` to ``root`` (same operations, same order),
     and whether the path enters a cell the taxi is counted in during the first slot (its zero mask's row 0):
     only on such an edge can the taxi's own kappa metric exceed the base one."""
-    n_slots = gn.term.shape[0]
-    sid = sc.next_stamp[0]
-    sc.next_stamp[0] = sid + 1
+    n_slots = gains.term.shape[0]
+    sid = scratch.next_stamp[0]
+    scratch.next_stamp[0] = sid + 1
     t = depart_s
     g = 0.0
     length = 0.0
@@ -283,61 +289,63 @@ def _eval_walk(
     x = start
     while x != root:
         e = succ[x]
-        te = ed.time_s[e]
-        first = ed.ec_ptr[e]
-        for j in range(first, ed.ec_ptr[e + 1]):
-            c = ed.ec_cell[j]
-            if j > first and sc.zmask[0, c]:
+        te = edges.time_s[e]
+        first = edges.ec_ptr[e]
+        for j in range(first, edges.ec_ptr[e + 1]):
+            c = edges.ec_cell[j]
+            if j > first and scratch.zmask[0, c]:
                 touched = True
-            slot = int(np.floor((t + ed.ec_frac[j] * te + gn.shift_s) / gn.interval_s)) - gn.k0
+            slot = int(np.floor((t + edges.ec_frac[j] * te + gains.shift_s) / gains.interval_s)) - gains.k0
             if slot > max_slot:
                 max_slot = slot
             if slot >= n_slots:
                 continue
-            if sc.stamp[slot, c] == sid:
+            if scratch.stamp[slot, c] == sid:
                 continue
-            sc.stamp[slot, c] = sid
-            if not sc.zmask[slot, c]:
-                g += gn.term[slot, c]
+            scratch.stamp[slot, c] = sid
+            if not scratch.zmask[slot, c]:
+                g += gains.term[slot, c]
         t += te
-        length += ed.length_m[e]
-        x = ed.head[e]
+        length += edges.length_m[e]
+        x = edges.head[e]
     return g, t - depart_s, length, max_slot, touched
 
 
 @compiled
-def _fastest_to(kt: Kit, pb: Problem, tl: Tools, best: Best, j: int) -> int:
-    """POI ``j``'s in-tree under the travel time, bounded by the reach and stopped once every taxi is
+def _fastest_to(net: KappaGraph, problem: Problem, scratch: RouteScratch, best: Best, target: int) -> int:
+    """POI ``target``'s in-tree under the travel time, bounded by the reach and stopped once every taxi is
     settled: every taxi's fastest route to it, evaluated and folded (kappa 0), with its cost and whether it
     enters a cell the taxi is counted in. Returns the largest slot reached."""
-    ed = kt.ed
-    f = pb.sources.shape[0]
-    root = pb.targets[j]
-    ws = tl.wsr
-    dijkstra.run(kt.rg, ed, kt.time_rev, root, pb.reach_us, pb.sources, ws)
+    ed = net.ed
+    f = problem.sources.shape[0]
+    root = problem.targets[target]
+    ws = scratch.reverse
+    dijkstra.run(net.rg, ed, net.time_rev, root, problem.reach_us, problem.sources, ws)
     reached = np.empty(f, dtype=np.bool_)
-    unfolding.unfold_many(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, reached)
+    unfolding.unfold_many(net.rg, ed, net.time_rev, problem.reach_us, problem.sources, ws, reached)
     label = np.empty((3, f), dtype=np.int64)
-    unfolding.labels(kt.rg, ed, kt.time_rev, pb.reach_us, pb.sources, ws, label)
+    unfolding.labels(net.rg, ed, net.time_rev, problem.reach_us, problem.sources, ws, label)
     max_slot = 0
     for a in range(f):
         if not reached[a]:
             continue
-        mark(tl.sc.zmask, pb.counted, a, True)
-        g, t, length, ms, touch = _eval_walk(ed, pb.gn, tl.sc, ws.pred, pb.sources[a], root, pb.depart_s)
-        mark(tl.sc.zmask, pb.counted, a, False)
-        best.d0_us[a, j] = label[0, a]
-        best.touched[a, j] = touch
-        _fold(best, a, j, 0, g, t, length)
+        mark(scratch.zmask, problem.counted, a, True)
+        g, t, length, ms, touch = _eval_walk(
+            ed, problem.gn, scratch, ws.pred, problem.sources[a], root, problem.depart_s
+        )
+        mark(scratch.zmask, problem.counted, a, False)
+        best.d0_us[a, target] = label[0, a]
+        best.touched[a, target] = touch
+        _fold(best, a, target, 0, g, t, length)
         max_slot = max(max_slot, ms)
     return max_slot
 
 
 @compiled
-def _zbits(counted: Counted, a: int, out: NDArray[np.uint64]) -> NDArray[np.uint64]:
-    """The cells taxi ``a`` is counted in during the first slot, as a ``astar.cell_bit`` set in ``out``."""
+def _zbits(counted: Counted, taxi: int, out: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """The cells ``taxi`` is counted in during the first slot, as a ``astar.cell_bit`` set in ``out``."""
     out[:] = 0
-    for p in range(counted.ptr[a], counted.ptr[a + 1]):
+    for p in range(counted.ptr[taxi], counted.ptr[taxi + 1]):
         if counted.slot[p] == 0:
             astar.cell_bit(out, counted.cell[p])
     return out
@@ -345,154 +353,195 @@ def _zbits(counted: Counted, a: int, out: NDArray[np.uint64]) -> NDArray[np.uint
 
 @compiled
 def _own_route(
-    kt: Kit, pb: Problem, tl: Tools, base_q: Costs, gd: astar.Guide, lazy: Lazy, mine: Costs, leg: Drive
+    net: KappaGraph,
+    problem: Problem,
+    scratch: RouteScratch,
+    base_q: Costs,
+    guide: astar.Guide,
+    lazy: Lazy,
+    mine: Costs,
+    drive: Drive,
 ) -> tuple[float, float, float, int]:
-    """Taxi ``leg.i``'s route under its own costs ``mine`` (``lazy``) to ``leg.target``, searched
-    goal-directed by the in-tree (``base_q``, grown in ``tl.wsr`` to ``leg.limit``) that ``gd`` reads, and
-    evaluated: gain, time, length, largest slot. Where the search stops at a node whose in-tree path enters
-    none of the taxi's counted cells, the route is the path to it followed by that in-tree path
-    (``astar.guided``)."""
-    ed = kt.ed
-    meet = astar.guided(kt.fg, ed, mine, leg.source, leg.target, tl.wsf, gd, lazy)
+    """Taxi ``drive.i``'s route under its own costs ``mine`` (``lazy``) to ``drive.target``, searched
+    goal-directed by the in-tree (``base_q``, grown in ``scratch.reverse`` to ``drive.limit``) that
+    ``guide`` reads, and evaluated: gain, time, length, largest slot. Where the search stops at a node whose
+    in-tree path enters none of the taxi's counted cells, the route is the path to it followed by that in-tree
+    path (``astar.guided``)."""
+    ed = net.ed
+    meet = astar.guided(net.fg, ed, mine, drive.source, drive.target, scratch.forward, guide, lazy)
     if meet < 0:
-        unfolding.unfold(kt.fg, ed, mine, INF, leg.target, tl.wsf)
-        edges = unfolding.path_to(ed, 1, tl.wsf.pred, leg.source, leg.target)
+        unfolding.unfold(net.fg, ed, mine, INF, drive.target, scratch.forward)
+        edges = unfolding.path_to(ed, 1, scratch.forward.pred, drive.source, drive.target)
     else:
-        x = kt.fg.kept[meet]
-        unfolding.unfold(kt.fg, ed, mine, INF, x, tl.wsf)
-        head = unfolding.path_to(ed, 1, tl.wsf.pred, leg.source, x)
-        unfolding.unfold(kt.rg, ed, base_q, leg.limit, x, tl.wsr)
-        edges = np.concatenate((head, unfolding.walk(ed, tl.wsr.pred, x, leg.target)))
-    sid = tl.sc.next_stamp[0]
-    tl.sc.next_stamp[0] = sid + 1
-    g, _gq, t, length, ms = eval_path(ed, pb.gn, tl.sc.zmask, tl.sc.stamp, sid, edges, pb.depart_s)
+        x = net.fg.kept[meet]
+        unfolding.unfold(net.fg, ed, mine, INF, x, scratch.forward)
+        head = unfolding.path_to(ed, 1, scratch.forward.pred, drive.source, x)
+        unfolding.unfold(net.rg, ed, base_q, drive.limit, x, scratch.reverse)
+        edges = np.concatenate((head, unfolding.walk(ed, scratch.reverse.pred, x, drive.target)))
+    sid = scratch.next_stamp[0]
+    scratch.next_stamp[0] = sid + 1
+    g, _gq, t, length, ms = eval_path(
+        ed, problem.gn, scratch.zmask, scratch.stamp, sid, edges, problem.depart_s
+    )
     return g, t, length, ms
 
 
 @compiled
 def _kappas_to(
-    kt: Kit, pb: Problem, base: BaseKappa, own: NDArray[np.bool_], tl: Tools, best: Best, j: int
+    net: KappaGraph,
+    problem: Problem,
+    base: BaseKappa,
+    own: NDArray[np.bool_],
+    scratch: RouteScratch,
+    best: Best,
+    target: int,
 ) -> tuple[int, int]:
-    """POI ``j``'s in-tree under each base kappa metric, grown to the farthest fastest route of a taxi in
+    """POI ``target``'s in-tree under each base kappa metric, grown to the farthest fastest route of a taxi in
     reach (not ``own``): each such taxi's route in it is its own unless it enters a cell the taxi is
     counted in; then the taxi is searched again under its own costs, goal-directed by the in-tree's labels
     (``astar.tree_guide``: they never exceed the taxi's own), and stopped where the in-tree's path enters
     none of its counted cells (``_own_route``). Folded in kappa order. Returns the largest slot reached and
     the number of goal-directed searches."""
-    ed = kt.ed
-    sc = tl.sc
-    root = pb.targets[j]
+    ed = net.ed
+    scratch = scratch
+    root = problem.targets[target]
     limit = -1
     n = 0
-    who = np.empty(pb.sources.shape[0], dtype=np.int64)
-    for a in range(pb.sources.shape[0]):
-        if not own[a] and best.d0_us[a, j] < INF:
+    who = np.empty(problem.sources.shape[0], dtype=np.int64)
+    for a in range(problem.sources.shape[0]):
+        if not own[a] and best.d0_us[a, target] < INF:
             who[n] = a
             n += 1
-            limit = max(limit, best.d0_us[a, j])
+            limit = max(limit, best.d0_us[a, target])
     if n == 0:
         return 0, 0
     who = who[:n]
-    nodes = pb.sources[who]
+    nodes = problem.sources[who]
     reached = np.empty(n, dtype=np.bool_)
     max_slot = 0
     guided = 0
-    for q in range(pb.kappas.shape[0]):
-        kappa = pb.kappas[q]
+    for q in range(problem.kappas.shape[0]):
+        kappa = problem.kappas[q]
         if kappa == 0.0 or base.umax <= 0.0:
             continue
         costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
-        dijkstra.run(kt.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), tl.wsr)
-        if not unfolding.unfold_many(kt.rg, ed, costs, limit, nodes, tl.wsr, reached):
+        dijkstra.run(net.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), scratch.reverse)
+        if not unfolding.unfold_many(net.rg, ed, costs, limit, nodes, scratch.reverse, reached):
             raise AssertionError("a discounted route costs more than the fastest path's time")
         cells = False  # the in-tree's path cells, written at the first taxi searched again
         for r in range(n):
             a = who[r]
-            mark(sc.zmask, pb.counted, a, True)
-            g, t, length, ms, touch = _eval_walk(ed, pb.gn, sc, tl.wsr.pred, nodes[r], root, pb.depart_s)
+            mark(scratch.zmask, problem.counted, a, True)
+            g, t, length, ms, touch = _eval_walk(
+                ed, problem.gn, scratch, scratch.reverse.pred, nodes[r], root, problem.depart_s
+            )
             if touch:
                 if not cells:
-                    stamp = sc.next_stamp[0]
-                    sc.next_stamp[0] = stamp + 1
-                    astar.path_cells(kt.rg, ed, tl.wsr, sc.cbits, sc.cdone, stamp, sc.cstack)
+                    stamp = scratch.next_stamp[0]
+                    scratch.next_stamp[0] = stamp + 1
+                    astar.path_cells(
+                        net.rg, ed, scratch.reverse, scratch.cbits, scratch.cdone, stamp, scratch.cstack
+                    )
                     cells = True
-                gd = astar.tree_guide(tl.wsr, limit, sc.cbits, _zbits(pb.counted, a, sc.zbits))
-                mine, lazy = _own_metric(kt, sc, pb.gn, q, kappa, base.umax)
+                gd = astar.tree_guide(
+                    scratch.reverse, limit, scratch.cbits, _zbits(problem.counted, a, scratch.zbits)
+                )
+                mine, lazy = _own_metric(net, scratch, problem.gn, q, kappa, base.umax)
                 leg = Drive(a, nodes[r], root, limit)
-                g, t, length, ms = _own_route(kt, pb, tl, costs, gd, lazy, mine, leg)
+                g, t, length, ms = _own_route(net, problem, scratch, costs, gd, lazy, mine, leg)
                 guided += 1
-            mark(sc.zmask, pb.counted, a, False)
-            _fold(best, a, j, q, g, t, length)
+            mark(scratch.zmask, problem.counted, a, False)
+            _fold(best, a, target, q, g, t, length)
             max_slot = max(max_slot, ms)
     return max_slot, guided
 
 
 @compiled
 def _from_taxi(
-    kt: Kit, pb: Problem, base: BaseKappa, tl: Tools, best: Best, i: int, fastest: bool
+    net: KappaGraph,
+    problem: Problem,
+    base: BaseKappa,
+    scratch: RouteScratch,
+    best: Best,
+    taxi: int,
+    fastest: bool,
 ) -> tuple[int, int]:
-    """Taxi ``i``'s trees: under the travel time (when ``fastest``: bounded by the reach, every POI a
+    """Taxi ``taxi``'s trees: under the travel time (when ``fastest``: bounded by the reach, every POI a
     target) and under each of its kappa metrics, bounded by its farthest fastest route to a POI in reach
     with those POIs as targets; evaluated along the tree and folded in kappa order. Returns the largest
     slot reached and the number of trees grown."""
-    ed = kt.ed
-    src = pb.sources[i]
-    sc = tl.sc
-    ws = tl.wsf
-    p = pb.targets.shape[0]
+    ed = net.ed
+    src = problem.sources[taxi]
+    scratch = scratch
+    ws = scratch.forward
+    p = problem.targets.shape[0]
     g = np.zeros(p)
     t = np.zeros(p)
     length = np.zeros(p)
     out = TreeOut(g, t, length)
     max_slot = 0
     grown = 0
-    mark(sc.zmask, pb.counted, i, True)
+    mark(scratch.zmask, problem.counted, taxi, True)
     if fastest:
-        dijkstra.run(kt.fg, ed, kt.time_fwd, src, pb.reach_us, pb.targets, ws)
+        dijkstra.run(net.fg, ed, net.time_fwd, src, problem.reach_us, problem.targets, ws)
         grown += 1
         reached = np.empty(p, dtype=np.bool_)
-        unfolding.unfold_many(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, reached)
+        unfolding.unfold_many(net.fg, ed, net.time_fwd, problem.reach_us, problem.targets, ws, reached)
         label = np.empty((3, p), dtype=np.int64)
-        unfolding.labels(kt.fg, ed, kt.time_fwd, pb.reach_us, pb.targets, ws, label)
+        unfolding.labels(net.fg, ed, net.time_fwd, problem.reach_us, problem.targets, ws, label)
         near = np.flatnonzero(reached)
-        ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, pb.targets[near], pb.depart_s, sc.tree, out)
+        ms = eval_tree(
+            ed,
+            problem.gn,
+            scratch.zmask,
+            ws.pred,
+            src,
+            problem.targets[near],
+            problem.depart_s,
+            scratch.tree,
+            out,
+        )
         max_slot = max(max_slot, ms)
         for r in range(near.shape[0]):
             j = near[r]
-            best.d0_us[i, j] = label[0, j]
-            _fold(best, i, j, 0, g[r], t[r], length[r])
-    near = np.flatnonzero(best.d0_us[i] < INF)
+            best.d0_us[taxi, j] = label[0, j]
+            _fold(best, taxi, j, 0, g[r], t[r], length[r])
+    near = np.flatnonzero(best.d0_us[taxi] < INF)
     if near.shape[0] > 0 and base.umax > 0.0:
-        limit = best.d0_us[i][near].max()
-        umax = _umax_of(kt, pb.gn, sc.zmask, base)
-        nodes = pb.targets[near]
+        limit = best.d0_us[taxi][near].max()
+        umax = _umax_of(net, problem.gn, scratch.zmask, base)
+        nodes = problem.targets[near]
         reached = np.empty(near.shape[0], dtype=np.bool_)
-        for q in range(pb.kappas.shape[0]):
-            kappa = pb.kappas[q]
+        for q in range(problem.kappas.shape[0]):
+            kappa = problem.kappas[q]
             if kappa == 0.0 or umax <= 0.0:
                 continue
-            costs, lazy = _own_metric(kt, sc, pb.gn, q, kappa, umax)
-            dijkstra.grow(kt.fg, ed, costs, src, limit, nodes, ws, lazy)
+            costs, lazy = _own_metric(net, scratch, problem.gn, q, kappa, umax)
+            dijkstra.grow(net.fg, ed, costs, src, limit, nodes, ws, lazy)
             grown += 1
-            if not unfolding.unfold_many(kt.fg, ed, costs, limit, nodes, ws, reached):
+            if not unfolding.unfold_many(net.fg, ed, costs, limit, nodes, ws, reached):
                 raise AssertionError("a discounted route costs more than the fastest path's time")
-            ms = eval_tree(ed, pb.gn, sc.zmask, ws.pred, src, nodes, pb.depart_s, sc.tree, out)
+            ms = eval_tree(
+                ed, problem.gn, scratch.zmask, ws.pred, src, nodes, problem.depart_s, scratch.tree, out
+            )
             max_slot = max(max_slot, ms)
             for r in range(near.shape[0]):
-                _fold(best, i, near[r], q, g[r], t[r], length[r])
-    mark(sc.zmask, pb.counted, i, False)
+                _fold(best, taxi, near[r], q, g[r], t[r], length[r])
+    mark(scratch.zmask, problem.counted, taxi, False)
     return max_slot, grown
 
 
 @compiled
-def _own_normalized(kt: Kit, pb: Problem, base: BaseKappa, sc: Scratch) -> NDArray[np.bool_]:
+def _own_normalized(
+    net: KappaGraph, problem: Problem, base: BaseKappa, scratch: RouteScratch
+) -> NDArray[np.bool_]:
     """Per taxi: its largest utility is not the base's (its kappa metrics are not the base's raised)."""
-    f = pb.sources.shape[0]
+    f = problem.sources.shape[0]
     out = np.zeros(f, dtype=np.bool_)
     for i in range(f):
-        mark(sc.zmask, pb.counted, i, True)
-        out[i] = _umax_of(kt, pb.gn, sc.zmask, base) != base.umax
-        mark(sc.zmask, pb.counted, i, False)
+        mark(scratch.zmask, problem.counted, i, True)
+        out[i] = _umax_of(net, problem.gn, scratch.zmask, base) != base.umax
+        mark(scratch.zmask, problem.counted, i, False)
     return out
 
 
@@ -527,7 +576,7 @@ class Plans:
 
 
 def problem(
-    gn: Gains,
+    gains: Gains,
     counted: Counted,
     sources: NDArray[np.int64],
     targets: NDArray[np.int64],
@@ -537,9 +586,9 @@ def problem(
 ) -> Problem:
     """Algorithm 1 from every source (taxi ``i``'s counted pairs in row ``i`` of ``counted``) to every target
     within its reach (the fastest path takes at most ``reach_us``; ``INF``: every target), departing at
-    ``depart_s`` on the gains ``gn``, as the kernels take it."""
+    ``depart_s`` on the gains ``gains``, as the kernels take it."""
     return Problem(
-        gn,
+        gains,
         counted,
         np.asarray(sources, np.int64),
         np.asarray(targets, np.int64),
@@ -551,14 +600,14 @@ def problem(
 
 def plan_routes(
     graph: RoadGraph,
-    pb: Problem,
+    problem: Problem,
     workers: int,
-    pads: Pads,
+    pool: ScratchPool,
     *,
     fastest_from_targets: bool | None = None,
 ) -> Plans:
-    """Algorithm 1 for the problem ``pb`` (see :func:`problem`): the best route from every source to every
-    target within its reach, on ``workers`` threads.
+    """Algorithm 1 for ``problem`` (made by :func:`problem`): the best route from every source to every target
+    within its reach, on ``workers`` threads.
 
     When there are fewer than half as many targets as sources (``fastest_from_targets`` forces the choice),
     the routes come from one in-tree per target and kappa under the metric every taxi shares (the travel
@@ -574,9 +623,9 @@ def plan_routes(
     ValueError
         When a target cannot be reached from a source and there is no reach.
     """
-    gn, kap = pb.gn, pb.kappas
-    f, p = len(pb.sources), len(pb.targets)
-    kt = kit(graph, tuple(kap.tolist()))
+    gn, kap = problem.gn, problem.kappas
+    f, p = len(problem.sources), len(problem.targets)
+    kt = kappa_graph(graph, tuple(kap.tolist()))
     best = _best(f, p)
     from_roots = (0 < 2 * p < f) if fastest_from_targets is None else (fastest_from_targets and p > 0)
     base = _base_kappa(kt, gn, kap, from_roots)
@@ -584,19 +633,21 @@ def plan_routes(
     in_trees = guided = 0
     slots: list[int] = []
     if from_roots:
-        slots, own, in_trees, guided = _in_trees(kt, pb, base, best, workers, pads)
+        slots, own, in_trees, guided = _in_trees(kt, problem, base, best, workers, pool)
 
     def taxis(rows: Sequence[int]) -> list[tuple[int, int]]:
-        with pads.take() as pad:
-            tl = tools(pad, gn)
-            return [_from_taxi(kt, pb, base, tl, best, i, not from_roots) for i in rows]
+        with pool.take() as thread_scratch:
+            scratch = route_scratch(thread_scratch, gn)
+            return [_from_taxi(kt, problem, base, scratch, best, i, not from_roots) for i in rows]
 
     rows = np.flatnonzero(own).tolist() if from_roots else list(range(f))
     done = parallel_map(taxis, rows, workers)
     slots += [ms for ms, _ in done]
-    if pb.reach_us >= INF and f and p and (best.d0_us >= INF).any():
+    if problem.reach_us >= INF and f and p and (best.d0_us >= INF).any():
         a, j = np.argwhere(best.d0_us >= INF)[0]
-        raise ValueError(f"node {int(pb.targets[j])} cannot be reached from node {int(pb.sources[a])}")
+        raise ValueError(
+            f"node {int(problem.targets[j])} cannot be reached from node {int(problem.sources[a])}"
+        )
     return Plans(
         kap,
         best.kappa,
@@ -612,24 +663,24 @@ def plan_routes(
 
 
 def _in_trees(
-    kt: Kit, pb: Problem, base: BaseKappa, best: Best, workers: int, pads: Pads
+    net: KappaGraph, problem: Problem, base: BaseKappa, best: Best, workers: int, pool: ScratchPool
 ) -> tuple[list[int], NDArray[np.bool_], int, int]:
     """``plan_routes``'s routes from the targets' in-trees (into ``best``): one fastest in-tree per target,
     then the kappa > 0 in-trees when they serve enough taxis. Returns the largest slots reached, which taxis
     must still grow their own trees, and the numbers of in-trees grown and of goal-directed searches."""
-    gn, kap = pb.gn, pb.kappas
-    f, p = len(pb.sources), len(pb.targets)
+    gn, kap = problem.gn, problem.kappas
+    f, p = len(problem.sources), len(problem.targets)
     guided = 0
 
     def fastest(js: Sequence[int]) -> list[int]:
-        with pads.take() as pad:
-            tl = tools(pad, gn)
-            return [_fastest_to(kt, pb, tl, best, j) for j in js]
+        with pool.take() as thread_scratch:
+            scratch = route_scratch(thread_scratch, gn)
+            return [_fastest_to(net, problem, scratch, best, j) for j in js]
 
     slots: list[int] = parallel_map(fastest, range(p), workers)
     in_trees = p
-    with pads.take() as pad:
-        own = _own_normalized(kt, pb, base, tools(pad, gn).sc)
+    with pool.take() as thread_scratch:
+        own = _own_normalized(net, problem, base, route_scratch(thread_scratch, gn))
     # A taxi whose fastest routes enter its counted cells on the way to many targets will likely need
     # as many goal-directed searches per kappa: past GUIDED_PER_TREE of them, one tree of its own per
     # kappa is cheaper (speed only: both give the canonical routes).
@@ -637,9 +688,9 @@ def _in_trees(
     if 2 * p < f - int(own.sum()) and base.umax > 0.0:
 
         def kappa_trees(js: Sequence[int]) -> list[tuple[int, int]]:
-            with pads.take() as pad:
-                tl = tools(pad, gn)
-                return [_kappas_to(kt, pb, base, own, tl, best, j) for j in js]
+            with pool.take() as thread_scratch:
+                scratch = route_scratch(thread_scratch, gn)
+                return [_kappas_to(net, problem, base, own, scratch, best, j) for j in js]
 
         done = parallel_map(kappa_trees, range(p), workers)
         slots += [ms for ms, _ in done]
@@ -652,15 +703,18 @@ def _in_trees(
     return slots, own, in_trees, guided
 
 
-def scratch(pad: Pad, gn: Gains) -> Scratch:
-    """The pad's scratch for Algorithm 1 with tables shaped like ``gn`` (made on first need)."""
-    key = ("algorithm1", gn.term.shape)
-    got = pad.extra.get(key)
-    if not isinstance(got, Scratch):
-        graph = pad.graph
-        shape = gn.term.shape
+def route_scratch(thread_scratch: Scratch, gains: Gains) -> RouteScratch:
+    """The thread's scratch for Algorithm 1 with tables shaped like ``gains``: its two search workspaces and
+    arrays kept in its ``extra`` (made on first need)."""
+    key = ("algorithm1", gains.term.shape)
+    got = thread_scratch.extra.get(key)
+    if not isinstance(got, RouteScratch):
+        graph = thread_scratch.graph
+        shape = gains.term.shape
         k = int(graph.reverse.kept.shape[0])
-        got = pad.extra[key] = Scratch(
+        got = thread_scratch.extra[key] = RouteScratch(
+            thread_scratch.forward,
+            thread_scratch.reverse,
             np.zeros(shape, np.bool_),
             np.zeros(shape, np.int64),
             np.ones(1, np.int64),
@@ -675,14 +729,9 @@ def scratch(pad: Pad, gn: Gains) -> Scratch:
     return got
 
 
-def tools(pad: Pad, gn: Gains) -> Tools:
-    """The pad's workspaces and scratch, as Algorithm 1's kernels take them."""
-    return Tools(pad.forward, pad.reverse, scratch(pad, gn))
-
-
 @compiled
 def _floor(
-    fg: SearchGraph, ed: Edges, time_fwd: Costs, kappas: NDArray[np.float64]
+    forward: SearchGraph, edges: Edges, time_fwd: Costs, kappas: NDArray[np.float64]
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Per kappa, the bucket width and span of any taxi's kappa metric: the cheapest super-edge with every
     edge discounted fully (``kappa_cost`` never goes lower), and the travel time's dearest over it."""
@@ -694,29 +743,29 @@ def _floor(
         hi = max(hi, time_fwd.se[s])
     for q in range(nk):
         lo = INF
-        for s in range(fg.se_tail.shape[0]):
+        for s in range(forward.se_tail.shape[0]):
             c = 0
-            for r in range(fg.se_ptr[s], fg.se_ptr[s + 1]):
-                c += kappa_cost(ed.time_s[fg.se_edges[r]], 1.0, 1.0, kappas[q])
+            for r in range(forward.se_ptr[s], forward.se_ptr[s + 1]):
+                c += kappa_cost(edges.time_s[forward.se_edges[r]], 1.0, 1.0, kappas[q])
             lo = min(lo, c)
         width[q] = max(lo if lo < INF else 1, 1)
         span[q] = hi // width[q] + 2
     return width, span
 
 
-_kits: weakref.WeakKeyDictionary[RoadGraph, dict[tuple[float, ...], Kit]] = weakref.WeakKeyDictionary()
+_kits: weakref.WeakKeyDictionary[RoadGraph, dict[tuple[float, ...], KappaGraph]] = weakref.WeakKeyDictionary()
 _kits_lock = threading.Lock()
 
 
-def kit(graph: RoadGraph, kappas: tuple[float, ...]) -> Kit:
-    """The ``Kit`` of ``graph`` for the kappa family ``kappas`` (built once per graph and family)."""
+def kappa_graph(graph: RoadGraph, kappas: tuple[float, ...]) -> KappaGraph:
+    """The ``KappaGraph`` of ``graph`` for the kappa family ``kappas`` (built once per graph and family)."""
     with _kits_lock:
         per = _kits.setdefault(graph, {})
         got = per.get(kappas)
         if got is None:
             ed = graph.edges
             width, span = _floor(graph.forward, ed, graph.time_forward, np.asarray(kappas, dtype=np.float64))
-            got = per[kappas] = Kit(
+            got = per[kappas] = KappaGraph(
                 ed,
                 graph.forward,
                 graph.reverse,
@@ -760,44 +809,53 @@ class Drive(NamedTuple):
 
 
 @compiled
-def _path(kt: Kit, ws: heaps.Workspace, costs: Costs, lazy: Lazy, leg: Drive) -> NDArray[np.int64]:
-    """The canonical path of ``leg`` under ``costs`` (computed as the search goes when ``lazy.on``)
-    (empty and ``ws.info[1] == -1`` when it is not reached within the leg's limit)."""
+def _path(
+    net: KappaGraph, workspace: heaps.Workspace, costs: Costs, lazy: Lazy, drive: Drive
+) -> NDArray[np.int64]:
+    """The canonical path of ``drive`` under ``costs`` (computed as the search goes when ``lazy.on``)
+    (empty and ``workspace.info[1] == -1`` when it is not reached within the leg's limit)."""
     tgt = np.empty(1, dtype=np.int64)
-    tgt[0] = leg.target
-    dijkstra.grow(kt.fg, kt.ed, costs, leg.source, leg.limit, tgt, ws, lazy)
-    if not unfolding.unfold(kt.fg, kt.ed, costs, leg.limit, leg.target, ws):
-        ws.info[1] = -1
+    tgt[0] = drive.target
+    dijkstra.grow(net.fg, net.ed, costs, drive.source, drive.limit, tgt, workspace, lazy)
+    if not unfolding.unfold(net.fg, net.ed, costs, drive.limit, drive.target, workspace):
+        workspace.info[1] = -1
         return np.empty(0, dtype=np.int64)
-    return unfolding.path_to(kt.ed, 1, ws.pred, leg.source, leg.target)
+    return unfolding.path_to(net.ed, 1, workspace.pred, drive.source, drive.target)
 
 
 @compiled
 def _kappa_path(
-    kt: Kit, tl: Tools, gn: Gains, counted: Counted, leg: Drive, q: int, kappa: float
+    net: KappaGraph,
+    scratch: RouteScratch,
+    gains: Gains,
+    counted: Counted,
+    drive: Drive,
+    kappa_row: int,
+    kappa: float,
 ) -> NDArray[np.int64]:
-    """Taxi ``leg.i``'s canonical path under its kappa ``q`` metric (the fastest when it has no utility)."""
-    mark(tl.sc.zmask, counted, leg.i, True)
-    umax = _umax_scan(kt, gn, tl.sc.zmask) if kappa != 0.0 else 0.0
+    """Taxi ``drive.i``'s canonical path under its kappa ``kappa_row`` metric (the fastest when it has no
+    utility)."""
+    mark(scratch.zmask, counted, drive.i, True)
+    umax = _umax_scan(net, gains, scratch.zmask) if kappa != 0.0 else 0.0
     if kappa == 0.0 or umax <= 0.0:
-        route = _path(kt, tl.wsf, kt.time_fwd, no_lazy(), leg)
+        route = _path(net, scratch.forward, net.time_fwd, no_lazy(), drive)
     else:
-        costs, lazy = _own_metric(kt, tl.sc, gn, q, kappa, umax)
-        route = _path(kt, tl.wsf, costs, lazy, leg)
-    mark(tl.sc.zmask, counted, leg.i, False)
+        costs, lazy = _own_metric(net, scratch, gains, kappa_row, kappa, umax)
+        route = _path(net, scratch.forward, costs, lazy, drive)
+    mark(scratch.zmask, counted, drive.i, False)
     return route
 
 
 def route_pair(
     graph: RoadGraph,
-    gn: Gains,
+    gains: Gains,
     counted: Counted,
-    leg: Drive,
+    drive: Drive,
     kappas: Sequence[float],
-    q: int,
-    pad: Pad,
+    kappa_row: int,
+    thread_scratch: Scratch,
 ) -> NDArray[np.int64]:
-    """Taxi ``leg.i``'s kappa ``kappas[q]`` route to ``leg.target``: the canonical path its trees in
+    """Taxi ``drive.i``'s kappa ``kappas[q]`` route to ``drive.target``: the canonical path its trees in
     ``plan_routes`` held (found again rather than kept: a tree per taxi and kappa is too much memory at
     metropolitan scale).
 
@@ -806,52 +864,66 @@ def route_pair(
     ValueError
         When the target cannot be reached within the leg's limit.
     """
-    kt = kit(graph, tuple(float(k) for k in kappas))
-    tl = tools(pad, gn)
-    route = _kappa_path(kt, tl, gn, counted, leg, q, float(kappas[q]))
-    if tl.wsf.info[1] == -1:
-        raise ValueError(f"node {leg.target} cannot be reached from node {leg.source}")
+    kt = kappa_graph(graph, tuple(float(k) for k in kappas))
+    scratch = route_scratch(thread_scratch, gains)
+    route = _kappa_path(kt, scratch, gains, counted, drive, kappa_row, float(kappas[kappa_row]))
+    if scratch.forward.info[1] == -1:
+        raise ValueError(f"node {drive.target} cannot be reached from node {drive.source}")
     return route
 
 
 @compiled
 def _evaluate(
-    ed: Edges, gn: Gains, sc: Scratch, counted: Counted, i: int, edges: NDArray[np.int64], depart_s: float
+    road_edges: Edges,
+    gains: Gains,
+    scratch: RouteScratch,
+    counted: Counted,
+    taxi: int,
+    edges: NDArray[np.int64],
+    depart_s: float,
 ) -> tuple[float, float, float, int]:
-    """``gains.eval_path`` of taxi ``i``'s path: gain, time, length, largest slot reached."""
-    mark(sc.zmask, counted, i, True)
-    sid = sc.next_stamp[0]
-    sc.next_stamp[0] = sid + 1
-    g, _gq, t, length, ms = eval_path(ed, gn, sc.zmask, sc.stamp, sid, edges, depart_s)
-    mark(sc.zmask, counted, i, False)
+    """``gains.eval_path`` of ``taxi``'s path: gain, time, length, largest slot reached."""
+    mark(scratch.zmask, counted, taxi, True)
+    sid = scratch.next_stamp[0]
+    scratch.next_stamp[0] = sid + 1
+    g, _gq, t, length, ms = eval_path(road_edges, gains, scratch.zmask, scratch.stamp, sid, edges, depart_s)
+    mark(scratch.zmask, counted, taxi, False)
     return g, t, length, ms
 
 
 def evaluate(
-    graph: RoadGraph, gn: Gains, counted: Counted, i: int, edges: NDArray[np.int64], depart_s: float, pad: Pad
+    graph: RoadGraph,
+    gains: Gains,
+    counted: Counted,
+    taxi: int,
+    edges: NDArray[np.int64],
+    depart_s: float,
+    thread_scratch: Scratch,
 ) -> tuple[float, float, float, int]:
-    """Taxi ``i``'s path evaluated against ``gn`` (Eq. 3): its gain, travel time, length and the largest slot
-    it reaches (a slot beyond the table gains nothing)."""
-    g, t, length, ms = _evaluate(graph.edges, gn, scratch(pad, gn), counted, i, edges, float(depart_s))
+    """Taxi ``taxi``'s path evaluated against ``gains`` (Eq. 3): its gain, travel time, length and the largest
+    slot it reaches (a slot beyond the table gains nothing)."""
+    g, t, length, ms = _evaluate(
+        graph.edges, gains, route_scratch(thread_scratch, gains), counted, taxi, edges, float(depart_s)
+    )
     return float(g), float(t), float(length), int(ms)
 
 
 @compiled
 def _plan_one(
-    kt: Kit,
-    tl: Tools,
-    gn: Gains,
+    net: KappaGraph,
+    scratch: RouteScratch,
+    gains: Gains,
     counted: Counted,
     kappas: NDArray[np.float64],
-    leg: Drive,
+    drive: Drive,
     fastest: NDArray[np.int64],
     depart_s: float,
 ) -> tuple[int, NDArray[np.int64], float, float, float, int]:
     """``plan_one`` in one compiled call: (kappa index (-1: unreachable), edges, gain, time, length, largest
     slot) of the best route."""
-    sc = tl.sc
-    mark(sc.zmask, counted, leg.i, True)
-    umax = _umax_scan(kt, gn, sc.zmask)
+    scratch = scratch
+    mark(scratch.zmask, counted, drive.i, True)
+    umax = _umax_scan(net, gains, scratch.zmask)
     best_phi = -np.inf
     best_k = -1
     best_edges = fastest
@@ -864,16 +936,16 @@ def _plan_one(
         if kappa == 0.0:
             edges = fastest
         elif umax > 0.0:
-            costs, lazy = _own_metric(kt, sc, gn, ki, kappa, umax)
-            edges = _path(kt, tl.wsf, costs, lazy, leg)
-            if tl.wsf.info[1] == -1:
+            costs, lazy = _own_metric(net, scratch, gains, ki, kappa, umax)
+            edges = _path(net, scratch.forward, costs, lazy, drive)
+            if scratch.forward.info[1] == -1:
                 best_k = -1
                 break
         else:
             continue
-        sid = sc.next_stamp[0]
-        sc.next_stamp[0] = sid + 1
-        g, _gq, t, length, ms = eval_path(kt.ed, gn, sc.zmask, sc.stamp, sid, edges, depart_s)
+        sid = scratch.next_stamp[0]
+        scratch.next_stamp[0] = sid + 1
+        g, _gq, t, length, ms = eval_path(net.ed, gains, scratch.zmask, scratch.stamp, sid, edges, depart_s)
         phi = g / t if t > 0 else 0.0
         if phi > best_phi:
             best_phi = phi
@@ -883,27 +955,36 @@ def _plan_one(
             best_t = t
             best_l = length
             best_ms = ms
-    mark(sc.zmask, counted, leg.i, False)
+    mark(scratch.zmask, counted, drive.i, False)
     return best_k, best_edges, best_g, best_t, best_l, best_ms
 
 
 def plan_one(
     graph: RoadGraph,
-    gn: Gains,
+    gains: Gains,
     counted: Counted,
-    leg: Drive,
+    drive: Drive,
     fastest: NDArray[np.int64],
     kappas: Sequence[float],
     depart_s: float,
-    pad: Pad,
+    thread_scratch: Scratch,
 ) -> Route:
-    """Algorithm 1 from taxi ``leg.i`` to one target, its fastest path given (the kappa = 0 cost is the
+    """Algorithm 1 from taxi ``drive.i`` to one target, its fastest path given (the kappa = 0 cost is the
     travel time whatever the gains, so the fastest path does not change when the gains do)."""
     kap = np.asarray(kappas, dtype=np.float64)
-    kt = kit(graph, tuple(kap.tolist()))
+    kt = kappa_graph(graph, tuple(kap.tolist()))
     ki, edges, g, t, length, ms = _plan_one(
-        kt, tools(pad, gn), gn, counted, kap, leg, np.asarray(fastest, dtype=np.int64), float(depart_s)
+        kt,
+        route_scratch(thread_scratch, gains),
+        gains,
+        counted,
+        kap,
+        drive,
+        np.asarray(fastest, dtype=np.int64),
+        float(depart_s),
     )
     if ki < 0:
-        raise ValueError(f"node {leg.target} cannot be reached from node {leg.source}")
-    return Route(leg.source, leg.target, float(kap[ki]), edges, float(g), float(t), float(length), int(ms))
+        raise ValueError(f"node {drive.target} cannot be reached from node {drive.source}")
+    return Route(
+        drive.source, drive.target, float(kap[ki]), edges, float(g), float(t), float(length), int(ms)
+    )

@@ -50,7 +50,7 @@ def improve_routes(
     ``workers`` threads) and taken in order; after an acceptance the rest of the batch is planned again
     against the new counts, so the outcome is that of one re-plan after the other.
     """
-    city, graph, counts, depart_s, k0, pads = ep.city, ep.graph, ep.counts, ep.now, ep.k0, ep.pads
+    city, graph, counts, depart_s, k0, pool = ep.city, ep.graph, ep.counts, ep.now, ep.k0, ep.pool
     kappas = city.params.kappas
     visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
     pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
@@ -64,14 +64,14 @@ def improve_routes(
 
     def replan(total_n: NDArray[np.int64], todo: Sequence[int]) -> list[tuple[Route, NDArray[np.int64]]]:
         out = []
-        with pads.take() as pad:
+        with pool.take() as scratch:
             for i in todo:
                 r = routes[i]
                 others_n = total_n.copy()
                 others_n[dense[i]] -= 1
                 gn = gain_table(city, counts.counts, k0, n_slots, depart_s, extra_counts=others_n)
                 drive = Drive(i, r.source, r.target, limits[i])
-                cand = plan_one(graph, gn, counted, drive, fastest[i], kappas, depart_s, pad)
+                cand = plan_one(graph, gn, counted, drive, fastest[i], kappas, depart_s, scratch)
                 out.append((cand, others_n))
         return out
 
@@ -133,10 +133,11 @@ def _swapped(
     return trial
 
 
-def _next_batch(planned_at: Sequence[int], accepted: int, i: int, batch: int) -> tuple[list[int], int]:
-    """Up to ``batch`` routes from ``i`` on not re-planned since the last acceptance, and where to go on."""
+def _next_batch(planned_at: Sequence[int], accepted: int, start: int, batch: int) -> tuple[list[int], int]:
+    """Up to ``batch`` routes from ``start`` on not re-planned since the last acceptance, and where to go
+    on."""
     todo: list[int] = []
-    j = i
+    j = start
     while j < len(planned_at) and len(todo) < batch:
         if planned_at[j] != accepted:
             todo.append(j)
@@ -160,12 +161,12 @@ def _own_gains(
     """The routes with a re-planned route's gain taken against the epoch's counts, as every Step 3 route's
     is (a re-plan evaluates its candidates against the counts plus the other routes' visits)."""
     out = list(routes)
-    with ep.pads.take() as pad:
+    with ep.pool.take() as scratch:
         for i, r in enumerate(routes):
             if not replanned[i]:
                 continue
             gn = gain_table(ep.city, ep.counts.counts, ep.k0, max(n_slots, r.max_slot + 1), ep.now)
-            g, _t, _l, _ms = evaluate(ep.graph, gn, counted, i, r.edges, ep.now, pad)
+            g, _t, _l, _ms = evaluate(ep.graph, gn, counted, i, r.edges, ep.now, scratch)
             out[i] = dataclasses.replace(r, gain=g)
     return out
 

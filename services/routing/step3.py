@@ -71,7 +71,7 @@ def _plans(
     def planned(n: int) -> tuple[tuple[Plans, Gains], int | None]:
         gn = gain_table(ep.city, ep.counts.counts, ep.k0, n, ep.now)
         pb = problem(gn, counted, sources, targets, ep.city.params.kappas, ep.now, reach_us)
-        plans = plan_routes(ep.graph, pb, ep.workers, ep.pads)
+        plans = plan_routes(ep.graph, pb, ep.workers, ep.pool)
         return (plans, gn), (None if plans.max_slot < n else plans.max_slot + 1)
 
     (plans, gn), n_slots = until_fits(planned, n_slots)
@@ -101,16 +101,18 @@ def step3_monitoring_routes(
     sources = np.array([t.node for t in free], dtype=np.int64)
     kappas = ep.city.params.kappas
     plans, gn, n_slots = _plans(ep, counted, sources, targets, n_slots)
-    graph, pads = ep.graph, ep.pads
+    graph, pool = ep.graph, ep.pool
 
     def routes(chunk: Sequence[tuple[int, int]]) -> list[tuple[int, Route, NDArray[np.int64]]]:
         out = []
-        with pads.take() as pad:
+        with pool.take() as scratch:
             for i, j in chunk:
                 q = int(plans.kappa_index[i, j])
                 leg = Drive(i, int(sources[i]), int(targets[j]), int(plans.d0_us[i, j]))
-                fastest = route_pair(graph, gn, counted, leg, kappas, 0, pad)
-                edges = fastest if kappas[q] == 0.0 else route_pair(graph, gn, counted, leg, kappas, q, pad)
+                fastest = route_pair(graph, gn, counted, leg, kappas, 0, scratch)
+                edges = (
+                    fastest if kappas[q] == 0.0 else route_pair(graph, gn, counted, leg, kappas, q, scratch)
+                )
                 gain, time_s, length_m = (
                     float(plans.gain[i, j]),
                     float(plans.time_s[i, j]),

@@ -48,7 +48,7 @@ def test_bounded_trees_settle_part_of_the_whole_and_the_kappa_ball_holds_the_tra
 
 def test_memory_parts_add_up() -> None:
     mem = _measured()["memory"]
-    assert mem["pad"] == mem["forward_workspace"] + mem["reverse_workspace"] + mem["algorithm1_scratch"]
+    assert mem["scratch"] == mem["forward_workspace"] + mem["reverse_workspace"] + mem["algorithm1_scratch"]
     assert mem["landmarks"] == _city().network.n_nodes * 16 * 8 / 1e6  # 8 landmarks, there and back
     assert all(v > 0 for v in mem.values())
 

@@ -18,7 +18,7 @@ from bench import metro
 from services.citydata import load_city
 from services.network import heaps, hierarchy, point_to_point
 from services.network.graph import INF, RoadGraph, road_graph
-from services.network.pads import Pad
+from services.network.scratch import Scratch
 from tests.citymaker import grid_city, make_city
 from tests.reference import canonical_tree, tree_path
 
@@ -37,7 +37,7 @@ def _one_way_city():
 
 
 def _paths(graph: RoadGraph, src: np.ndarray, dst: np.ndarray) -> list[np.ndarray]:
-    return hierarchy.fastest_paths(graph, Pad(graph), src, dst)
+    return hierarchy.fastest_paths(graph, Scratch(graph), src, dst)
 
 
 @pytest.mark.parametrize(

@@ -14,7 +14,7 @@ import pytest
 from services.citydata import load_city
 from services.matching.legs import pickups
 from services.network.graph import road_graph
-from services.network.pads import pads_for
+from services.network.scratch import scratch_pool
 from tests import reference as ref
 
 BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"
@@ -39,7 +39,7 @@ def test_pickups_are_the_pairs_within_the_radius_by_the_book(manhattan, workers:
     origins = rng.choice(near, 25).astype(np.int64)
     radius = city.params.radius_m
     xy = np.column_stack((net.x_m, net.y_m))
-    pk = pickups(graph, xy, origins, taxis, radius, workers, pads_for(graph))
+    pk = pickups(graph, xy, origins, taxis, radius, workers, scratch_pool(graph))
 
     cost = ed.time_us
     want = []

@@ -27,7 +27,7 @@ from services.matching.assignment import lexicographic_assignment
 from services.model import CountsView, IntervalKey, Snapshot, Task
 from services.network import point_to_point
 from services.network.graph import INF, US_PER_S, RoadGraph, road_graph
-from services.network.pads import Pads
+from services.network.scratch import ScratchPool
 from services.routing.algorithm1 import Plans, plan_routes, problem
 from services.routing.step3 import PHI_BITS, step3_reach_us
 from services.sensing.gains import Counted, Gains, counted_csr, gain_table
@@ -124,7 +124,7 @@ def _plans(city: City, reach_us: int, from_targets: bool | None, workers: int = 
     sources = np.array([t.node for t in free], dtype=np.int64)
     targets = _targets(snap, tasks)
     pb = problem(gn, counted, sources, targets, KAPPAS, snap.time_s, reach_us)
-    plans = plan_routes(graph, pb, workers, Pads(graph), fastest_from_targets=from_targets)
+    plans = plan_routes(graph, pb, workers, ScratchPool(graph), fastest_from_targets=from_targets)
     return plans, Ctx(graph, gn, counted, sources, targets, snap.time_s)
 
 

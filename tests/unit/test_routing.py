@@ -23,7 +23,7 @@ from services.kernel.parallel import parallel_map
 from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
 from services.network import heaps, point_to_point, unfolding
 from services.network.graph import INF, prepare, road_graph
-from services.network.pads import Pads
+from services.network.scratch import ScratchPool
 from services.routing import algorithm1
 from services.routing.algorithm1 import Drive, plan_one, plan_routes, problem, route_pair
 from services.routing.algorithm2 import improve_routes, joint_utility, route_pairs
@@ -96,7 +96,7 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
             graph,
             problem(gn, counted, sources, targets, KAPPAS, now),
             1,
-            Pads(graph),
+            ScratchPool(graph),
             fastest_from_targets=how,
         )
         for how in (True, False)
@@ -104,7 +104,7 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
     for name in ("kappa_index", "gain", "time_s", "length_m"):
         assert np.array_equal(getattr(plans[True], name), getattr(plans[False], name)), name
     p = plan_routes(
-        graph, problem(gn, counted, sources, targets, KAPPAS, now), 2, Pads(graph)
+        graph, problem(gn, counted, sources, targets, KAPPAS, now), 2, ScratchPool(graph)
     )  # chooses itself
     assert np.array_equal(p.gain, plans[True].gain)
     for i, src in enumerate(sources.tolist()):
@@ -114,10 +114,10 @@ def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
             assert p.gain[i, j] == pytest.approx(g, rel=1e-12, abs=1e-300)
             assert p.time_s[i, j] == pytest.approx(t, rel=1e-12)
             assert p.length_m[i, j] == pytest.approx(length, rel=1e-12)
-            with Pads(graph).take() as pad:
+            with ScratchPool(graph).take() as scratch:
                 drive = Drive(i, src, int(targets[j]), int(p.d0_us[i, j]))
-                route = route_pair(graph, gn, counted, drive, KAPPAS, KAPPAS.index(kappa), pad)
-                fastest = route_pair(graph, gn, counted, drive, KAPPAS, 0, pad)
+                route = route_pair(graph, gn, counted, drive, KAPPAS, KAPPAS.index(kappa), scratch)
+                fastest = route_pair(graph, gn, counted, drive, KAPPAS, 0, scratch)
             assert route.tolist() == edges
             assert fastest.tolist() == ref.tree_path(
                 graph, ref.canonical_tree(graph, graph.edges.time_us, src)[1], src, int(targets[j])
@@ -154,7 +154,7 @@ def test_in_trees_serve_every_kappa_and_taxis_search_again_where_their_counted_c
                 graph,
                 problem(gn, counted, sources, targets, KAPPAS, now),
                 2,
-                Pads(graph),
+                ScratchPool(graph),
                 fastest_from_targets=how,
             )
             for how in (True, False)
@@ -201,7 +201,7 @@ def test_when_most_taxis_search_on_their_own_no_kappa_in_trees_are_grown(
                 graph,
                 problem(gn, counted, sources, targets, KAPPAS, now),
                 2,
-                Pads(graph),
+                ScratchPool(graph),
                 fastest_from_targets=how,
             )
             for how in (True, False)
@@ -238,7 +238,7 @@ def test_a_taxi_counted_where_utility_peaks_gets_its_own_normalization() -> None
     counted = counted_csr(counts.visited, taxis, k0)
     sources = rng.choice(graph.n_nodes, len(taxis), replace=False).astype(np.int64)
     targets = rng.choice(graph.n_nodes, 4, replace=False).astype(np.int64)
-    p = plan_routes(graph, problem(gn, counted, sources, targets, KAPPAS, now), 1, Pads(graph))
+    p = plan_routes(graph, problem(gn, counted, sources, targets, KAPPAS, now), 1, ScratchPool(graph))
     for i, src in enumerate(sources.tolist()):
         book = ref.algorithm1(graph, gn, zeroed(counted, i), src, targets.tolist(), now, KAPPAS)
         for j, (kappa, _edges, g, t, _length) in enumerate(book):
@@ -254,16 +254,16 @@ def test_plan_one_equals_plan_routes_for_one_target(seed: int) -> None:
     graph = road_graph(city)
     gn = gain_table(city, counts.counts, k0, 3, now)
     counted = counted_csr(counts.visited, taxis, k0)
-    pads = Pads(graph)
+    pool = ScratchPool(graph)
     for i in range(len(taxis)):
         src, tgt = (int(x) for x in rng.choice(graph.n_nodes, 2, replace=False))
         plans = plan_routes(
-            graph, problem(gn, counted, np.array([src] * len(taxis)), np.array([tgt]), KAPPAS, now), 1, pads
+            graph, problem(gn, counted, np.array([src] * len(taxis)), np.array([tgt]), KAPPAS, now), 1, pool
         )
-        with pads.take() as pad:
+        with pool.take() as scratch:
             drive = Drive(i, src, tgt, int(plans.d0_us[i, 0]))
-            fastest = route_pair(graph, gn, counted, drive, KAPPAS, 0, pad)
-            route = plan_one(graph, gn, counted, drive, fastest, KAPPAS, now, pad)
+            fastest = route_pair(graph, gn, counted, drive, KAPPAS, 0, scratch)
+            route = plan_one(graph, gn, counted, drive, fastest, KAPPAS, now, scratch)
         assert route.kappa == KAPPAS[plans.kappa_index[i, 0]]
         assert (route.gain, route.time_s, route.length_m) == (
             plans.gain[i, 0],
@@ -384,16 +384,16 @@ def test_algorithm2_against_the_book(workers: int) -> None:
             )
             start.append((src, edges, dst))
         expect = book_algorithm2(city, graph, counts, taxis, counted, list(start), now, k0, 3)
-        pads = Pads(graph)
+        pool = ScratchPool(graph)
         routes, fastest = [], []
         for i, (src, edges, dst) in enumerate(start):
-            with pads.take() as pad:
+            with pool.take() as scratch:
                 drive = Drive(i, src, dst, int(INF))
-                f = route_pair(graph, gn, counted, drive, KAPPAS, 0, pad)
-                routes.append(plan_one(graph, gn, counted, drive, f, KAPPAS, now, pad))
+                f = route_pair(graph, gn, counted, drive, KAPPAS, 0, scratch)
+                routes.append(plan_one(graph, gn, counted, drive, f, KAPPAS, now, scratch))
             fastest.append(f)
             assert routes[-1].edges.tolist() == edges
-        ep = Epoch(city, graph, counts, now, k0, workers, pads)
+        ep = Epoch(city, graph, counts, now, k0, workers, pool)
         got = improve_routes(ep, taxis, counted, routes, fastest, 3)
         assert got[2] == expect[2]
         assert got[1] == pytest.approx(expect[1], rel=1e-12)

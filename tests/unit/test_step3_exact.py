@@ -28,7 +28,7 @@ from services.model import CountsView, IntervalKey, TaxiId
 from services.network import astar, dijkstra, unfolding
 from services.network.graph import INF, Costs, no_lazy, prepare, road_graph
 from services.network.heaps import workspace
-from services.network.pads import Pads
+from services.network.scratch import ScratchPool
 from services.routing import algorithm1
 from services.routing.algorithm1 import Drive, Plans, plan_routes, problem
 from services.sensing.gains import counted_csr, gain_table, mark
@@ -117,8 +117,8 @@ def _heavy_counts(
 
 def _plans_both(graph, gn, counted, sources: NDArray[np.int64], targets: NDArray[np.int64], now: float):
     pb = problem(gn, counted, sources, targets, KAPPAS, now)
-    return plan_routes(graph, pb, 2, Pads(graph)), plan_routes(
-        graph, pb, 1, Pads(graph), fastest_from_targets=False
+    return plan_routes(graph, pb, 2, ScratchPool(graph)), plan_routes(
+        graph, pb, 1, ScratchPool(graph), fastest_from_targets=False
     )
 
 
@@ -220,27 +220,28 @@ def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_c
     if split > 0:
         _on_chains(rng, graph, targets, sources)
     pb = problem(gn, counted, sources, targets, KAPPAS, now)
-    kt = algorithm1.kit(graph, KAPPAS)
+    kt = algorithm1.kappa_graph(graph, KAPPAS)
     base = algorithm1._base_kappa(kt, gn, pb.kappas, True)
     stopped = searched = 0
-    with Pads(graph).take() as pad:
-        tl = algorithm1.tools(pad, gn)
-        sc = tl.sc
+    with ScratchPool(graph).take() as scratch:
+        sc = algorithm1.route_scratch(scratch, gn)
         for root in pb.targets.tolist():
             for q in (1, 3):
                 costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
-                dijkstra.run(kt.rg, kt.ed, costs, root, INF - 1, np.zeros(0, np.int64), tl.wsr)
-                astar.path_cells(kt.rg, kt.ed, tl.wsr, sc.cbits, sc.cdone, 10**9 + q, sc.cstack)
+                dijkstra.run(kt.rg, kt.ed, costs, root, INF - 1, np.zeros(0, np.int64), sc.reverse)
+                astar.path_cells(kt.rg, kt.ed, sc.reverse, sc.cbits, sc.cdone, 10**9 + q, sc.cstack)
                 for a, src in enumerate(sources.tolist()):
                     mark(sc.zmask, counted, a, True)
                     mine, lazy = algorithm1._own_metric(kt, sc, gn, q, KAPPAS[q], base.umax)
                     leg = Drive(a, src, root, INF - 1)
                     got = []
                     for clean in (sc.cbits, sc.cbits[:0]):
-                        gd = astar.tree_guide(tl.wsr, INF - 1, clean, algorithm1._zbits(counted, a, sc.zbits))
-                        got.append(algorithm1._own_route(kt, pb, tl, costs, gd, lazy, mine, leg))
+                        gd = astar.tree_guide(
+                            sc.reverse, INF - 1, clean, algorithm1._zbits(counted, a, sc.zbits)
+                        )
+                        got.append(algorithm1._own_route(kt, pb, sc, costs, gd, lazy, mine, leg))
                         if clean.shape[0]:
-                            meet = astar.guided(kt.fg, kt.ed, mine, src, root, tl.wsf, gd, lazy)
+                            meet = astar.guided(kt.fg, kt.ed, mine, src, root, sc.forward, gd, lazy)
                             stopped += meet >= 0 and kt.fg.kept[meet] not in (root, src)
                     mark(sc.zmask, counted, a, False)
                     assert got[0] == got[1]
