@@ -141,44 +141,48 @@ def _present(snapshot: Snapshot, patience_s: float) -> _Tally:
     return _Tally(riders, tuple(RiderId(r) for r in expired), instr, ordinary)
 
 
-def _pickups(ep: Epoch, tally: _Tally) -> tuple[Pickups, Pickups]:
+def _pickups(epoch: Epoch, tally: _Tally) -> tuple[Pickups, Pickups]:
     """Every (taxi, rider) pair whose fastest pickup path is within the radius: the instrumented taxis'
     pairs and the ordinary taxis' (a pair's taxi is its index among its own kind). One search for both."""
-    net = ep.city.network
+    net = epoch.city.network
     xy = np.column_stack((net.x_m, net.y_m))
     origins = np.array([r.origin for r in tally.riders], dtype=np.int64)
     fleet = tally.instrumented + tally.ordinary
     taxi_nodes = np.array([t.node for t in fleet], dtype=np.int64)
-    pk = pickups(ep.graph, xy, origins, taxi_nodes, ep.city.params.radius_m, ep.workers, ep.pool)
+    pk = pickups(epoch.graph, xy, origins, taxi_nodes, epoch.city.params.radius_m, epoch.workers, epoch.pool)
     n = len(tally.instrumented)
     ordinary = select(pk, pk.taxi >= n)
     return select(pk, pk.taxi < n), dataclasses.replace(ordinary, taxi=ordinary.taxi - n)
 
 
-def _trips(ep: Epoch, riders: list[Rider], cands: Sequence[Pickups]) -> list[Leg]:
+def _trips(epoch: Epoch, riders: list[Rider], cands: Sequence[Pickups]) -> list[Leg]:
     """Each rider's service leg (pickup -> dropoff); an empty leg for a rider no taxi can pick up."""
     has_pair = np.zeros(len(riders), dtype=bool)
     for pk in cands:
         has_pair[pk.rider] = True
     rows = np.flatnonzero(has_pair)
-    legs = trips(ep.graph, [(riders[j].origin, riders[j].destination) for j in rows], ep.workers, ep.pool)
+    legs = trips(
+        epoch.graph, [(riders[j].origin, riders[j].destination) for j in rows], epoch.workers, epoch.pool
+    )
     service: list[Leg] = [Leg(np.zeros(0, dtype=np.int64), 0.0, 0.0)] * len(riders)
     for j, leg in zip(rows.tolist(), legs, strict=True):
         service[j] = leg
     return service
 
 
-def _rides(ep: Epoch, tally: _Tally, s1: Step1, s2: list[Match], cands: tuple[Pickups, Pickups]) -> None:
+def _rides(
+    epoch: Epoch, tally: _Tally, sensing: Step1, regular: list[Match], cands: tuple[Pickups, Pickups]
+) -> None:
     """Steps 1-2's rides: the pickup leg (searched again for the matched pairs only) then the trip (from
     ``tally``'s trips)."""
     steps: tuple[tuple[Literal[1, 2], list[Taxi], Pickups, list[Match]], ...] = (
-        (1, tally.instrumented, cands[0], s1.pairs),
-        (2, tally.ordinary, cands[1], s2),
+        (1, tally.instrumented, cands[0], sensing.pairs),
+        (2, tally.ordinary, cands[1], regular),
     )
     chosen = [(step, fleet[m.taxi], pk, m) for step, fleet, pk, matches in steps for m in matches]
-    with ep.pool.take() as scratch:
+    with epoch.pool.take() as scratch:
         legs_in = hierarchy.fastest_paths(
-            ep.graph,
+            epoch.graph,
             scratch,
             np.array([taxi.node for _, taxi, _, _ in chosen], dtype=np.int64),
             np.array([tally.riders[m.rider].origin for *_, m in chosen], dtype=np.int64),
@@ -197,8 +201,10 @@ def _rides(ep: Epoch, tally: _Tally, s1: Step1, s2: list[Match], cands: tuple[Pi
                 np.concatenate((leg, trip.edges)).astype(np.int64),
             )
         )
-    tally.step1_stats, tally.n_slots = s1.stats, s1.n_slots
-    tally.planned = [PlannedPath(r.taxi.id, r.taxi.node, r.edges, ep.now) for r in tally.rides if r.step == 1]
+    tally.step1_stats, tally.n_slots = sensing.stats, sensing.n_slots
+    tally.planned = [
+        PlannedPath(r.taxi.id, r.taxi.node, r.edges, epoch.now) for r in tally.rides if r.step == 1
+    ]
 
 
 def _touching(graph: RoadGraph, paths: Sequence[PlannedPath], nodes: NDArray[np.bool_]) -> list[PlannedPath]:
@@ -208,13 +214,13 @@ def _touching(graph: RoadGraph, paths: Sequence[PlannedPath], nodes: NDArray[np.
     return [p for p in paths if nodes[p.start] or bool(nodes[head[p.edges]].any())]
 
 
-def _targets(ep: Epoch, tally: _Tally, tasks: Sequence[Task]) -> None:
+def _targets(epoch: Epoch, tally: _Tally, tasks: Sequence[Task]) -> None:
     """Step 3's POIs: the open tasks not already reached by a Step 1 path, grouped by node."""
-    pending_nodes = np.zeros(ep.city.network.n_nodes, dtype=bool)
+    pending_nodes = np.zeros(epoch.city.network.n_nodes, dtype=bool)
     pending_nodes[[t.node for t in tasks if t.status == "pending"]] = True
-    passive1 = reaches(ep.city, _touching(ep.graph, tally.planned, pending_nodes), tasks)
+    passive1 = reaches(epoch.city, _touching(epoch.graph, tally.planned, pending_nodes), tasks)
     tally.open_tasks = sorted(
-        (t for t in tasks if t.is_open(ep.now) and t.id not in passive1),
+        (t for t in tasks if t.is_open(epoch.now) and t.id not in passive1),
         key=lambda t: (t.scheduled_at_s, t.id),
     )
     for t in tally.open_tasks:
@@ -223,22 +229,22 @@ def _targets(ep: Epoch, tally: _Tally, tasks: Sequence[Task]) -> None:
 
 
 def _monitoring(
-    ep: Epoch, tally: _Tally, counted: Counted, busy: set[int], lap: Callable[[str], None]
+    epoch: Epoch, tally: _Tally, counted: Counted, busy: set[int], lap: Callable[[str], None]
 ) -> None:
     """Step 3 and Algorithm 2 over the instrumented taxis Step 1 left free (``busy``: the ones it matched;
     row ``i`` of ``counted``: instrumented taxi ``i``'s counted pairs), when active sensing is on and there
     are free taxis and POIs."""
     free_rows = [i for i in range(len(tally.instrumented)) if i not in busy]
     free = [tally.instrumented[i] for i in free_rows]
-    if not (ep.city.params.active_sensing and free and tally.by_node):
+    if not (epoch.city.params.active_sensing and free and tally.by_node):
         return
     counted_free = counted_rows(counted, free_rows)
     nodes = np.fromiter(tally.by_node, dtype=np.int64, count=len(tally.by_node))
-    s3 = step3_monitoring_routes(ep, free, counted_free, nodes, tally.n_slots)
+    s3 = step3_monitoring_routes(epoch, free, counted_free, nodes, tally.n_slots)
     lap("step3")
     taxis = [free[i] for i in s3.taxis]
     routes, tally.history, tally.passes = improve_routes(
-        ep,
+        epoch,
         [t.id for t in taxis],
         counted_rows(counted_free, s3.taxis),
         list(s3.routes),
@@ -254,22 +260,22 @@ class _Facts:
     """The G-routes and timed G-routes of every planned path (riders' paths, then routes), in one compiled
     call; ``cells_of(q)`` and ``visits_of(q, taxi)`` read path ``q``'s."""
 
-    def __init__(self, ep: Epoch, paths: Sequence[NDArray[np.int64]]) -> None:
-        city = ep.city
+    def __init__(self, epoch: Epoch, paths: Sequence[NDArray[np.int64]]) -> None:
+        city = epoch.city
         ptr = np.zeros(len(paths) + 1, dtype=np.int64)
         ptr[1:] = np.cumsum([len(e) for e in paths])
         flat = np.concatenate(paths).astype(np.int64) if paths else np.zeros(0, dtype=np.int64)
         self.cell_ptr, self.cells, self.pair_ptr, self.pair_k, self.pair_c = path_facts(
-            ep.graph.edges,
+            epoch.graph.edges,
             ptr,
             flat,
-            ep.now,
-            city.horizon.shift_s(ep.now),
+            epoch.now,
+            city.horizon.shift_s(epoch.now),
             float(city.horizon.interval_s),
             city.grid.n_cells,
         )
         self.n_cols = city.grid.n_cols
-        self.visited = ep.counts.visited
+        self.visited = epoch.counts.visited
 
     def cells_of(self, q: int) -> tuple[tuple[int, int], ...]:
         n_cols, cells = self.n_cols, self.cells
@@ -284,10 +290,10 @@ class _Facts:
         return [Visit(taxi.id, IntervalKey(k), c) for k, c in zip(ks, cs, strict=True) if (k, c) not in seen]
 
 
-def _assemble(ep: Epoch, tally: _Tally) -> None:
+def _assemble(epoch: Epoch, tally: _Tally) -> None:
     """The rider matches, the task assignments, the visits to count (Step 1's taxis', then the routed
     taxis') and every planned path of the epoch (Step 1's, then the routes)."""
-    facts = _Facts(ep, [*(r.edges for r in tally.rides), *(m.route.edges for m in tally.routed)])
+    facts = _Facts(epoch, [*(r.edges for r in tally.rides), *(m.route.edges for m in tally.routed)])
     for q, ride in enumerate(tally.rides):
         tally.matches.append(
             RiderMatch(
@@ -299,20 +305,20 @@ def _assemble(ep: Epoch, tally: _Tally) -> None:
                 ride.trip.length_m,
                 ride.trip.time_s,
                 ride.gain,
-                path_nodes(ep.graph, ride.taxi.node, ride.edges),
+                path_nodes(epoch.graph, ride.taxi.node, ride.edges),
                 facts.cells_of(q),
             )
         )
         if ride.step == 1:
             tally.visits.extend(facts.visits_of(q, ride.taxi))
-    unit_cost = ep.city.params.unit_cost_cny_per_km
+    unit_cost = epoch.city.params.unit_cost_cny_per_km
     for q, m in enumerate(tally.routed, start=len(tally.rides)):
         taxi, route = m.taxi, m.route
         tally.assignments.append(
             TaskAssignment(
                 taxi.id,
                 m.task_id,
-                path_nodes(ep.graph, taxi.node, route.edges),
+                path_nodes(epoch.graph, taxi.node, route.edges),
                 facts.cells_of(q),
                 route.length_m,
                 route.time_s,
@@ -322,28 +328,28 @@ def _assemble(ep: Epoch, tally: _Tally) -> None:
                 route.kappa,
             )
         )
-        tally.planned.append(PlannedPath(taxi.id, taxi.node, route.edges, ep.now, target_task=m.task_id))
+        tally.planned.append(PlannedPath(taxi.id, taxi.node, route.edges, epoch.now, target_task=m.task_id))
         tally.visits.extend(facts.visits_of(q, taxi))
 
 
 def _task_updates(
-    ep: Epoch, tally: _Tally, tasks: Sequence[Task]
+    epoch: Epoch, tally: _Tally, tasks: Sequence[Task]
 ) -> tuple[dict[TaskId, Reach], tuple[Task, ...]]:
     """The tasks the planned paths reach and every task the epoch changes (due completions, then reaches)."""
-    found = reaches(ep.city, _touching(ep.graph, tally.planned, tally.pending_nodes), tasks)
-    updates = {t.id: t for t in due_completions(tasks, ep.now)}
-    updates.update({t.id: t for t in apply_reaches(tasks, found, ep.now)})
+    found = reaches(epoch.city, _touching(epoch.graph, tally.planned, tally.pending_nodes), tasks)
+    updates = {t.id: t for t in due_completions(tasks, epoch.now)}
+    updates.update({t.id: t for t in apply_reaches(tasks, found, epoch.now)})
     return found, tuple(updates.values())
 
 
 def _stats(
-    ep: Epoch, snapshot: Snapshot, tally: _Tally, found: dict[TaskId, Reach]
+    epoch: Epoch, snapshot: Snapshot, tally: _Tally, found: dict[TaskId, Reach]
 ) -> dict[str, float | int]:
     """The decision's per-step diagnostics."""
     history = tally.history
     by_step = Counter(m.step for m in tally.matches)  # Decision.matches_by_step reads these two counts
     return {
-        "interval": ep.k0,
+        "interval": epoch.k0,
         "riders": len(snapshot.riders),
         "riders_expired": len(tally.expired),
         "vacant_instrumented": len(tally.instrumented),
@@ -364,7 +370,7 @@ def _stats(
 
 
 def _decision(
-    ep: Epoch,
+    epoch: Epoch,
     snapshot: Snapshot,
     tally: _Tally,
     task_updates: tuple[Task, ...],
@@ -374,11 +380,11 @@ def _decision(
     slots and every visit's) beside the matches, assignments and visits."""
     taken = {ride.rider.id for ride in tally.rides}
     touched = sorted(
-        {IntervalKey(ep.k0 + s) for s in range(tally.n_slots)} | {v.interval for v in tally.visits}
+        {IntervalKey(epoch.k0 + s) for s in range(tally.n_slots)} | {v.interval for v in tally.visits}
     )
     return Decision(
         epoch_id=snapshot.epoch_id,
-        time_s=ep.now,
+        time_s=epoch.now,
         rider_matches=tuple(tally.matches),
         task_assignments=tuple(tally.assignments),
         tasks_completed=tuple(t for t in task_updates if t.status == "completed"),

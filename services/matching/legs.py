@@ -208,9 +208,11 @@ def pickups(
     )
 
 
-def _leg(ed: Edges, edges: NDArray[np.int64]) -> Leg:
+def _leg(road_edges: Edges, edges: NDArray[np.int64]) -> Leg:
     return Leg(
-        edges, float(ed.length_m[edges].sum()), float(np.cumsum(ed.time_s[edges])[-1]) if len(edges) else 0.0
+        edges,
+        float(road_edges.length_m[edges].sum()),
+        float(np.cumsum(road_edges.time_s[edges])[-1]) if len(edges) else 0.0,
     )
 
 

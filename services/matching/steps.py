@@ -60,7 +60,7 @@ def _service_edges(service: Sequence[Leg]) -> tuple[NDArray[np.int64], NDArray[n
 
 
 def step1_sensing_matches(
-    ep: Epoch, counted: Counted, cands: Pickups, service: Sequence[Leg], n_slots: int
+    epoch: Epoch, counted: Counted, cands: Pickups, service: Sequence[Leg], n_slots: int
 ) -> Step1:
     """Step 1 (Eq. 4-7) over the instrumented taxis' candidate pairs ``cands`` (taxi ``i``'s counted pairs
     in row ``i`` of ``counted``; ``service[j]``: rider ``j``'s trip). Gain tables start with ``n_slots``
@@ -68,15 +68,15 @@ def step1_sensing_matches(
     stats: dict[str, float | int] = {"step1_candidates": len(cands.taxi)}
     if len(cands.taxi) == 0:
         return Step1([], n_slots, stats)
-    ed = ep.graph.edges
+    ed = epoch.graph.edges
     leg_ptr, leg_edges = _service_edges(service)
     crossings = max(int((ed.ec_ptr[leg.edges + 1] - ed.ec_ptr[leg.edges]).sum()) for leg in service)
-    depart = ep.now + cands.wait_s
+    depart = epoch.now + cands.wait_s
 
     def gains(n: int) -> tuple[tuple[Gains, NDArray[np.int64]], int | None]:
-        top = gain_table(ep.city, ep.counts.counts, ep.k0, n, ep.now)
+        top = gain_table(epoch.city, epoch.counts.counts, epoch.k0, n, epoch.now)
         unit = fixed_point_unit(float(top.term.max(initial=0.0)), crossings)
-        gn = gain_table(ep.city, ep.counts.counts, ep.k0, n, ep.now, unit=unit)
+        gn = gain_table(epoch.city, epoch.counts.counts, epoch.k0, n, epoch.now, unit=unit)
         gq, max_slot = pair_gains_q(ed, gn, counted, cands.taxi, cands.rider, depart, leg_ptr, leg_edges)
         return (gn, gq), (None if max_slot < n else int(max_slot) + 1)
 

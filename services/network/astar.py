@@ -99,24 +99,24 @@ def _guided_pop(heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray
 
 
 @compiled_inline
-def _bound(lm: NDArray[np.int64], tl: NDArray[np.int64], v: int) -> int:
-    """The landmarks' lower bound on the travel time from node ``v`` to the target whose row is ``tl``
+def _bound(landmarks: NDArray[np.int64], target_row: NDArray[np.int64], v: int) -> int:
+    """The landmarks' lower bound on the travel time from node ``v`` to the target whose row is ``target_row``
     (``landmarks``): ``d(v, L) - d(t, L)`` and ``d(L, t) - d(L, v)`` by the triangle inequality, the largest
     over the landmarks (at least 0); ``INF`` when ``v`` cannot reach a landmark the target reaches, so
     cannot reach the target. Each term grows along an edge by at most the edge's time, so the largest
     does too: a potential for ``run_guided``."""
-    n = tl.shape[0] // 2
+    n = target_row.shape[0] // 2
     best = 0
     for i in range(n):
-        to_t = tl[i]
+        to_t = target_row[i]
         if to_t < INF:
-            to_v = lm[v, i]
+            to_v = landmarks[v, i]
             if to_v >= INF:
                 return INF
             if to_v - to_t > best:
                 best = to_v - to_t
-        from_t = tl[n + i]
-        from_v = lm[v, n + i]
+        from_t = target_row[n + i]
+        from_v = landmarks[v, n + i]
         if from_t < INF and from_v < INF and from_t - from_v > best:
             best = from_t - from_v
     return best
@@ -158,15 +158,15 @@ def cell_bit(bits: NDArray[np.uint64], c: int) -> None:
 
 @compiled
 def path_cells(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     tree: Workspace,
     out: NDArray[np.uint64],
     done: NDArray[np.int64],
     stamp: int,
     stack: NDArray[np.int64],
 ) -> None:
-    """For every kept node the in-tree grown in ``tree`` (``run`` on the reverse graph ``g``) settled, the
+    """For every kept node the in-tree grown in ``tree`` (``run`` on the reverse graph ``graph``) settled, the
     cells its tree path to the root enters (each edge's cells but its first) into ``out[k]`` as a
     ``cell_bit`` set; ``done[k] = stamp`` marks each node written. ``stack``: scratch of K entries."""
     for i in range(tree.info[2]):
@@ -181,7 +181,7 @@ def path_cells(
             s = tree.pse[k]
             if s < 0 or tree.pstart[k] != 0:
                 break
-            k = g.se_tail[s]
+            k = graph.se_tail[s]
             if done[k] == stamp:
                 break
         while top > 0:  # back, each node's set from the next node's toward the root
@@ -193,13 +193,13 @@ def path_cells(
             if s >= 0:
                 start = tree.pstart[k]
                 if start == 0:
-                    nxt = g.se_tail[s]
+                    nxt = graph.se_tail[s]
                     for w in range(CLEAN_WORDS):
                         out[k, w] = out[nxt, w]
-                for p in range(g.se_ptr[s] + start, g.se_ptr[s + 1]):
-                    e = g.se_edges[p]
-                    for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
-                        cell_bit(out[k], ed.ec_cell[j])
+                for p in range(graph.se_ptr[s] + start, graph.se_ptr[s + 1]):
+                    e = graph.se_edges[p]
+                    for j in range(edges.ec_ptr[e] + 1, edges.ec_ptr[e + 1]):
+                        cell_bit(out[k], edges.ec_cell[j])
             done[k] = stamp
 
 
@@ -221,43 +221,43 @@ def tree_guide(tree: Workspace, limit: int, clean: NDArray[np.uint64], zbits: ND
 
 
 @compiled_inline
-def _potential(gd: Guide, tl: NDArray[np.int64], v: int, h: int) -> tuple[int, int, int]:
-    """``guided``'s potential of kept node ``h`` (original node ``v``); ``tl`` is the target's row of the
-    landmark table (empty: no landmarks). An in-tree's potential is its label where it settled ``h``, else
-    ``(cutoff, 0, 0)``: no more than any unsettled node's label, and within one super-edge's cost of
-    every settled node's (each settled label is below ``cutoff``), so it never drops along a super-edge by
-    more than the super-edge's label under a metric no cheaper than the in-tree's."""
-    if tl.shape[0] > 0:
-        return _bound(gd.lm, tl, v), 0, 0
-    if gd.tree_state.shape[0] > 0:
-        if gd.tree_state[h] == -2:
-            return gd.tree_cost[h], gd.tree_tie1[h], gd.tree_tie2[h]
-        return gd.cutoff, 0, 0
-    return gd.pot[0, h], gd.pot[1, h], gd.pot[2, h]
+def _potential(guide: Guide, target_row: NDArray[np.int64], v: int, h: int) -> tuple[int, int, int]:
+    """``guided``'s potential of kept node ``h`` (original node ``v``); ``target_row`` is the target's row of
+    the landmark table (empty: no landmarks). An in-tree's potential is its label where it settled ``h``, else
+    ``(cutoff, 0, 0)``: no more than any unsettled node's label, and within one super-edge's cost of every
+    settled node's (each settled label is below ``cutoff``), so it never drops along a super-edge by more than
+    the super-edge's label under a metric no cheaper than the in-tree's."""
+    if target_row.shape[0] > 0:
+        return _bound(guide.lm, target_row, v), 0, 0
+    if guide.tree_state.shape[0] > 0:
+        if guide.tree_state[h] == -2:
+            return guide.tree_cost[h], guide.tree_tie1[h], guide.tree_tie2[h]
+        return guide.cutoff, 0, 0
+    return guide.pot[0, h], guide.pot[1, h], guide.pot[2, h]
 
 
 @compiled
 def run_guided(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     source: int,
     target: int,
     pot: NDArray[np.int64],
-    ws: Workspace,
-    lm: NDArray[np.int64],
+    workspace: Workspace,
+    landmarks: NDArray[np.int64],
 ) -> None:
-    """``guided`` with the potential ``pot`` or the landmark table ``lm`` (shape (0, 0): none), the metric
-    held in ``costs``."""
+    """``guided`` with the potential ``pot`` or the landmark table ``landmarks`` (shape (0, 0): none), the
+    metric held in ``costs``."""
     none = np.zeros(0, dtype=np.int64)
     bits = np.zeros((0, CLEAN_WORDS), dtype=np.uint64)
-    gd = Guide(pot, lm, none, none, none, none, 0, bits, np.zeros(CLEAN_WORDS, dtype=np.uint64))
-    guided(g, ed, costs, source, target, ws, gd, no_lazy())
+    gd = Guide(pot, landmarks, none, none, none, none, 0, bits, np.zeros(CLEAN_WORDS, dtype=np.uint64))
+    guided(graph, edges, costs, source, target, workspace, gd, no_lazy())
 
 
 @compiled_inline
 def _guided_label(
-    ws: Workspace,
+    workspace: Workspace,
     h: int,
     label: tuple[int, int, int],
     s: int,
@@ -270,53 +270,53 @@ def _guided_label(
     in) and queue it, or move it up the queue, keyed by label + potential ``pot``; returns the queue's size
     and the touched nodes' count."""
     c, a, b = label
-    if ws.cost[h] == INF and not ws.need[h]:
-        ws.touched[n_touched] = h
+    if workspace.cost[h] == INF and not workspace.need[h]:
+        workspace.touched[n_touched] = h
         n_touched += 1
-    ws.cost[h] = c
-    ws.tie1[h] = a
-    ws.tie2[h] = b
-    ws.pse[h] = s
-    ws.pstart[h] = os
-    at = ws.state[h]
+    workspace.cost[h] = c
+    workspace.tie1[h] = a
+    workspace.tie2[h] = b
+    workspace.pse[h] = s
+    workspace.pstart[h] = os
+    at = workspace.state[h]
     if at < 0:
         at = size
         size += 1
-    _guided_up(ws.nxt, ws.hkey, ws.state, at, h, c + pot[0], a + pot[1], b + pot[2])
+    _guided_up(workspace.nxt, workspace.hkey, workspace.state, at, h, c + pot[0], a + pot[1], b + pot[2])
     return size, n_touched
 
 
 @compiled_inline
 def _guided_seed(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
-    ws: Workspace,
-    gd: Guide,
-    tl: NDArray[np.int64],
+    workspace: Workspace,
+    guide: Guide,
+    target_row: NDArray[np.int64],
     source: int,
     n_touched: int,
 ) -> tuple[int, int]:
     """Queue the first labels of a guided search from ``source`` (keyed by label + potential); returns the
     queue's size and the touched nodes' count."""
-    cost, tie1, tie2 = ws.cost, ws.tie1, ws.tie2
-    sk = g.kept_of[source]
+    cost, tie1, tie2 = workspace.cost, workspace.tie1, workspace.tie2
+    sk = graph.kept_of[source]
     size = 0
     for j in range(1 if sk >= 0 else 2):
-        h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
+        h, c, a, b, s, os = _seed(graph, edges, costs.edge, source, sk, j)
         if h < 0:
             continue
-        p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
+        p0, p1, p2 = _potential(guide, target_row, graph.kept[h], h)
         if p0 >= INF or not _less(c, a, b, cost[h], tie1[h], tie2[h]):
             continue
-        size, n_touched = _guided_label(ws, h, (c, a, b), s, os, (p0, p1, p2), size, n_touched)
+        size, n_touched = _guided_label(workspace, h, (c, a, b), s, os, (p0, p1, p2), size, n_touched)
     return size, n_touched
 
 
 @compiled_inline
-def _meets(gd: Guide, k: int) -> bool:
-    """``guided`` may stop at kept node ``k`` (just settled) when ``gd`` holds an in-tree's path cells and
-    ``k``'s in-tree path enters none of the cells ``gd.zbits`` holds: that path costs the searched metric
+def _meets(guide: Guide, k: int) -> bool:
+    """``guided`` may stop at kept node ``k`` (just settled) when ``guide`` holds an in-tree's path cells and
+    ``k``'s in-tree path enters none of the cells ``guide.zbits`` holds: that path costs the searched metric
     what it costs the in-tree's, and no other path from ``k`` costs less (the metric is nowhere cheaper
     than the in-tree's), so ``k``'s key -- its label plus that path's label -- is the label of a path to
     the target. Every path whose last kept node is not settled yet costs at least that key (keys leave the
@@ -324,18 +324,18 @@ def _meets(gd: Guide, k: int) -> bool:
     settled end of it, and are never queued. ``guided`` stops only where the key is better than the best of
     those (``_into_target``): then it is the target's label, and the canonical path is the one to ``k``
     (``unfold``) followed by the in-tree's path from ``k``."""
-    if gd.clean.shape[0] == 0 or gd.tree_state[k] != -2:
+    if guide.clean.shape[0] == 0 or guide.tree_state[k] != -2:
         return False
     hit = np.uint64(0)
-    for w in range(gd.zbits.shape[0]):
-        hit |= gd.clean[k, w] & gd.zbits[w]
+    for w in range(guide.zbits.shape[0]):
+        hit |= guide.clean[k, w] & guide.zbits[w]
     return bool(hit == 0)
 
 
 @compiled_inline
 def _into_target(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     source: int,
     target: int,
@@ -350,24 +350,24 @@ def _into_target(
     metric, once ``_lazy_ends`` has written them)."""
     best_c, best_a, best_b = best
     for j in range(2):
-        s = g.pos_se[target, j]
+        s = graph.pos_se[target, j]
         if s < 0:
             continue
         start = 0
         if k < 0:
-            start = _offset_on(g.pos_se, g.pos_off, source, s) if g.kept_of[source] < 0 else -1
-            if start < 0 or start >= g.pos_off[target, j]:
+            start = _offset_on(graph.pos_se, graph.pos_off, source, s) if graph.kept_of[source] < 0 else -1
+            if start < 0 or start >= graph.pos_off[target, j]:
                 continue
             c, a, b = 0, 0, 0
-        elif g.se_tail[s] == k:
+        elif graph.se_tail[s] == k:
             c, a, b = label
         else:
             continue
-        for p in range(g.se_ptr[s] + start, g.se_ptr[s] + g.pos_off[target, j]):
-            e = g.se_edges[p]
+        for p in range(graph.se_ptr[s] + start, graph.se_ptr[s] + graph.pos_off[target, j]):
+            e = graph.se_edges[p]
             c += costs.edge[e]
-            a += ed.tie1[e]
-            b += ed.tie2[e]
+            a += edges.tie1[e]
+            b += edges.tie2[e]
         if _less(c, a, b, best_c, best_a, best_b):
             best_c, best_a, best_b = c, a, b
     return best_c, best_a, best_b
@@ -375,45 +375,45 @@ def _into_target(
 
 @compiled_inline
 def _guided_start(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
-    ws: Workspace,
-    gd: Guide,
+    workspace: Workspace,
+    guide: Guide,
     lazy: Lazy,
     source: int,
     target: int,
 ) -> tuple[int, int, int, NDArray[np.int64], tuple[int, int, int]]:
-    """Start ``guided``'s search: reset ``ws``, mark the target, cost the lazy ends and queue the source's
-    first labels (none when the target is already resolved). Returns the queue's size, the touched nodes'
-    count, the number of nodes to settle, the target's landmark row (empty: no landmarks) and the label of
-    the path from the source to the target inside their chain (``_into_target``; ``INF``: none, or no
-    early stop to hold against it)."""
-    _reset(ws)
-    ws.info[0] = source
+    """Start ``guided``'s search: reset ``workspace``, mark the target, cost the lazy ends and queue the
+    source's first labels (none when the target is already resolved). Returns the queue's size, the touched
+    nodes' count, the number of nodes to settle, the target's landmark row (empty: no landmarks) and the label
+    of the path from the source to the target inside their chain (``_into_target``; ``INF``: none, or no early
+    stop to hold against it)."""
+    _reset(workspace)
+    workspace.info[0] = source
     tgt = np.full(1, target, dtype=np.int64)
-    n_touched, remaining = _need_targets(g, source, tgt, ws)
-    tl = gd.lm[target] if gd.lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
+    n_touched, remaining = _need_targets(graph, source, tgt, workspace)
+    tl = guide.lm[target] if guide.lm.shape[0] > 0 else np.zeros(0, dtype=np.int64)
     if lazy.on:
-        _lazy_ends(g, ed, costs, lazy, source, tgt)
+        _lazy_ends(graph, edges, costs, lazy, source, tgt)
     size = 0
     direct = (INF, 0, 0)
     if remaining > 0:
-        size, n_touched = _guided_seed(g, ed, costs, ws, gd, tl, source, n_touched)
-        if gd.clean.shape[0] > 0 and g.kept_of[target] < 0:
-            direct = _into_target(g, ed, costs, source, target, -1, direct, direct)
+        size, n_touched = _guided_seed(graph, edges, costs, workspace, guide, tl, source, n_touched)
+        if guide.clean.shape[0] > 0 and graph.kept_of[target] < 0:
+            direct = _into_target(graph, edges, costs, source, target, -1, direct, direct)
     return size, n_touched, remaining, tl, direct
 
 
 @compiled
 def guided(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     source: int,
     target: int,
-    ws: Workspace,
-    gd: Guide,
+    workspace: Workspace,
+    guide: Guide,
     lazy: Lazy,
 ) -> int:
     """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*).
@@ -432,7 +432,14 @@ def guided(
     node's key is better than every path to an interior target found so far and never queued
     (``_into_target``: inside the source's chain, or from a settled end of the target's).
     """
-    cost, tie1, tie2, state, heap, hkey = ws.cost, ws.tie1, ws.tie2, ws.state, ws.nxt, ws.hkey
+    cost, tie1, tie2, state, heap, hkey = (
+        workspace.cost,
+        workspace.tie1,
+        workspace.tie2,
+        workspace.state,
+        workspace.nxt,
+        workspace.hkey,
+    )
     se_cost = costs.se
     lazy_on, fixed, zmask, term, umax, kappa = (
         lazy.on,
@@ -442,34 +449,42 @@ def guided(
         lazy.umax,
         lazy.kappa,
     )
-    se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
-    size, n_touched, remaining, tl, found = _guided_start(g, ed, costs, ws, gd, lazy, source, target)
-    watch = gd.clean.shape[0] > 0 and g.kept_of[target] < 0
+    se_ptr, se_edges, ec_ptr, ec_cell, time_s = (
+        graph.se_ptr,
+        graph.se_edges,
+        edges.ec_ptr,
+        edges.ec_cell,
+        edges.time_s,
+    )
+    size, n_touched, remaining, tl, found = _guided_start(
+        graph, edges, costs, workspace, guide, lazy, source, target
+    )
+    watch = guide.clean.shape[0] > 0 and graph.kept_of[target] < 0
     complete, meet = 1, -1
     while size > 0:
         k = heap[0]
         kc, ka, kb = hkey[0, 0], hkey[0, 1], hkey[0, 2]
         size = _guided_pop(heap, hkey, state, size)
         state[k] = -2
-        if ws.need[k]:
+        if workspace.need[k]:
             remaining -= 1
             if remaining == 0:
                 complete = 0
                 break
-        if _meets(gd, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
+        if _meets(guide, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
             complete, meet = 0, k
             break
-        if watch and ws.need[k]:
-            found = _into_target(g, ed, costs, source, target, k, (cost[k], tie1[k], tie2[k]), found)
+        if watch and workspace.need[k]:
+            found = _into_target(graph, edges, costs, source, target, k, (cost[k], tie1[k], tie2[k]), found)
         d = cost[k]
         a0 = tie1[k]
         b0 = tie2[k]
-        for s in range(g.indptr[k], g.indptr[k + 1]):
-            h = g.se_head[s]
+        for s in range(graph.indptr[k], graph.indptr[k + 1]):
+            h = graph.se_head[s]
             st = state[h]
             if st == -2:
                 continue
-            p0, p1, p2 = _potential(gd, tl, g.kept[h], h)
+            p0, p1, p2 = _potential(guide, tl, graph.kept[h], h)
             if p0 >= INF:
                 continue
             if not lazy_on:
@@ -478,10 +493,10 @@ def guided(
                 c = d + fixed[s]
             else:
                 c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
-            a = a0 + g.se_tie1[s]
-            b = b0 + g.se_tie2[s]
+            a = a0 + graph.se_tie1[s]
+            b = b0 + graph.se_tie2[s]
             if _less(c, a, b, cost[h], tie1[h], tie2[h]):
-                size, n_touched = _guided_label(ws, h, (c, a, b), s, 0, (p0, p1, p2), size, n_touched)
-    ws.info[1] = complete
-    ws.info[2] = n_touched
+                size, n_touched = _guided_label(workspace, h, (c, a, b), s, 0, (p0, p1, p2), size, n_touched)
+    workspace.info[1] = complete
+    workspace.info[2] = n_touched
     return meet

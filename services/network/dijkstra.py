@@ -54,36 +54,38 @@ __all__ = [
 
 
 @compiled_inline
-def _need_targets(g: SearchGraph, source: int, targets: NDArray[np.int64], ws: Workspace) -> tuple[int, int]:
+def _need_targets(
+    graph: SearchGraph, source: int, targets: NDArray[np.int64], workspace: Workspace
+) -> tuple[int, int]:
     """Mark the kept nodes a search must settle before every target can be resolved: a kept target itself,
     for an interior target the tails of its super-edges (unless the source lies before it on one). Returns
     the number of nodes touched so far and of nodes to settle."""
-    sk = g.kept_of[source]
+    sk = graph.kept_of[source]
     n_touched = 0
     remaining = 0
     for t in targets:
         if t == source:
             continue
-        kt = g.kept_of[t]
+        kt = graph.kept_of[t]
         if kt >= 0:
-            if not ws.need[kt]:
-                ws.need[kt] = True
-                ws.touched[n_touched] = kt
+            if not workspace.need[kt]:
+                workspace.need[kt] = True
+                workspace.touched[n_touched] = kt
                 n_touched += 1
                 remaining += 1
             continue
         for j in range(2):
-            s = g.pos_se[t, j]
+            s = graph.pos_se[t, j]
             if s < 0:
                 continue
             if sk < 0:
-                os = _offset_on(g.pos_se, g.pos_off, source, s)
-                if os >= 0 and os < g.pos_off[t, j]:
+                os = _offset_on(graph.pos_se, graph.pos_off, source, s)
+                if os >= 0 and os < graph.pos_off[t, j]:
                     continue  # reached from the source along this very super-edge
-            kt = g.se_tail[s]
-            if not ws.need[kt]:
-                ws.need[kt] = True
-                ws.touched[n_touched] = kt
+            kt = graph.se_tail[s]
+            if not workspace.need[kt]:
+                workspace.need[kt] = True
+                workspace.touched[n_touched] = kt
                 n_touched += 1
                 remaining += 1
     return n_touched, remaining
@@ -91,40 +93,40 @@ def _need_targets(g: SearchGraph, source: int, targets: NDArray[np.int64], ws: W
 
 @compiled_inline
 def _seed(
-    g: SearchGraph, ed: Edges, edge_cost: NDArray[np.int64], source: int, sk: int, j: int
+    graph: SearchGraph, edges: Edges, edge_cost: NDArray[np.int64], source: int, sk: int, j: int
 ) -> tuple[int, int, int, int, int, int]:
     """The ``j``-th first label of a search from ``source``: ``(kept node, cost, tie1, tie2, super-edge,
     start offset)``; the source itself when it is kept (j = 0), else the head of the ``j``-th super-edge it
     lies on with the cost of the rest of that super-edge (kept node -1: no such super-edge)."""
     if sk >= 0:
         return sk, 0, 0, 0, -1, 0
-    s = g.pos_se[source, j]
+    s = graph.pos_se[source, j]
     if s < 0:
         return -1, 0, 0, 0, -1, 0
-    os = g.pos_off[source, j]
+    os = graph.pos_off[source, j]
     c = 0
     a = 0
     b = 0
-    for p in range(g.se_ptr[s] + os, g.se_ptr[s + 1]):
-        e = g.se_edges[p]
+    for p in range(graph.se_ptr[s] + os, graph.se_ptr[s + 1]):
+        e = graph.se_edges[p]
         c += edge_cost[e]
-        a += ed.tie1[e]
-        b += ed.tie2[e]
-    return g.se_head[s], c, a, b, s, os
+        a += edges.tie1[e]
+        b += edges.tie2[e]
+    return graph.se_head[s], c, a, b, s, os
 
 
 @compiled_inline
 def _lazy_ends(
-    g: SearchGraph, ed: Edges, costs: Costs, lazy: Lazy, source: int, targets: NDArray[np.int64]
+    graph: SearchGraph, edges: Edges, costs: Costs, lazy: Lazy, source: int, targets: NDArray[np.int64]
 ) -> None:
     """Cost, edge by edge, the super-edges a search's paths may start or end inside: the source's and the
     interior targets' chains (``unfolding.resolve`` reads their edges' costs)."""
     for j in range(2):
-        if g.kept_of[source] < 0 and g.pos_se[source, j] >= 0:
-            lazy_fill(g, ed, costs, lazy, g.pos_se[source, j])
+        if graph.kept_of[source] < 0 and graph.pos_se[source, j] >= 0:
+            lazy_fill(graph, edges, costs, lazy, graph.pos_se[source, j])
         for t in targets:
-            if g.kept_of[t] < 0 and g.pos_se[t, j] >= 0:
-                lazy_fill(g, ed, costs, lazy, g.pos_se[t, j])
+            if graph.kept_of[t] < 0 and graph.pos_se[t, j] >= 0:
+                lazy_fill(graph, edges, costs, lazy, graph.pos_se[t, j])
 
 
 @compiled_inline
@@ -156,45 +158,51 @@ def _crossing_cost(
 
 @compiled
 def run(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     source: int,
     limit: int,
     targets: NDArray[np.int64],
-    ws: Workspace,
+    workspace: Workspace,
 ) -> None:
     """``grow`` with the metric held in ``costs``."""
-    grow(g, ed, costs, source, limit, targets, ws, no_lazy())
+    grow(graph, edges, costs, source, limit, targets, workspace, no_lazy())
 
 
 @compiled_inline
 def _grow_seed(
-    g: SearchGraph, ed: Edges, costs: Costs, ws: Workspace, source: int, limit: int, n_touched: int
+    graph: SearchGraph,
+    edges: Edges,
+    costs: Costs,
+    workspace: Workspace,
+    source: int,
+    limit: int,
+    n_touched: int,
 ) -> tuple[int, int]:
     """Queue the first labels of a search from ``source`` within ``limit`` (in the ring, or the heap when
     the metric is too spread for it); returns the queue's size and the touched nodes' count."""
-    cost, tie1, tie2, state = ws.cost, ws.tie1, ws.tie2, ws.state
-    ring, bits, nxt, prv = ws.ring, ws.bits, ws.nxt, ws.prv
+    cost, tie1, tie2, state = workspace.cost, workspace.tie1, workspace.tie2, workspace.state
+    ring, bits, nxt, prv = workspace.ring, workspace.bits, workspace.nxt, workspace.prv
     width, span = costs.width, costs.span
     use_ring = span <= ring.shape[0]
-    sk = g.kept_of[source]
+    sk = graph.kept_of[source]
     size = 0
     for j in range(1 if sk >= 0 else 2):
-        h, c, a, b, s, os = _seed(g, ed, costs.edge, source, sk, j)
+        h, c, a, b, s, os = _seed(graph, edges, costs.edge, source, sk, j)
         if h < 0 or c > limit:
             continue
         if not _less(c, a, b, cost[h], tie1[h], tie2[h]):
             continue
-        if cost[h] == INF and not ws.need[h]:
-            ws.touched[n_touched] = h
+        if cost[h] == INF and not workspace.need[h]:
+            workspace.touched[n_touched] = h
             n_touched += 1
         old = cost[h]
         cost[h] = c
         tie1[h] = a
         tie2[h] = b
-        ws.pse[h] = s
-        ws.pstart[h] = os
+        workspace.pse[h] = s
+        workspace.pstart[h] = os
         if use_ring:
             if state[h] >= 0:
                 _unlink(ring, bits, nxt, prv, (old // width) % span, h)
@@ -211,21 +219,21 @@ def _grow_seed(
 
 
 @compiled_inline
-def _grow_leave(ws: Workspace, costs: Costs, n_touched: int, complete: int) -> None:
+def _grow_leave(workspace: Workspace, costs: Costs, n_touched: int, complete: int) -> None:
     """Leave the workspace as the next search expects it: a node reached from one that stopped the search
     is not known to be final; the ring is left empty. Records whether the search was ``complete`` and the
     number of nodes it touched."""
-    use_ring = costs.span <= ws.ring.shape[0]
+    use_ring = costs.span <= workspace.ring.shape[0]
     for i in range(n_touched):
-        k = ws.touched[i]
-        if ws.state[k] == -3:  # reached from a node that stopped the search: not known to be final
-            ws.state[k] = -1
-        elif ws.state[k] >= 0 and use_ring:  # still queued: leave the ring empty for the next search
-            b = (ws.cost[k] // costs.width) % costs.span
-            ws.ring[b] = -1
-            ws.bits[b >> 6] = 0
-    ws.info[1] = complete
-    ws.info[2] = n_touched
+        k = workspace.touched[i]
+        if workspace.state[k] == -3:  # reached from a node that stopped the search: not known to be final
+            workspace.state[k] = -1
+        elif workspace.state[k] >= 0 and use_ring:  # still queued: leave the ring empty for the next search
+            b = (workspace.cost[k] // costs.width) % costs.span
+            workspace.ring[b] = -1
+            workspace.bits[b >> 6] = 0
+    workspace.info[1] = complete
+    workspace.info[2] = n_touched
 
 
 @compiled_inline
@@ -309,28 +317,28 @@ def _settle_dead_ends(
 
 @compiled_inline
 def _grow_start(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     source: int,
     limit: int,
     targets: NDArray[np.int64],
-    ws: Workspace,
+    workspace: Workspace,
     lazy: Lazy,
 ) -> tuple[int, int, int, int]:
-    """Start ``grow``'s search: reset ``ws``, mark the targets, cost the lazy ends and queue the source's
-    first labels (none when every target is already resolved). Returns the queue's size, the ring's first
-    bucket being emptied (ring), the touched nodes' count and the number of nodes to settle."""
-    _reset(ws)
-    ws.info[0] = source
-    n_touched, remaining = _need_targets(g, source, targets, ws)
+    """Start ``grow``'s search: reset ``workspace``, mark the targets, cost the lazy ends and queue the
+    source's first labels (none when every target is already resolved). Returns the queue's size, the ring's
+    first bucket being emptied (ring), the touched nodes' count and the number of nodes to settle."""
+    _reset(workspace)
+    workspace.info[0] = source
+    n_touched, remaining = _need_targets(graph, source, targets, workspace)
     size, pos = 0, 0
     if lazy.on:
-        _lazy_ends(g, ed, costs, lazy, source, targets)
+        _lazy_ends(graph, edges, costs, lazy, source, targets)
     if not (targets.shape[0] > 0 and remaining == 0):
-        size, n_touched = _grow_seed(g, ed, costs, ws, source, limit, n_touched)
-        if costs.span <= ws.ring.shape[0] and size > 0:
-            pos = _next_bucket(ws.bits, costs.span, 0)
+        size, n_touched = _grow_seed(graph, edges, costs, workspace, source, limit, n_touched)
+        if costs.span <= workspace.ring.shape[0] and size > 0:
+            pos = _next_bucket(workspace.bits, costs.span, 0)
     return size, pos, n_touched, remaining
 
 
@@ -354,29 +362,57 @@ def _ring_take(
 
 @compiled
 def grow(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     source: int,
     limit: int,
     targets: NDArray[np.int64],
-    ws: Workspace,
+    workspace: Workspace,
     lazy: Lazy,
 ) -> None:
     """Grow the canonical shortest-path tree from ``source`` (all kept nodes with cost <= ``limit``).
 
     With ``targets`` non-empty the search stops as soon as every target can be resolved: a kept target is
     settled, and for an interior target both ends of its chain are (unless the source lies before it on
-    that chain). ``ws`` is reset here; read the result with ``resolve`` and ``unfold``. The queue (a bucket
-    ring, or a heap for spread metrics) and the lazy metric are described above."""
-    cost, tie1, tie2, pse, pstart, state = ws.cost, ws.tie1, ws.tie2, ws.pse, ws.pstart, ws.state
-    nxt, prv, ring, bits, need, touched = ws.nxt, ws.prv, ws.ring, ws.bits, ws.need, ws.touched
-    indptr, se_head, se_tie1, se_tie2, dead_end = g.indptr, g.se_head, g.se_tie1, g.se_tie2, g.dead_end
+    that chain). ``workspace`` is reset here; read the result with ``resolve`` and ``unfold``. The queue (a
+    bucket ring, or a heap for spread metrics) and the lazy metric are described above."""
+    cost, tie1, tie2, pse, pstart, state = (
+        workspace.cost,
+        workspace.tie1,
+        workspace.tie2,
+        workspace.pse,
+        workspace.pstart,
+        workspace.state,
+    )
+    nxt, prv, ring, bits, need, touched = (
+        workspace.nxt,
+        workspace.prv,
+        workspace.ring,
+        workspace.bits,
+        workspace.need,
+        workspace.touched,
+    )
+    indptr, se_head, se_tie1, se_tie2, dead_end = (
+        graph.indptr,
+        graph.se_head,
+        graph.se_tie1,
+        graph.se_tie2,
+        graph.dead_end,
+    )
     lazy_on, fixed, zmask, term = lazy.on, lazy.fixed, lazy.zmask, lazy.term
-    se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
+    se_ptr, se_edges, ec_ptr, ec_cell, time_s = (
+        graph.se_ptr,
+        graph.se_edges,
+        edges.ec_ptr,
+        edges.ec_cell,
+        edges.time_s,
+    )
     umax, kappa, width, span, se_cost = lazy.umax, lazy.kappa, costs.width, costs.span, costs.se
     use_ring, early = span <= ring.shape[0], targets.shape[0] > 0
-    size, pos, n_touched, remaining = _grow_start(g, ed, costs, source, limit, targets, ws, lazy)
+    size, pos, n_touched, remaining = _grow_start(
+        graph, edges, costs, source, limit, targets, workspace, lazy
+    )
     complete = 1
     while size > 0:
         if use_ring:
@@ -432,4 +468,4 @@ def grow(
         if stop:
             complete = 0
             break
-    _grow_leave(ws, costs, n_touched, complete)
+    _grow_leave(workspace, costs, n_touched, complete)

@@ -156,38 +156,38 @@ def kappa_cost(t: float, u: float, umax: float, kappa: float) -> int:
 
 
 @compiled_inline
-def lazy_edge(ed: Edges, lazy: Lazy, e: int) -> int:
+def lazy_edge(edges: Edges, lazy: Lazy, e: int) -> int:
     """Edge ``e``'s cost under ``lazy``."""
     u = 0.0
-    for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
-        c = ed.ec_cell[j]
+    for j in range(edges.ec_ptr[e] + 1, edges.ec_ptr[e + 1]):
+        c = edges.ec_cell[j]
         if not lazy.zmask[c]:
             u += lazy.term[c]
-    return kappa_cost(ed.time_s[e], u, lazy.umax, lazy.kappa)
+    return kappa_cost(edges.time_s[e], u, lazy.umax, lazy.kappa)
 
 
 @compiled_inline
-def lazy_fill(g: SearchGraph, ed: Edges, costs: Costs, lazy: Lazy, s: int) -> None:
+def lazy_fill(graph: SearchGraph, edges: Edges, costs: Costs, lazy: Lazy, s: int) -> None:
     """Write super-edge ``s``'s cost under ``lazy``, and its edges', into ``costs``."""
     total = 0
-    for p in range(g.se_ptr[s], g.se_ptr[s + 1]):
-        e = g.se_edges[p]
-        q = lazy_edge(ed, lazy, e)
+    for p in range(graph.se_ptr[s], graph.se_ptr[s + 1]):
+        e = graph.se_edges[p]
+        q = lazy_edge(edges, lazy, e)
         costs.edge[e] = q
         total += q
     costs.se[s] = total
 
 
 @compiled
-def prepare_into(g: SearchGraph, edge_cost: NDArray[np.int64], se: NDArray[np.int64]) -> Costs:
-    """``prepare`` writing the super-edge sums into ``se`` (length: the super-edges of ``g``)."""
-    ns = g.se_tail.shape[0]
+def prepare_into(graph: SearchGraph, edge_cost: NDArray[np.int64], se: NDArray[np.int64]) -> Costs:
+    """``prepare`` writing the super-edge sums into ``se`` (length: the super-edges of ``graph``)."""
+    ns = graph.se_tail.shape[0]
     lo = INF
     hi = 1
     for s in range(ns):
         c = 0
-        for p in range(g.se_ptr[s], g.se_ptr[s + 1]):
-            c += edge_cost[g.se_edges[p]]
+        for p in range(graph.se_ptr[s], graph.se_ptr[s + 1]):
+            c += edge_cost[graph.se_edges[p]]
         se[s] = c
         if c < lo:
             lo = c
@@ -198,9 +198,9 @@ def prepare_into(g: SearchGraph, edge_cost: NDArray[np.int64], se: NDArray[np.in
     return Costs(edge_cost, se, lo, hi // lo + 2)
 
 
-def prepare(g: SearchGraph, edge_cost: NDArray[np.int64]) -> Costs:
-    """The metric ``edge_cost`` (whole microseconds, >= 1 each) prepared for searches on ``g``."""
-    costs: Costs = prepare_into(g, edge_cost, np.empty(g.se_tail.shape[0], dtype=np.int64))
+def prepare(graph: SearchGraph, edge_cost: NDArray[np.int64]) -> Costs:
+    """The metric ``edge_cost`` (whole microseconds, >= 1 each) prepared for searches on ``graph``."""
+    costs: Costs = prepare_into(graph, edge_cost, np.empty(graph.se_tail.shape[0], dtype=np.int64))
     return costs
 
 
@@ -276,10 +276,10 @@ def _search_graph(
     return g._replace(se_tie1=_sum_over_super_edges(g, tie1), se_tie2=_sum_over_super_edges(g, tie2))
 
 
-def _sum_over_super_edges(g: SearchGraph, per_edge: NDArray[np.int64]) -> NDArray[np.int64]:
-    if g.se_ptr.shape[0] <= 1:
+def _sum_over_super_edges(graph: SearchGraph, per_edge: NDArray[np.int64]) -> NDArray[np.int64]:
+    if graph.se_ptr.shape[0] <= 1:
         return np.zeros(0, dtype=np.int64)
-    return np.add.reduceat(per_edge[g.se_edges], g.se_ptr[:-1]).astype(np.int64)
+    return np.add.reduceat(per_edge[graph.se_edges], graph.se_ptr[:-1]).astype(np.int64)
 
 
 @functools.lru_cache(maxsize=16)
@@ -326,10 +326,10 @@ def road_graph(city: City) -> RoadGraph:
     )
 
 
-def fixed_super_edges(g: SearchGraph, ed: Edges, time: Costs) -> NDArray[np.int64]:
-    """Per super-edge of ``g``: its travel time (``time``, prepared for ``g``) if none of its edges enters a
-    cell, so that its cost is that under every kappa metric, else -1 (``Lazy.fixed``)."""
-    if g.se_ptr.shape[0] <= 1:
+def fixed_super_edges(graph: SearchGraph, edges: Edges, time: Costs) -> NDArray[np.int64]:
+    """Per super-edge of ``graph``: its travel time (``time``, prepared for ``graph``) if none of its edges
+    enters a cell, so that its cost is that under every kappa metric, else -1 (``Lazy.fixed``)."""
+    if graph.se_ptr.shape[0] <= 1:
         return np.zeros(0, dtype=np.int64)
-    crossing = (np.diff(ed.ec_ptr) > 1)[g.se_edges]
-    return np.where(np.logical_or.reduceat(crossing, g.se_ptr[:-1]), -1, time.se).astype(np.int64)
+    crossing = (np.diff(edges.ec_ptr) > 1)[graph.se_edges]
+    return np.where(np.logical_or.reduceat(crossing, graph.se_ptr[:-1]), -1, time.se).astype(np.int64)

@@ -228,11 +228,11 @@ def _offset_on(pos_se: NDArray[np.int64], pos_off: NDArray[np.int64], v: int, s:
 
 
 @compiled_inline
-def _reset(ws: Workspace) -> None:
+def _reset(workspace: Workspace) -> None:
     """Forget what the last search touched (the ring is left empty by every search)."""
-    for i in range(ws.info[2]):
-        k = ws.touched[i]
-        ws.cost[k] = INF
-        ws.state[k] = -1
-        ws.need[k] = False
-        ws.unfolded[k] = False
+    for i in range(workspace.info[2]):
+        k = workspace.touched[i]
+        workspace.cost[k] = INF
+        workspace.state[k] = -1
+        workspace.need[k] = False
+        workspace.unfolded[k] = False

@@ -242,61 +242,71 @@ def _pop(
 
 
 @compiled
-def _witness(p: _Pool, done: NDArray[np.bool_], ws: _Witness, u: int, v: int, limit: int, settle: int) -> int:
+def _witness(
+    p: _Pool, done: NDArray[np.bool_], workspace: _Witness, u: int, v: int, limit: int, settle: int
+) -> int:
     """Labels of the least paths from ``u`` that avoid ``v`` and the contracted nodes, up to cost ``limit``
     and ``settle`` settled nodes (a label not final when it stops is still the label of a real path: a
     witness taken from it is one). Returns the number of nodes touched (to reset)."""
     n_t = 1
-    ws.touched[0] = u
-    ws.c[u] = 0
-    ws.a[u] = 0
-    ws.b[u] = 0
-    ws.heap[0] = u
-    ws.pos[u] = 0
+    workspace.touched[0] = u
+    workspace.c[u] = 0
+    workspace.a[u] = 0
+    workspace.b[u] = 0
+    workspace.heap[0] = u
+    workspace.pos[u] = 0
     size = 1
     settled = 0
     while size > 0 and settled < settle:
-        x = ws.heap[0]
-        size = _pop(ws.c, ws.a, ws.b, ws.pos, ws.heap, size)
-        ws.pos[x] = -2
+        x = workspace.heap[0]
+        size = _pop(workspace.c, workspace.a, workspace.b, workspace.pos, workspace.heap, size)
+        workspace.pos[x] = -2
         settled += 1
-        cx, ax, bx = ws.c[x], ws.a[x], ws.b[x]
+        cx, ax, bx = workspace.c[x], workspace.a[x], workspace.b[x]
         if cx > limit:
             break
         y = p.out_first[x]
         while y >= 0:
             h = p.head[y]
-            if h != v and not done[h] and ws.pos[h] != -2:
+            if h != v and not done[h] and workspace.pos[h] != -2:
                 c = cx + p.c[y]
                 if c <= limit:
                     a = ax + p.a[y]
                     b = bx + p.b[y]
-                    if _less(c, a, b, ws.c[h], ws.a[h], ws.b[h]):
-                        if ws.c[h] == INF:
-                            ws.touched[n_t] = h
+                    if _less(c, a, b, workspace.c[h], workspace.a[h], workspace.b[h]):
+                        if workspace.c[h] == INF:
+                            workspace.touched[n_t] = h
                             n_t += 1
-                        ws.c[h] = c
-                        ws.a[h] = a
-                        ws.b[h] = b
-                        if ws.pos[h] < 0:
-                            ws.pos[h] = size
+                        workspace.c[h] = c
+                        workspace.a[h] = a
+                        workspace.b[h] = b
+                        if workspace.pos[h] < 0:
+                            workspace.pos[h] = size
                             size += 1
-                        _sift_up(ws.c, ws.a, ws.b, ws.pos, ws.heap, ws.pos[h], h)
+                        _sift_up(
+                            workspace.c,
+                            workspace.a,
+                            workspace.b,
+                            workspace.pos,
+                            workspace.heap,
+                            workspace.pos[h],
+                            h,
+                        )
             y = p.nout[y]
     return n_t
 
 
 @compiled_inline
-def _clear(ws: _Witness, n_t: int) -> None:
+def _clear(workspace: _Witness, n_t: int) -> None:
     for i in range(n_t):
-        x = ws.touched[i]
-        ws.c[x] = INF
-        ws.pos[x] = -1
+        x = workspace.touched[i]
+        workspace.c[x] = INF
+        workspace.pos[x] = -1
 
 
 @compiled
 def _contract(
-    p: _Pool, done: NDArray[np.bool_], ws: _Witness, v: int, add: bool, settle: int
+    p: _Pool, done: NDArray[np.bool_], workspace: _Witness, v: int, add: bool, settle: int
 ) -> tuple[int, int]:
     """Contract ``v`` (``add``) or only count what it would take: the shortcuts it needs and the arcs it
     removes from the remaining graph."""
@@ -321,18 +331,18 @@ def _contract(
             if w != u and not done[w]:
                 limit = max(limit, p.c[x] + p.c[y])
             y = p.nout[y]
-        n_t = _witness(p, done, ws, u, v, limit, settle)
+        n_t = _witness(p, done, workspace, u, v, limit, settle)
         y = p.out_first[v]
         while y >= 0:
             w = p.head[y]
             if w != u and not done[w]:
                 c, a, b = p.c[x] + p.c[y], p.a[x] + p.a[y], p.b[x] + p.b[y]
-                if _less(c, a, b, ws.c[w], ws.a[w], ws.b[w]):
+                if _less(c, a, b, workspace.c[w], workspace.a[w], workspace.b[w]):
                     need += 1
                     if add:
                         _put(p, u, w, c, a, b, -1, x, y)
             y = p.nout[y]
-        _clear(ws, n_t)
+        _clear(workspace, n_t)
         x = p.nin[x]
     return need, removed
 
@@ -522,33 +532,33 @@ def hierarchy(graph: RoadGraph) -> Hierarchy | None:
 
 
 @compiled_inline
-def _lane_reset(ln: Lanes) -> None:
+def _lane_reset(lanes: Lanes) -> None:
     for d in range(2):
-        for i in range(ln.n_touched[d]):
-            v = ln.touched[d, i]
-            ln.cost[d, v] = INF
-            ln.pos[d, v] = -1
-            ln.pred[d, v] = -1
-        ln.n_touched[d] = 0
+        for i in range(lanes.n_touched[d]):
+            v = lanes.touched[d, i]
+            lanes.cost[d, v] = INF
+            lanes.pos[d, v] = -1
+            lanes.pred[d, v] = -1
+        lanes.n_touched[d] = 0
 
 
 @compiled_inline
-def _lane_seed(ln: Lanes, d: int, v: int) -> None:
-    ln.cost[d, v] = 0
-    ln.tie1[d, v] = 0
-    ln.tie2[d, v] = 0
-    ln.pred[d, v] = -1
-    ln.heap[d, 0] = v
-    ln.pos[d, v] = 0
-    ln.touched[d, 0] = v
-    ln.n_touched[d] = 1
+def _lane_seed(lanes: Lanes, d: int, v: int) -> None:
+    lanes.cost[d, v] = 0
+    lanes.tie1[d, v] = 0
+    lanes.tie2[d, v] = 0
+    lanes.pred[d, v] = -1
+    lanes.heap[d, 0] = v
+    lanes.pos[d, v] = 0
+    lanes.touched[d, 0] = v
+    lanes.n_touched[d] = 1
 
 
 @compiled_inline
-def _stalled(h: Hierarchy, ln: Lanes, d: int, v: int) -> bool:
+def _stalled(h: Hierarchy, lanes: Lanes, d: int, v: int) -> bool:
     """Stall on demand: ``v``'s label is not final along the climb when a higher node already reached
     reaches it with a smaller label (then nothing climbing from ``v`` can be on a shortest path)."""
-    cost, tie1, tie2 = ln.cost[d], ln.tie1[d], ln.tie2[d]
+    cost, tie1, tie2 = lanes.cost[d], lanes.tie1[d], lanes.tie2[d]
     ptr, arcs = (h.dn_ptr, h.dn) if d == 0 else (h.up_ptr, h.up)
     for i in range(ptr[v], ptr[v + 1]):
         x = arcs[i]
@@ -561,12 +571,12 @@ def _stalled(h: Hierarchy, ln: Lanes, d: int, v: int) -> bool:
 
 
 @compiled
-def _meet(h: Hierarchy, ln: Lanes, s: int, t: int) -> int:
+def _meet(h: Hierarchy, lanes: Lanes, s: int, t: int) -> int:
     """The node where the least path from ``s`` to ``t`` reaches its highest rank (-1: none); the two
-    climbs' labels and arcs stay in ``ln``."""
-    _lane_reset(ln)
-    _lane_seed(ln, 0, s)
-    _lane_seed(ln, 1, t)
+    climbs' labels and arcs stay in ``lanes``."""
+    _lane_reset(lanes)
+    _lane_seed(lanes, 0, s)
+    _lane_seed(lanes, 1, t)
     size = np.ones(2, dtype=np.int64)
     best_c, best_a, best_b, best = INF, 0, 0, -1
     if s == t:
@@ -576,44 +586,57 @@ def _meet(h: Hierarchy, ln: Lanes, s: int, t: int) -> int:
         if size[0] == 0:
             d = 1
         elif size[1] > 0:
-            u0, u1 = ln.heap[0, 0], ln.heap[1, 0]
+            u0, u1 = lanes.heap[0, 0], lanes.heap[1, 0]
             if _less(
-                ln.cost[1, u1], ln.tie1[1, u1], ln.tie2[1, u1], ln.cost[0, u0], ln.tie1[0, u0], ln.tie2[0, u0]
+                lanes.cost[1, u1],
+                lanes.tie1[1, u1],
+                lanes.tie2[1, u1],
+                lanes.cost[0, u0],
+                lanes.tie1[0, u0],
+                lanes.tie2[0, u0],
             ):
                 d = 1
-        v = ln.heap[d, 0]
-        cv, av, bv = ln.cost[d, v], ln.tie1[d, v], ln.tie2[d, v]
+        v = lanes.heap[d, 0]
+        cv, av, bv = lanes.cost[d, v], lanes.tie1[d, v], lanes.tie2[d, v]
         if not _less(cv, av, bv, best_c, best_a, best_b):
             size[d] = 0  # nothing left in this direction can improve the best
             continue
-        size[d] = _pop(ln.cost[d], ln.tie1[d], ln.tie2[d], ln.pos[d], ln.heap[d], size[d])
-        ln.pos[d, v] = -2
+        size[d] = _pop(lanes.cost[d], lanes.tie1[d], lanes.tie2[d], lanes.pos[d], lanes.heap[d], size[d])
+        lanes.pos[d, v] = -2
         o = 1 - d
-        if ln.cost[o, v] < INF:
-            c, a, b = cv + ln.cost[o, v], av + ln.tie1[o, v], bv + ln.tie2[o, v]
+        if lanes.cost[o, v] < INF:
+            c, a, b = cv + lanes.cost[o, v], av + lanes.tie1[o, v], bv + lanes.tie2[o, v]
             if _less(c, a, b, best_c, best_a, best_b):
                 best_c, best_a, best_b, best = c, a, b, v
-        if _stalled(h, ln, d, v):
+        if _stalled(h, lanes, d, v):
             continue
         ptr, arcs = (h.up_ptr, h.up) if d == 0 else (h.dn_ptr, h.dn)
         for i in range(ptr[v], ptr[v + 1]):
             x = arcs[i]
             w = h.arc_head[x] if d == 0 else h.arc_tail[x]
-            if ln.pos[d, w] == -2:
+            if lanes.pos[d, w] == -2:
                 continue
             c, a, b = cv + h.arc_c[x], av + h.arc_a[x], bv + h.arc_b[x]
-            if _less(c, a, b, ln.cost[d, w], ln.tie1[d, w], ln.tie2[d, w]):
-                if ln.cost[d, w] == INF:
-                    ln.touched[d, ln.n_touched[d]] = w
-                    ln.n_touched[d] += 1
-                ln.cost[d, w] = c
-                ln.tie1[d, w] = a
-                ln.tie2[d, w] = b
-                ln.pred[d, w] = x
-                if ln.pos[d, w] < 0:
-                    ln.pos[d, w] = size[d]
+            if _less(c, a, b, lanes.cost[d, w], lanes.tie1[d, w], lanes.tie2[d, w]):
+                if lanes.cost[d, w] == INF:
+                    lanes.touched[d, lanes.n_touched[d]] = w
+                    lanes.n_touched[d] += 1
+                lanes.cost[d, w] = c
+                lanes.tie1[d, w] = a
+                lanes.tie2[d, w] = b
+                lanes.pred[d, w] = x
+                if lanes.pos[d, w] < 0:
+                    lanes.pos[d, w] = size[d]
                     size[d] += 1
-                _sift_up(ln.cost[d], ln.tie1[d], ln.tie2[d], ln.pos[d], ln.heap[d], ln.pos[d, w], w)
+                _sift_up(
+                    lanes.cost[d],
+                    lanes.tie1[d],
+                    lanes.tie2[d],
+                    lanes.pos[d],
+                    lanes.heap[d],
+                    lanes.pos[d, w],
+                    w,
+                )
     return best
 
 
@@ -636,16 +659,16 @@ def _unpack(h: Hierarchy, x: int, stack: NDArray[np.int64], out: NDArray[np.int6
 
 
 @compiled
-def _path(h: Hierarchy, ln: Lanes, s: int, t: int, m: int) -> NDArray[np.int64]:
+def _path(h: Hierarchy, lanes: Lanes, s: int, t: int, m: int) -> NDArray[np.int64]:
     """The original edges of the least path from ``s`` to ``t`` through ``m`` (after ``_meet``): the
     climb from ``s`` (its arcs read backwards from ``m``, kept at the end of the stack), then the descent
     to ``t``, each arc unpacked."""
-    stack, out = ln.stack, ln.buf
+    stack, out = lanes.stack, lanes.buf
     k = 0
     v = m
     top = stack.shape[0]
     while v != s:
-        x = ln.pred[0, v]
+        x = lanes.pred[0, v]
         top -= 1
         stack[top] = x
         k += 1
@@ -656,7 +679,7 @@ def _path(h: Hierarchy, ln: Lanes, s: int, t: int, m: int) -> NDArray[np.int64]:
         n_out = _unpack(h, climb[i], stack, out, n_out)
     v = m
     while v != t:
-        x = ln.pred[1, v]
+        x = lanes.pred[1, v]
         n_out = _unpack(h, x, stack, out, n_out)
         v = h.arc_head[x]
     return out[:n_out].copy()
@@ -664,7 +687,7 @@ def _path(h: Hierarchy, ln: Lanes, s: int, t: int, m: int) -> NDArray[np.int64]:
 
 @compiled
 def ch_paths(
-    h: Hierarchy, ln: Lanes, sources: NDArray[np.int64], targets: NDArray[np.int64]
+    h: Hierarchy, lanes: Lanes, sources: NDArray[np.int64], targets: NDArray[np.int64]
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The canonical fastest path of every (source, target) pair as CSR ``(ptr, edges)``, as
     ``unfolding.paths``; a pair that cannot be joined gets ``ptr`` -1 at its end and ends the call."""
@@ -673,11 +696,11 @@ def ch_paths(
     flat = np.empty(max(64, 32 * n), dtype=np.int64)
     used = 0
     for i in range(n):
-        m = _meet(h, ln, sources[i], targets[i])
+        m = _meet(h, lanes, sources[i], targets[i])
         if m < 0:
             ptr[i + 1] = -1
             return ptr, flat[:used]
-        flat, used = unfolding.append_path(flat, used, _path(h, ln, sources[i], targets[i], m))
+        flat, used = unfolding.append_path(flat, used, _path(h, lanes, sources[i], targets[i], m))
         ptr[i + 1] = used
     return ptr, flat[:used]
 

@@ -50,7 +50,7 @@ def split_paths(
 
 
 def landmark_fastest_paths(
-    graph: RoadGraph, ws: Workspace, sources: NDArray[np.int64], targets: NDArray[np.int64]
+    graph: RoadGraph, workspace: Workspace, sources: NDArray[np.int64], targets: NDArray[np.int64]
 ) -> list[NDArray[np.int64]]:
     """The canonical fastest path of every (source, target) pair (one compiled call).
 
@@ -61,22 +61,22 @@ def landmark_fastest_paths(
     """
     src = np.asarray(sources, dtype=np.int64)
     tgt = np.asarray(targets, dtype=np.int64)
-    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, ws, src, tgt, landmarks(graph))
+    ptr, flat = paths(graph.forward, graph.edges, graph.time_forward, workspace, src, tgt, landmarks(graph))
     return split_paths(ptr, flat, src, tgt)
 
 
-def fastest_path(graph: RoadGraph, ws: Workspace, source: int, target: int) -> NDArray[np.int64]:
-    """Edges of the canonical fastest path from ``source`` to ``target`` (forward workspace ``ws``).
+def fastest_path(graph: RoadGraph, workspace: Workspace, source: int, target: int) -> NDArray[np.int64]:
+    """Edges of the canonical fastest path from ``source`` to ``target`` (forward workspace ``workspace``).
 
     Raises
     ------
     ValueError
         When ``target`` cannot be reached.
     """
-    return path(graph, ws, graph.time_forward, source, target)
+    return path(graph, workspace, graph.time_forward, source, target)
 
 
-def path(graph: RoadGraph, ws: Workspace, costs: Costs, source: int, target: int) -> NDArray[np.int64]:
+def path(graph: RoadGraph, workspace: Workspace, costs: Costs, source: int, target: int) -> NDArray[np.int64]:
     """Edges of the canonical shortest path from ``source`` to ``target`` under ``costs`` (forward).
 
     Raises
@@ -87,10 +87,10 @@ def path(graph: RoadGraph, ws: Workspace, costs: Costs, source: int, target: int
     ed = graph.edges
     tgt = np.array([target], dtype=np.int64)
     out = np.zeros(1, dtype=np.int64)
-    tree(graph.forward, ed, costs, int(source), int(INF), tgt, tgt, ws, out)
+    tree(graph.forward, ed, costs, int(source), int(INF), tgt, tgt, workspace, out)
     if out[0] >= INF:
         raise ValueError(f"node {target} cannot be reached from node {source}")
-    edges: NDArray[np.int64] = path_to(ed, 1, ws.pred, int(source), int(target))
+    edges: NDArray[np.int64] = path_to(ed, 1, workspace.pred, int(source), int(target))
     return edges
 
 

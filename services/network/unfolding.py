@@ -34,7 +34,7 @@ __all__ = [
 
 @compiled
 def resolve(
-    g: SearchGraph, ed: Edges, costs: Costs, limit: int, v: int, ws: Workspace
+    graph: SearchGraph, edges: Edges, costs: Costs, limit: int, v: int, workspace: Workspace
 ) -> tuple[int, int, int, int, int]:
     """The label of node ``v`` after ``run``: ``(cost, tie1, tie2, super-edge, start offset)``.
 
@@ -43,46 +43,52 @@ def resolve(
     ``INF`` when ``v`` is not reached within ``limit`` or cannot be decided because the search stopped
     early. The source itself is ``(0, 0, 0, -1, 0)``.
     """
-    source = ws.info[0]
+    source = workspace.info[0]
     if v == source:
         return 0, 0, 0, -1, 0
-    kv = g.kept_of[v]
+    kv = graph.kept_of[v]
     if kv >= 0:
-        if ws.state[kv] != -2:
+        if workspace.state[kv] != -2:
             return INF, 0, 0, -1, 0
-        return ws.cost[kv], ws.tie1[kv], ws.tie2[kv], ws.pse[kv], ws.pstart[kv]
-    sk = g.kept_of[source]
+        return (
+            workspace.cost[kv],
+            workspace.tie1[kv],
+            workspace.tie2[kv],
+            workspace.pse[kv],
+            workspace.pstart[kv],
+        )
+    sk = graph.kept_of[source]
     best_c = INF
     best_a = 0
     best_b = 0
     best_s = -1
     best_start = 0
     for j in range(2):
-        s = g.pos_se[v, j]
+        s = graph.pos_se[v, j]
         if s < 0:
             continue
-        off = g.pos_off[v, j]
-        os = _offset_on(g.pos_se, g.pos_off, source, s) if sk < 0 else -1
+        off = graph.pos_off[v, j]
+        os = _offset_on(graph.pos_se, graph.pos_off, source, s) if sk < 0 else -1
         if os >= 0 and os < off:
             start = os
             c = 0
             a = 0
             b = 0
         else:
-            t = g.se_tail[s]
-            if ws.state[t] != -2:
-                if ws.info[1] == 0:
+            t = graph.se_tail[s]
+            if workspace.state[t] != -2:
+                if workspace.info[1] == 0:
                     return INF, 0, 0, -1, 0  # the tail may still be near: undecided
                 continue
             start = 0
-            c = ws.cost[t]
-            a = ws.tie1[t]
-            b = ws.tie2[t]
-        for p in range(g.se_ptr[s] + start, g.se_ptr[s] + off):
-            e = g.se_edges[p]
+            c = workspace.cost[t]
+            a = workspace.tie1[t]
+            b = workspace.tie2[t]
+        for p in range(graph.se_ptr[s] + start, graph.se_ptr[s] + off):
+            e = graph.se_edges[p]
             c += costs.edge[e]
-            a += ed.tie1[e]
-            b += ed.tie2[e]
+            a += edges.tie1[e]
+            b += edges.tie2[e]
         if _less(c, a, b, best_c, best_a, best_b):
             best_c = c
             best_a = a
@@ -95,22 +101,33 @@ def resolve(
 
 
 @compiled
-def unfold(g: SearchGraph, ed: Edges, costs: Costs, limit: int, v: int, ws: Workspace) -> bool:
-    """Write ``ws.pred`` for every original node on the tree path to ``v``; False if ``v`` is not reached."""
-    c, _a, _b, s, start = resolve(g, ed, costs, limit, v, ws)
+def unfold(graph: SearchGraph, edges: Edges, costs: Costs, limit: int, v: int, workspace: Workspace) -> bool:
+    """Write ``workspace.pred`` for every original node on the tree path to ``v``; False if ``v`` is not
+    reached."""
+    c, _a, _b, s, start = resolve(graph, edges, costs, limit, v, workspace)
     if c >= INF:
         return False
-    if v == ws.info[0]:
+    if v == workspace.info[0]:
         return True
-    kv = g.kept_of[v]
+    kv = graph.kept_of[v]
     if kv < 0:  # interior: the prefix of its super-edge up to it, then on from the tail
-        off = _offset_on(g.pos_se, g.pos_off, v, s)
-        for p in range(g.se_ptr[s] + start, g.se_ptr[s] + off):
-            ws.pred[g.se_node[p]] = g.se_edges[p]
+        off = _offset_on(graph.pos_se, graph.pos_off, v, s)
+        for p in range(graph.se_ptr[s] + start, graph.se_ptr[s] + off):
+            workspace.pred[graph.se_node[p]] = graph.se_edges[p]
         if start != 0:
             return True
-        kv = g.se_tail[s]
-    _unfold_from(g.se_ptr, g.se_node, g.se_edges, g.se_tail, ws.pse, ws.pstart, ws.unfolded, ws.pred, kv)
+        kv = graph.se_tail[s]
+    _unfold_from(
+        graph.se_ptr,
+        graph.se_node,
+        graph.se_edges,
+        graph.se_tail,
+        workspace.pse,
+        workspace.pstart,
+        workspace.unfolded,
+        workspace.pred,
+        kv,
+    )
     return True
 
 
@@ -142,12 +159,12 @@ def _unfold_from(
 
 @compiled
 def unfold_many(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     limit: int,
     nodes: NDArray[np.int64],
-    ws: Workspace,
+    workspace: Workspace,
     reached: NDArray[np.bool_],
 ) -> bool:
     """``unfold`` every one of ``nodes`` (``reached[i]``: node ``i`` was); True when all were.
@@ -155,20 +172,28 @@ def unfold_many(
     One call for many nodes: numba counts a reference for every array of every tuple passed to a compiled
     function, about 0.7-1.7 us per ``resolve`` or ``unfold`` call with the graph, metric and workspace passed
     whole, several times the work of unfolding a node; here a kept node is unfolded from the arrays alone."""
-    source = ws.info[0]
-    state = ws.state
+    source = workspace.info[0]
+    state = workspace.state
     all_reached = True
     for i in range(nodes.shape[0]):
         v = nodes[i]
-        kv = g.kept_of[v]
+        kv = graph.kept_of[v]
         if kv >= 0 and v != source:
             ok = state[kv] == -2
             if ok:
                 _unfold_from(
-                    g.se_ptr, g.se_node, g.se_edges, g.se_tail, ws.pse, ws.pstart, ws.unfolded, ws.pred, kv
+                    graph.se_ptr,
+                    graph.se_node,
+                    graph.se_edges,
+                    graph.se_tail,
+                    workspace.pse,
+                    workspace.pstart,
+                    workspace.unfolded,
+                    workspace.pred,
+                    kv,
                 )
         else:
-            ok = unfold(g, ed, costs, limit, v, ws)
+            ok = unfold(graph, edges, costs, limit, v, workspace)
         reached[i] = ok
         all_reached = all_reached and ok
     return all_reached
@@ -176,38 +201,38 @@ def unfold_many(
 
 @compiled
 def labels(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     limit: int,
     nodes: NDArray[np.int64],
-    ws: Workspace,
+    workspace: Workspace,
     out: NDArray[np.int64],
 ) -> None:
     """``resolve``'s label ``(cost, tie1, tie2)`` of every one of ``nodes`` into ``out[:, i]`` in one call
     (see ``unfold_many``)."""
-    source = ws.info[0]
+    source = workspace.info[0]
     for i in range(nodes.shape[0]):
         v = nodes[i]
-        kv = g.kept_of[v]
+        kv = graph.kept_of[v]
         if kv >= 0 and v != source:
-            if ws.state[kv] == -2:
-                out[0, i] = ws.cost[kv]
-                out[1, i] = ws.tie1[kv]
-                out[2, i] = ws.tie2[kv]
+            if workspace.state[kv] == -2:
+                out[0, i] = workspace.cost[kv]
+                out[1, i] = workspace.tie1[kv]
+                out[2, i] = workspace.tie2[kv]
             else:
                 out[0, i] = INF
                 out[1, i] = 0
                 out[2, i] = 0
         else:
-            c, a, b, _s, _start = resolve(g, ed, costs, limit, v, ws)
+            c, a, b, _s, _start = resolve(graph, edges, costs, limit, v, workspace)
             out[0, i] = c
             out[1, i] = a
             out[2, i] = b
 
 
 @compiled
-def path_to(ed: Edges, towards: int, pred: NDArray[np.int64], source: int, v: int) -> NDArray[np.int64]:
+def path_to(edges: Edges, towards: int, pred: NDArray[np.int64], source: int, v: int) -> NDArray[np.int64]:
     """Edges of the unfolded tree path between the root ``source`` and ``v``, in travel order: from
     ``source`` to ``v`` in a forward tree (``towards`` 1), from ``v`` to ``source`` in a reverse one."""
     count = 0
@@ -215,59 +240,59 @@ def path_to(ed: Edges, towards: int, pred: NDArray[np.int64], source: int, v: in
     while x != source:
         e = pred[x]
         count += 1
-        x = ed.tail[e] if towards == 1 else ed.head[e]
+        x = edges.tail[e] if towards == 1 else edges.head[e]
     out = np.empty(count, dtype=np.int64)
     x = v
     for i in range(count):
         e = pred[x]
         if towards == 1:
             out[count - 1 - i] = e
-            x = ed.tail[e]
+            x = edges.tail[e]
         else:
             out[i] = e
-            x = ed.head[e]
+            x = edges.head[e]
     return out
 
 
 @compiled
-def walk(ed: Edges, succ: NDArray[np.int64], start: int, root: int) -> NDArray[np.int64]:
+def walk(edges: Edges, succ: NDArray[np.int64], start: int, root: int) -> NDArray[np.int64]:
     """Edges from ``start`` to ``root`` following a reverse tree's ``succ`` (original edge ids)."""
-    return path_to(ed, 0, succ, root, start)
+    return path_to(edges, 0, succ, root, start)
 
 
 @compiled
 def tree(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
     source: int,
     limit: int,
     targets: NDArray[np.int64],
     queries: NDArray[np.int64],
-    ws: Workspace,
+    workspace: Workspace,
     out_cost: NDArray[np.int64],
 ) -> None:
     """``run`` then ``unfold`` every query; ``out_cost[i]`` is query ``i``'s cost (``INF`` unreached)."""
-    run(g, ed, costs, source, limit, targets, ws)
+    run(graph, edges, costs, source, limit, targets, workspace)
     for i in range(queries.shape[0]):
-        if unfold(g, ed, costs, limit, queries[i], ws):
-            out_cost[i] = resolve(g, ed, costs, limit, queries[i], ws)[0]
+        if unfold(graph, edges, costs, limit, queries[i], workspace):
+            out_cost[i] = resolve(graph, edges, costs, limit, queries[i], workspace)[0]
         else:
             out_cost[i] = INF
 
 
 @compiled
 def paths(
-    g: SearchGraph,
-    ed: Edges,
+    graph: SearchGraph,
+    edges: Edges,
     costs: Costs,
-    ws: Workspace,
+    workspace: Workspace,
     sources: NDArray[np.int64],
     targets: NDArray[np.int64],
-    lm: NDArray[np.int64],
+    landmarks: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The canonical path of every (source, target) pair in one call, as CSR ``(ptr, edges)``; a pair that
-    cannot be joined gets ``ptr`` -1 at its end (``ptr[i + 1] == -1``). With a landmark table ``lm``
+    cannot be joined gets ``ptr`` -1 at its end (``ptr[i + 1] == -1``). With a landmark table ``landmarks``
     (``landmarks``; ``costs`` must be the travel time, or dearer) each search is goal-directed
     (``run_guided``; the same paths); shape (0, 0): plain searches."""
     n = sources.shape[0]
@@ -275,18 +300,20 @@ def paths(
     flat = np.empty(max(64, 32 * n), dtype=np.int64)
     used = 0
     tgt = np.empty(1, dtype=np.int64)
-    guided = lm.shape[0] > 0
+    guided = landmarks.shape[0] > 0
     pot = np.empty((3, 0), dtype=np.int64)
     for i in range(n):
         if guided:
-            run_guided(g, ed, costs, sources[i], targets[i], pot, ws, lm)
+            run_guided(graph, edges, costs, sources[i], targets[i], pot, workspace, landmarks)
         else:
             tgt[0] = targets[i]
-            run(g, ed, costs, sources[i], INF, tgt, ws)
-        if not unfold(g, ed, costs, INF, targets[i], ws):
+            run(graph, edges, costs, sources[i], INF, tgt, workspace)
+        if not unfold(graph, edges, costs, INF, targets[i], workspace):
             ptr[i + 1] = -1
             return ptr, flat[:used]
-        flat, used = append_path(flat, used, path_to(ed, g.towards, ws.pred, sources[i], targets[i]))
+        flat, used = append_path(
+            flat, used, path_to(edges, graph.towards, workspace.pred, sources[i], targets[i])
+        )
         ptr[i + 1] = used
     return ptr, flat[:used]
 

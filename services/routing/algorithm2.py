@@ -32,7 +32,7 @@ __all__ = ["improve_routes", "route_pairs", "joint_utility", "pair_counts"]
 
 
 def improve_routes(
-    ep: Epoch,
+    epoch: Epoch,
     taxi_ids: Sequence[TaxiId],
     counted: Counted,
     routes: list[Route],
@@ -40,8 +40,8 @@ def improve_routes(
     n_slots: int,
 ) -> tuple[list[Route], list[float], int]:
     """Algorithm 2 over ``routes`` (route ``i`` is taxi ``taxi_ids[i]``'s, row ``i`` of ``counted``;
-    ``fastest[i]`` its fastest path to the same POI), every route departing at ``ep.now`` on gain tables of
-    ``n_slots`` intervals from ``ep.k0``. Returns the routes, the joint utility after the
+    ``fastest[i]`` its fastest path to the same POI), every route departing at ``epoch.now`` on gain tables of
+    ``n_slots`` intervals from ``epoch.k0``. Returns the routes, the joint utility after the
     initial matching and after each accepted re-plan, and the number of passes.
 
     The others' planned visits enter each re-plan's gain table as a dense count per (slot, cell), kept up
@@ -50,7 +50,14 @@ def improve_routes(
     ``workers`` threads) and taken in order; after an acceptance the rest of the batch is planned again
     against the new counts, so the outcome is that of one re-plan after the other.
     """
-    city, graph, counts, depart_s, k0, pool = ep.city, ep.graph, ep.counts, ep.now, ep.k0, ep.pool
+    city, graph, counts, depart_s, k0, pool = (
+        epoch.city,
+        epoch.graph,
+        epoch.counts,
+        epoch.now,
+        epoch.k0,
+        epoch.pool,
+    )
     kappas = city.params.kappas
     visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
     pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
@@ -75,7 +82,7 @@ def improve_routes(
                 out.append((cand, others_n))
         return out
 
-    batch = 1 if ep.workers <= 1 else 4 * ep.workers
+    batch = 1 if epoch.workers <= 1 else 4 * epoch.workers
     passes = 0
     accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
     planned_at = [-1] * len(routes)
@@ -86,7 +93,7 @@ def improve_routes(
         i = 0
         while i < len(routes):
             todo, i = _next_batch(planned_at, accepted, i, batch)
-            results = parallel_map(functools.partial(replan, total_n), todo, ep.workers)
+            results = parallel_map(functools.partial(replan, total_n), todo, epoch.workers)
             for a, (cand, others_n) in zip(todo, results, strict=True):
                 planned_at[a] = accepted
                 if np.array_equal(cand.edges, routes[a].edges):
@@ -110,7 +117,7 @@ def improve_routes(
                     break
         if not changed:
             break
-    return _own_gains(ep, counted, routes, accepted_by, n_slots), history, passes
+    return _own_gains(epoch, counted, routes, accepted_by, n_slots), history, passes
 
 
 def _dense_total(
@@ -156,17 +163,19 @@ def _slots_cells(
 
 
 def _own_gains(
-    ep: Epoch, counted: Counted, routes: list[Route], replanned: Sequence[bool], n_slots: int
+    epoch: Epoch, counted: Counted, routes: list[Route], replanned: Sequence[bool], n_slots: int
 ) -> list[Route]:
     """The routes with a re-planned route's gain taken against the epoch's counts, as every Step 3 route's
     is (a re-plan evaluates its candidates against the counts plus the other routes' visits)."""
     out = list(routes)
-    with ep.pool.take() as scratch:
+    with epoch.pool.take() as scratch:
         for i, r in enumerate(routes):
             if not replanned[i]:
                 continue
-            gn = gain_table(ep.city, ep.counts.counts, ep.k0, max(n_slots, r.max_slot + 1), ep.now)
-            g, _t, _l, _ms = evaluate(ep.graph, gn, counted, i, r.edges, ep.now, scratch)
+            gn = gain_table(
+                epoch.city, epoch.counts.counts, epoch.k0, max(n_slots, r.max_slot + 1), epoch.now
+            )
+            g, _t, _l, _ms = evaluate(epoch.graph, gn, counted, i, r.edges, epoch.now, scratch)
             out[i] = dataclasses.replace(r, gain=g)
     return out
 

@@ -62,16 +62,16 @@ def step3_reach(city: City) -> tuple[float | None, float]:
 
 
 def _plans(
-    ep: Epoch, counted: Counted, sources: NDArray[np.int64], targets: NDArray[np.int64], n_slots: int
+    epoch: Epoch, counted: Counted, sources: NDArray[np.int64], targets: NDArray[np.int64], n_slots: int
 ) -> tuple[Plans, Gains, int]:
     """Algorithm 1 from every free taxi to every POI in its reach, on a gain table that grows until every
     route fits; the plans, the table and its slots."""
-    reach_us = step3_reach_us(ep.city, ep.graph)
+    reach_us = step3_reach_us(epoch.city, epoch.graph)
 
     def planned(n: int) -> tuple[tuple[Plans, Gains], int | None]:
-        gn = gain_table(ep.city, ep.counts.counts, ep.k0, n, ep.now)
-        pb = problem(gn, counted, sources, targets, ep.city.params.kappas, ep.now, reach_us)
-        plans = plan_routes(ep.graph, pb, ep.workers, ep.pool)
+        gn = gain_table(epoch.city, epoch.counts.counts, epoch.k0, n, epoch.now)
+        pb = problem(gn, counted, sources, targets, epoch.city.params.kappas, epoch.now, reach_us)
+        plans = plan_routes(epoch.graph, pb, epoch.workers, epoch.pool)
         return (plans, gn), (None if plans.max_slot < n else plans.max_slot + 1)
 
     (plans, gn), n_slots = until_fits(planned, n_slots)
@@ -93,15 +93,15 @@ def _assign(plans: Plans) -> list[tuple[int, int]]:
 
 
 def step3_monitoring_routes(
-    ep: Epoch, free: Sequence[Taxi], counted: Counted, targets: NDArray[np.int64], n_slots: int
+    epoch: Epoch, free: Sequence[Taxi], counted: Counted, targets: NDArray[np.int64], n_slots: int
 ) -> Step3:
     """Step 3 (Eq. 13-16) before Algorithm 2 over the free instrumented taxis ``free`` (their counted pairs
     in ``counted``, in their order) and the POI nodes ``targets``: a pair is a candidate when the POI lies
     within the taxi's reach; maximize the matches, then the total phi."""
     sources = np.array([t.node for t in free], dtype=np.int64)
-    kappas = ep.city.params.kappas
-    plans, gn, n_slots = _plans(ep, counted, sources, targets, n_slots)
-    graph, pool = ep.graph, ep.pool
+    kappas = epoch.city.params.kappas
+    plans, gn, n_slots = _plans(epoch, counted, sources, targets, n_slots)
+    graph, pool = epoch.graph, epoch.pool
 
     def routes(chunk: Sequence[tuple[int, int]]) -> list[tuple[int, Route, NDArray[np.int64]]]:
         out = []
@@ -123,5 +123,5 @@ def step3_monitoring_routes(
                 )
         return out
 
-    found = parallel_map(routes, _assign(plans), ep.workers)
+    found = parallel_map(routes, _assign(plans), epoch.workers)
     return Step3([i for i, _, _ in found], [r for _, r, _ in found], [f for _, _, f in found], n_slots)

@@ -153,8 +153,8 @@ def _slot(t: float, shift_s: float, interval_s: float, k0: int) -> int:
 
 @compiled
 def eval_path(
-    ed: Edges,
-    gn: Gains,
+    road_edges: Edges,
+    gains: Gains,
     zmask: NDArray[np.bool_],
     stamp: NDArray[np.int64],
     stamp_id: int,
@@ -164,7 +164,7 @@ def eval_path(
     """Exact marginal gain of one path (Eq. 3): ``(gain, fixed-point gain, travel time, length, largest
     slot reached)``; a slot beyond the table is reported but gains nothing there. ``stamp`` (shape of the
     table, values below ``stamp_id`` on entry) records the pairs this path has entered."""
-    n_slots = gn.term.shape[0]
+    n_slots = gains.term.shape[0]
     t = depart_s
     g = 0.0
     gq = 0
@@ -172,22 +172,22 @@ def eval_path(
     max_slot = 0
     for i in range(edges.shape[0]):
         e = edges[i]
-        te = ed.time_s[e]
-        for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
-            slot = _slot(t + ed.ec_frac[j] * te, gn.shift_s, gn.interval_s, gn.k0)
+        te = road_edges.time_s[e]
+        for j in range(road_edges.ec_ptr[e], road_edges.ec_ptr[e + 1]):
+            slot = _slot(t + road_edges.ec_frac[j] * te, gains.shift_s, gains.interval_s, gains.k0)
             if slot > max_slot:
                 max_slot = slot
             if slot >= n_slots:
                 continue
-            c = ed.ec_cell[j]
+            c = road_edges.ec_cell[j]
             if stamp[slot, c] == stamp_id:
                 continue
             stamp[slot, c] = stamp_id
             if not zmask[slot, c]:
-                g += gn.term[slot, c]
-                gq += gn.term_q[slot, c]
+                g += gains.term[slot, c]
+                gq += gains.term_q[slot, c]
         t += te
-        length += ed.length_m[e]
+        length += road_edges.length_m[e]
     return g, gq, t - depart_s, length, max_slot
 
 
@@ -245,14 +245,14 @@ class TreeOut(NamedTuple):
 
 @compiled
 def eval_tree(
-    ed: Edges,
-    gn: Gains,
+    edges: Edges,
+    gains: Gains,
     zmask: NDArray[np.bool_],
     pred: NDArray[np.int64],
     source: int,
     targets: NDArray[np.int64],
     depart_s: float,
-    ts: TreeScratch,
+    tree_scratch: TreeScratch,
     out: TreeOut,
 ) -> int:
     """``eval_path`` for the forward-tree path to every target at once: gain, time and length per target
@@ -267,23 +267,23 @@ def eval_tree(
     """
     k = targets.shape[0]
     out_g, out_t, out_l = out.gain, out.time_s, out.length_m
-    first_kid = ts.first_kid
-    next_sib = ts.next_sib
-    first_of = ts.first_of
-    n_mem = _tree_union(ed, pred, source, targets, ts)
+    first_kid = tree_scratch.first_kid
+    next_sib = tree_scratch.next_sib
+    first_of = tree_scratch.first_of
+    n_mem = _tree_union(edges, pred, source, targets, tree_scratch)
     out_ms = np.zeros(k, dtype=np.int64)
-    seen = ts.seen
-    log_s = ts.log_s
-    log_c = ts.log_c
+    seen = tree_scratch.seen
+    log_s = tree_scratch.log_s
+    log_c = tree_scratch.log_c
     n_log = 0
-    st_node = ts.st_node
-    st_next = ts.st_next
-    st_log = ts.st_log
-    st_t = ts.st_t
-    st_g = ts.st_g
-    st_l = ts.st_l
-    st_ms = ts.st_ms
-    _tree_start(ts, source, depart_s, out)
+    st_node = tree_scratch.st_node
+    st_next = tree_scratch.st_next
+    st_log = tree_scratch.st_log
+    st_t = tree_scratch.st_t
+    st_g = tree_scratch.st_g
+    st_l = tree_scratch.st_l
+    st_ms = tree_scratch.st_ms
+    _tree_start(tree_scratch, source, depart_s, out)
     depth = 0
     while depth >= 0:
         w = st_next[depth]
@@ -293,16 +293,16 @@ def eval_tree(
             t = st_t[depth]
             g = st_g[depth]
             ms = st_ms[depth]
-            te = ed.time_s[e]
+            te = edges.time_s[e]
             start = n_log
-            g, ms, n_log = _edge_cells(ed, gn, zmask, ts, e, t, g, ms, n_log)
+            g, ms, n_log = _edge_cells(edges, gains, zmask, tree_scratch, e, t, g, ms, n_log)
             depth += 1
             st_node[depth] = w
             st_next[depth] = first_kid[w]
             st_log[depth] = start
             st_t[depth] = t + te
             st_g[depth] = g
-            st_l[depth] = st_l[depth - 1] + ed.length_m[e]
+            st_l[depth] = st_l[depth - 1] + edges.length_m[e]
             st_ms[depth] = ms
             i = first_of[w]
             if i >= 0:
@@ -316,23 +316,23 @@ def eval_tree(
             n_log = st_log[depth]
             depth -= 1
     max_slot = _repeated(first_of, targets, out, out_ms)
-    _tree_restore(ed, pred, targets, ts, n_mem)
+    _tree_restore(edges, pred, targets, tree_scratch, n_mem)
     return max_slot
 
 
 @compiled_inline
-def _tree_start(ts: TreeScratch, source: int, depart_s: float, out: TreeOut) -> None:
+def _tree_start(tree_scratch: TreeScratch, source: int, depart_s: float, out: TreeOut) -> None:
     """Put the source on ``eval_tree``'s depth-first stack (at ``depart_s``, nothing gained or travelled)
     and give a target at the source the empty path."""
-    ts.st_node[0] = source
-    ts.st_next[0] = ts.first_kid[source]
-    ts.st_log[0] = 0
-    ts.st_t[0] = depart_s
-    ts.st_g[0] = 0.0
-    ts.st_l[0] = 0.0
-    ts.st_ms[0] = 0
-    if ts.first_of[source] >= 0:  # a target at the source: the empty path
-        i = ts.first_of[source]
+    tree_scratch.st_node[0] = source
+    tree_scratch.st_next[0] = tree_scratch.first_kid[source]
+    tree_scratch.st_log[0] = 0
+    tree_scratch.st_t[0] = depart_s
+    tree_scratch.st_g[0] = 0.0
+    tree_scratch.st_l[0] = 0.0
+    tree_scratch.st_ms[0] = 0
+    if tree_scratch.first_of[source] >= 0:  # a target at the source: the empty path
+        i = tree_scratch.first_of[source]
         out.gain[i] = 0.0
         out.time_s[i] = 0.0
         out.length_m[i] = 0.0
@@ -340,30 +340,30 @@ def _tree_start(ts: TreeScratch, source: int, depart_s: float, out: TreeOut) -> 
 
 @compiled_inline
 def _edge_cells(
-    ed: Edges,
-    gn: Gains,
+    edges: Edges,
+    gains: Gains,
     zmask: NDArray[np.bool_],
-    ts: TreeScratch,
+    tree_scratch: TreeScratch,
     e: int,
     t: float,
-    g: float,
+    graph: float,
     ms: int,
     n_log: int,
 ) -> tuple[float, int, int]:
     """Carry ``eval_tree``'s running state along edge ``e`` entered at time ``t``: each cell it enters adds
-    its gain the first time its (slot, cell) pair is seen on the path (logged in ``ts`` to be undone on the
-    way back up), and the largest slot reached grows. Returns the gain, the largest slot and the log's
+    its gain the first time its (slot, cell) pair is seen on the path (logged in ``tree_scratch`` to be undone
+    on the way back up), and the largest slot reached grows. Returns the gain, the largest slot and the log's
     length after the edge."""
-    te = ed.time_s[e]
-    n_slots = gn.term.shape[0]
-    seen, log_s, log_c = ts.seen, ts.log_s, ts.log_c
-    for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
-        slot = _slot(t + ed.ec_frac[j] * te, gn.shift_s, gn.interval_s, gn.k0)
+    te = edges.time_s[e]
+    n_slots = gains.term.shape[0]
+    seen, log_s, log_c = tree_scratch.seen, tree_scratch.log_s, tree_scratch.log_c
+    for j in range(edges.ec_ptr[e], edges.ec_ptr[e + 1]):
+        slot = _slot(t + edges.ec_frac[j] * te, gains.shift_s, gains.interval_s, gains.k0)
         if slot > ms:
             ms = slot
         if slot >= n_slots:
             continue
-        c = ed.ec_cell[j]
+        c = edges.ec_cell[j]
         if seen[slot, c]:
             continue
         seen[slot, c] = True
@@ -371,22 +371,22 @@ def _edge_cells(
         log_c[n_log] = c
         n_log += 1
         if not zmask[slot, c]:
-            g += gn.term[slot, c]
-    return g, ms, n_log
+            graph += gains.term[slot, c]
+    return graph, ms, n_log
 
 
 @compiled_inline
 def _tree_union(
-    ed: Edges, pred: NDArray[np.int64], source: int, targets: NDArray[np.int64], ts: TreeScratch
+    edges: Edges, pred: NDArray[np.int64], source: int, targets: NDArray[np.int64], tree_scratch: TreeScratch
 ) -> int:
-    """Link the union of the tree paths to ``targets`` as child lists in ``ts`` (``first_of``: a target
-    node's first index); returns how many nodes it holds (listed in ``ts.members``)."""
+    """Link the union of the tree paths to ``targets`` as child lists in ``tree_scratch`` (``first_of``: a
+    target node's first index); returns how many nodes it holds (listed in ``tree_scratch.members``)."""
     first_kid, next_sib, first_of, in_union, members = (
-        ts.first_kid,
-        ts.next_sib,
-        ts.first_of,
-        ts.in_union,
-        ts.members,
+        tree_scratch.first_kid,
+        tree_scratch.next_sib,
+        tree_scratch.first_of,
+        tree_scratch.in_union,
+        tree_scratch.members,
     )
     n_mem = 0
     for i in range(targets.shape[0]):
@@ -397,7 +397,7 @@ def _tree_union(
             in_union[v] = True
             members[n_mem] = v
             n_mem += 1
-            p = ed.tail[pred[v]]
+            p = edges.tail[pred[v]]
             next_sib[v] = first_kid[p]
             first_kid[p] = v
             v = p
@@ -424,15 +424,15 @@ def _repeated(
 
 @compiled_inline
 def _tree_restore(
-    ed: Edges, pred: NDArray[np.int64], targets: NDArray[np.int64], ts: TreeScratch, n_mem: int
+    edges: Edges, pred: NDArray[np.int64], targets: NDArray[np.int64], tree_scratch: TreeScratch, n_mem: int
 ) -> None:
     """Leave the scratch as ``_tree_union`` found it."""
     for q in range(n_mem):
-        v = ts.members[q]
-        ts.in_union[v] = False
-        ts.first_kid[ed.tail[pred[v]]] = -1
+        v = tree_scratch.members[q]
+        tree_scratch.in_union[v] = False
+        tree_scratch.first_kid[edges.tail[pred[v]]] = -1
     for i in range(targets.shape[0]):
-        ts.first_of[targets[i]] = -1
+        tree_scratch.first_of[targets[i]] = -1
 
 
 @compiled_inline
@@ -448,8 +448,8 @@ def _mask_for(zmask: NDArray[np.bool_], counted: Counted, current: int, a: int) 
 
 @compiled
 def eval_pairs(
-    ed: Edges,
-    gn: Gains,
+    edges: Edges,
+    gains: Gains,
     counted: Counted,
     pair_taxi: NDArray[np.int64],
     pair_leg: NDArray[np.int64],
@@ -461,8 +461,8 @@ def eval_pairs(
     ``pair_depart[k]``, for every pair k (grouped by taxi, so each zero mask is set once): gains,
     fixed-point gains and the largest slot reached."""
     k = pair_taxi.shape[0]
-    zmask = np.zeros(gn.term.shape, dtype=np.bool_)
-    stamp = np.zeros(gn.term.shape, dtype=np.int64)
+    zmask = np.zeros(gains.term.shape, dtype=np.bool_)
+    stamp = np.zeros(gains.term.shape, dtype=np.int64)
     out_g = np.zeros(k)
     out_q = np.zeros(k, dtype=np.int64)
     max_slot = 0
@@ -473,7 +473,7 @@ def eval_pairs(
         current = _mask_for(zmask, counted, current, pair_taxi[q])
         leg = pair_leg[q]
         g, gq, _t, _l, ms = eval_path(
-            ed, gn, zmask, stamp, r + 1, leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]], pair_depart[q]
+            edges, gains, zmask, stamp, r + 1, leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]], pair_depart[q]
         )
         out_g[q] = g
         out_q[q] = gq
@@ -484,8 +484,8 @@ def eval_pairs(
 
 @compiled
 def pair_gains_q(
-    ed: Edges,
-    gn: Gains,
+    road_edges: Edges,
+    gains: Gains,
     counted: Counted,
     pair_taxi: NDArray[np.int64],
     pair_leg: NDArray[np.int64],
@@ -503,22 +503,22 @@ def pair_gains_q(
     and integer sums do not depend on the order of addition. Other pairs (a leg across an interval's end)
     are walked by ``eval_path``."""
     k = pair_taxi.shape[0]
-    n_slots, n_cells = gn.term.shape
+    n_slots, n_cells = gains.term.shape
     n_legs = leg_ptr.shape[0] - 1
     cell_ptr = np.zeros(n_legs + 1, dtype=np.int64)
     n_total = 0
     for e in leg_edges:
-        n_total += ed.ec_ptr[e + 1] - ed.ec_ptr[e]
+        n_total += road_edges.ec_ptr[e + 1] - road_edges.ec_ptr[e]
     cells = np.empty(n_total, dtype=np.int64)  # each leg's distinct cells (at most its crossings)
     leg_s = np.zeros(n_legs)
     for leg in range(n_legs):
         edges = leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]]
-        mine = distinct_cells(ed, edges, n_cells)
+        mine = distinct_cells(road_edges, edges, n_cells)
         cell_ptr[leg + 1] = cell_ptr[leg] + mine.shape[0]
         cells[cell_ptr[leg] : cell_ptr[leg + 1]] = mine
-        leg_s[leg] = ed.time_s[edges].sum()
-    zmask = np.zeros(gn.term.shape, dtype=np.bool_)
-    stamp = np.zeros(gn.term.shape, dtype=np.int64)
+        leg_s[leg] = road_edges.time_s[edges].sum()
+    zmask = np.zeros(gains.term.shape, dtype=np.bool_)
+    stamp = np.zeros(gains.term.shape, dtype=np.int64)
     out_q = np.zeros(k, dtype=np.int64)
     max_slot = 0
     order = np.argsort(pair_taxi, kind="mergesort")
@@ -533,8 +533,8 @@ def pair_gains_q(
         depart = pair_depart[q]
         steps = leg_ptr[leg + 1] - leg_ptr[leg] + 2
         slack = (abs(depart) + leg_s[leg]) * 4.5e-16 * steps + 1e-3  # > the running sum's rounding
-        slot = _slot(depart, gn.shift_s, gn.interval_s, gn.k0)
-        if slot == _slot(depart + (leg_s[leg] + slack), gn.shift_s, gn.interval_s, gn.k0):
+        slot = _slot(depart, gains.shift_s, gains.interval_s, gains.k0)
+        if slot == _slot(depart + (leg_s[leg] + slack), gains.shift_s, gains.interval_s, gains.k0):
             if slot > max_slot:
                 max_slot = slot
             if slot < n_slots:
@@ -542,11 +542,11 @@ def pair_gains_q(
                 for p in range(lo, hi):
                     c = cells[p]
                     if not zmask[slot, c]:
-                        gq += gn.term_q[slot, c]
+                        gq += gains.term_q[slot, c]
                 out_q[q] = gq
         else:
             _g, gq, _t, _l, ms = eval_path(
-                ed, gn, zmask, stamp, r + 1, leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]], depart
+                road_edges, gains, zmask, stamp, r + 1, leg_edges[leg_ptr[leg] : leg_ptr[leg + 1]], depart
             )
             out_q[q] = gq
             if ms > max_slot:
@@ -555,14 +555,14 @@ def pair_gains_q(
 
 
 @compiled
-def distinct_cells(ed: Edges, edges: NDArray[np.int64], n_cells: int) -> NDArray[np.int64]:
+def distinct_cells(road_edges: Edges, edges: NDArray[np.int64], n_cells: int) -> NDArray[np.int64]:
     """The distinct cells the edges cross, in order of first crossing (a path's G-route)."""
     seen = np.zeros(n_cells, dtype=np.bool_)
     out = np.empty(n_cells, dtype=np.int64)
     n = 0
     for e in edges:
-        for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
-            c = ed.ec_cell[j]
+        for j in range(road_edges.ec_ptr[e], road_edges.ec_ptr[e + 1]):
+            c = road_edges.ec_cell[j]
             if not seen[c]:
                 seen[c] = True
                 out[n] = c
@@ -572,23 +572,28 @@ def distinct_cells(ed: Edges, edges: NDArray[np.int64], n_cells: int) -> NDArray
 
 @compiled
 def _first_pairs(
-    ed: Edges, edges: NDArray[np.int64], depart_s: float, shift_s: float, interval_s: float, n_cells: int
+    road_edges: Edges,
+    edges: NDArray[np.int64],
+    depart_s: float,
+    shift_s: float,
+    interval_s: float,
+    n_cells: int,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The distinct (interval, cell) pairs a path enters, in order of first entry."""
     total = 0
     for e in edges:
-        total += ed.ec_ptr[e + 1] - ed.ec_ptr[e]
+        total += road_edges.ec_ptr[e + 1] - road_edges.ec_ptr[e]
     ks = np.empty(total, dtype=np.int64)
     cs = np.empty(total, dtype=np.int64)
     n = 0
     run = 0.0
     for i in range(edges.shape[0]):
         e = edges[i]
-        te = ed.time_s[e]
+        te = road_edges.time_s[e]
         start = depart_s + run
-        for j in range(ed.ec_ptr[e], ed.ec_ptr[e + 1]):
-            ks[n] = np.int64(np.floor((start + ed.ec_frac[j] * te + shift_s) / interval_s))
-            cs[n] = ed.ec_cell[j]
+        for j in range(road_edges.ec_ptr[e], road_edges.ec_ptr[e + 1]):
+            ks[n] = np.int64(np.floor((start + road_edges.ec_frac[j] * te + shift_s) / interval_s))
+            cs[n] = road_edges.ec_cell[j]
             n += 1
         run += te
     if n == 0:
@@ -609,7 +614,7 @@ def _first_pairs(
 
 @compiled
 def path_facts(
-    ed: Edges,
+    road_edges: Edges,
     ptr: NDArray[np.int64],
     flat: NDArray[np.int64],
     depart_s: float,
@@ -628,14 +633,14 @@ def path_facts(
     c_parts = []
     for i in range(n):
         edges = flat[ptr[i] : ptr[i + 1]]
-        cs = distinct_cells(ed, edges, n_cells)
+        cs = distinct_cells(road_edges, edges, n_cells)
         cells_parts.append(cs)
         cell_ptr[i + 1] = cell_ptr[i] + cs.shape[0]
         if edges.shape[0] == 0:
             ks = np.empty(0, dtype=np.int64)
             cc = np.empty(0, dtype=np.int64)
         else:
-            ks, cc = _first_pairs(ed, edges, depart_s, shift_s, interval_s, n_cells)
+            ks, cc = _first_pairs(road_edges, edges, depart_s, shift_s, interval_s, n_cells)
         k_parts.append(ks)
         c_parts.append(cc)
         pair_ptr[i + 1] = pair_ptr[i] + ks.shape[0]

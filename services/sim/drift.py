@@ -312,12 +312,12 @@ def _pop(heap_t: NDArray[np.float64], heap_v: NDArray[np.int64], size: int) -> i
 
 
 @compiled
-def _grow_tree(g: _Reverse, s: _Scratch, hub: int, n_need: int) -> int:
+def _grow_tree(graph: _Reverse, s: _Scratch, hub: int, n_need: int) -> int:
     """Dijkstra from ``hub`` over the reversed network until the ``n_need`` nodes flagged in ``s.need`` are
     settled or nothing is left to reach: a binary heap of (time, node) with stale entries skipped; a node's
     predecessor changes only on a strictly shorter time. Returns how many nodes were settled (in
     ``s.order``)."""
-    indptr, tail, time_s = g.indptr, g.tail, g.time_s
+    indptr, tail, time_s = graph.indptr, graph.tail, graph.time_s
     need, time, pred, state, order = s.need, s.time, s.pred, s.state, s.order
     touched, heap_t, heap_v = s.touched, s.heap_t, s.heap_v
     time[hub] = 0.0
