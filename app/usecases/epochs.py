@@ -344,8 +344,13 @@ class EpochService:
         return EpochLog(city, state.version, state.last_epoch_id, state.last_epoch_time_s)
 
     def stored_epoch(self, name: str, epoch_id: str) -> StoredEpoch:
-        """The stored record of a committed epoch (404 ``unknown_epoch`` when there is none)."""
+        """The stored record of a committed epoch (404 ``unknown_city``; ``unknown_epoch`` when there is
+        none)."""
         self.cities.get(name)
+        return self._stored(name, epoch_id)
+
+    def _stored(self, name: str, epoch_id: str) -> StoredEpoch:
+        """``stored_epoch`` of a city already resolved."""
         stored = self.store.get_epoch(name, epoch_id)
         if stored is None:
             raise UnknownEpoch(
@@ -356,7 +361,7 @@ class EpochService:
     def epoch_routes(self, name: str, epoch_id: str) -> EpochRoutes:
         """The paths a committed epoch planned and the tasks it touched, as it left them."""
         city = self.cities.get(name)
-        decision = self.read_epoch(city, self.stored_epoch(name, epoch_id).response_json)
+        decision = self.read_epoch(city, self._stored(name, epoch_id).response_json)
         known = {t.id: t for t in self.store.list_tasks(name)}
         tasks: list[Task] = []
         for a in decision.task_assignments:

@@ -423,7 +423,7 @@ def test_the_whole_epoch_request_holds_the_foreground(
 
 def test_each_write_resolves_its_city_once(make_client: MakeClient, monkeypatch: pytest.MonkeyPatch) -> None:
     """A task registration and an epoch post, committed or replayed, look their city up once: the node
-    indices of the request and its use case read the same City."""
+    indices of the request and its use case read the same City; so does a stored epoch's routes."""
     from app.adapters.city_registry import CityRegistry
 
     client = make_client()
@@ -442,3 +442,7 @@ def test_each_write_resolves_its_city_once(make_client: MakeClient, monkeypatch:
         r = client.post(URL, json=payloads.epoch(), headers=auth())
         assert r.status_code == 200 and ("Idempotent-Replayed" in r.headers) is replay, r.text
         assert looked_up == [CITY]
+    looked_up.clear()
+    r = client.get(f"/v1/cities/{CITY}/epochs/{payloads.epoch()['epoch_id']}/routes.geojson", headers=auth())
+    assert r.status_code == 200, r.text
+    assert looked_up == [CITY]
