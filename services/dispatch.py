@@ -426,7 +426,7 @@ def decide(
     """
     lap = phase or (lambda _name: None)
     graph = road_graph(city)
-    ep = Epoch(
+    epoch = Epoch(
         city,
         graph,
         counts,
@@ -436,22 +436,22 @@ def decide(
         scratch_pool(graph),
     )
     tally = _present(snapshot, city.params.patience_s)
-    instrumented, ordinary = _pickups(ep, tally)
+    instrumented, ordinary = _pickups(epoch, tally)
     lap("pickups")
-    tally.trips = _trips(ep, tally.riders, (instrumented, ordinary))
+    tally.trips = _trips(epoch, tally.riders, (instrumented, ordinary))
     lap("trips")
-    counted = counted_csr(counts.visited, [t.id for t in tally.instrumented], ep.k0)  # row i: taxi i
-    s1 = step1_sensing_matches(ep, counted, instrumented, tally.trips, INITIAL_SLOTS)
+    counted = counted_csr(counts.visited, [t.id for t in tally.instrumented], epoch.k0)  # row i: taxi i
+    sensing = step1_sensing_matches(epoch, counted, instrumented, tally.trips, INITIAL_SLOTS)
     lap("step1")
-    s2 = step2_regular_matches(ordinary, {m.rider for m in s1.pairs}, len(tally.riders))
-    _rides(ep, tally, s1, s2, (instrumented, ordinary))
+    regular = step2_regular_matches(ordinary, {m.rider for m in sensing.pairs}, len(tally.riders))
+    _rides(epoch, tally, sensing, regular, (instrumented, ordinary))
     lap("step2")
-    _targets(ep, tally, tasks)
-    _monitoring(ep, tally, counted, {m.taxi for m in s1.pairs}, lap)
-    _assemble(ep, tally)
-    found, task_updates = _task_updates(ep, tally, tasks)
+    _targets(epoch, tally, tasks)
+    _monitoring(epoch, tally, counted, {m.taxi for m in sensing.pairs}, lap)
+    _assemble(epoch, tally)
+    found, task_updates = _task_updates(epoch, tally, tasks)
     lap("tasks")
-    return _decision(ep, snapshot, tally, task_updates, _stats(ep, snapshot, tally, found))
+    return _decision(epoch, snapshot, tally, task_updates, _stats(epoch, snapshot, tally, found))
 
 
 def warm_up(city: City) -> None:

@@ -405,6 +405,17 @@ def _guided_start(
     return size, n_touched, remaining, tl, direct
 
 
+# guided's order: the potential (``Guide``) is a label per kept node, ``(cost, tie1, tie2)`` (cost ``INF``:
+# the node cannot reach the target), that never drops by more than a super-edge's label along it:
+# ``pot[:, u] <= label(u, v) + pot[:, v]`` lexicographically. The labels to the target under any metric no
+# dearer on any edge are one (a lexicographic shortest-path label obeys the triangle inequality). Nodes are
+# taken in the order of label + potential, compared lexicographically: along a super-edge that key never
+# decreases, so the order is a plain Dijkstra's on those keys, and since the potential is the same for every
+# path to a node, each node's label -- read with ``resolve`` and ``unfold`` as after ``run`` -- is the one
+# ``run`` gives it. With the labels of the cheaper metric as potential, a search whose metric differs from
+# it nowhere on the canonical path goes straight along that path.
+
+
 @compiled
 def guided(
     graph: SearchGraph,
@@ -416,46 +427,17 @@ def guided(
     guide: Guide,
     lazy: Lazy,
 ) -> int:
-    """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*).
-
-    The potential (``Guide``) is a label per kept node, ``(cost, tie1, tie2)`` (cost ``INF``: the node
-    cannot reach the target), that never drops by more than a super-edge's label along it:
-    ``pot[:, u] <= label(u, v) + pot[:, v]`` lexicographically. The labels to the target under any metric no
-    dearer on any edge are one (a lexicographic shortest-path label obeys the triangle inequality). Nodes
-    are taken in the order of label + potential, compared lexicographically: along a super-edge that key
-    never decreases, so the order is a plain Dijkstra's on those keys, and since the potential is the
-    same for every path to a node, each node's label -- read with ``resolve`` and ``unfold`` as after
-    ``run`` -- is the one ``run`` gives it. With the labels of the cheaper metric as potential, a search
-    whose metric differs from it nowhere on the canonical path goes straight along that path. The search
-    stops when the target can be resolved and settles no node that cannot reach it. ``lazy``: as in
-    ``grow``. Returns -1, or the kept node where it stopped before the target (``_meets``): only where that
-    node's key is better than every path to an interior target found so far and never queued
-    (``_into_target``: inside the source's chain, or from a settled end of the target's).
-    """
-    cost, tie1, tie2, state, heap, hkey = (
-        workspace.cost,
-        workspace.tie1,
-        workspace.tie2,
-        workspace.state,
-        workspace.nxt,
-        workspace.hkey,
-    )
-    se_cost = costs.se
-    lazy_on, fixed, zmask, term, umax, kappa = (
-        lazy.on,
-        lazy.fixed,
-        lazy.zmask,
-        lazy.term,
-        lazy.umax,
-        lazy.kappa,
-    )
-    se_ptr, se_edges, ec_ptr, ec_cell, time_s = (
-        graph.se_ptr,
-        graph.se_edges,
-        edges.ec_ptr,
-        edges.ec_cell,
-        edges.time_s,
-    )
+    """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*) in
+    the order described above. The search stops when the target can be resolved and settles no node that
+    cannot reach it. ``lazy``: as in ``grow``. Returns -1, or the kept node where it stopped before the
+    target (``_meets``): only where that node's key is better than every path to an interior target found
+    so far and never queued (``_into_target``: inside the source's chain, or from a settled end of the
+    target's)."""
+    cost, tie1, tie2, state = workspace.cost, workspace.tie1, workspace.tie2, workspace.state
+    heap, hkey, need, se_cost = workspace.nxt, workspace.hkey, workspace.need, costs.se
+    lazy_on, fixed, zmask, term = lazy.on, lazy.fixed, lazy.zmask, lazy.term
+    umax, kappa, se_ptr, se_edges = lazy.umax, lazy.kappa, graph.se_ptr, graph.se_edges
+    ec_ptr, ec_cell, time_s = edges.ec_ptr, edges.ec_cell, edges.time_s
     size, n_touched, remaining, tl, found = _guided_start(
         graph, edges, costs, workspace, guide, lazy, source, target
     )
@@ -466,7 +448,7 @@ def guided(
         kc, ka, kb = hkey[0, 0], hkey[0, 1], hkey[0, 2]
         size = _guided_pop(heap, hkey, state, size)
         state[k] = -2
-        if workspace.need[k]:
+        if need[k]:
             remaining -= 1
             if remaining == 0:
                 complete = 0
@@ -474,7 +456,7 @@ def guided(
         if _meets(guide, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
             complete, meet = 0, k
             break
-        if watch and workspace.need[k]:
+        if watch and need[k]:
             found = _into_target(graph, edges, costs, source, target, k, (cost[k], tie1[k], tie2[k]), found)
         d = cost[k]
         a0 = tie1[k]

@@ -313,6 +313,9 @@ def _settle_dead_ends(
 # the metric is computed as the search goes (``graph.Lazy``): each super-edge when it is relaxed, the
 # source's and the targets' chains edge by edge before the search starts; ``costs.width`` and
 # ``costs.span`` must then bound every super-edge's cost from below and above.
+#
+# With targets the search stops as soon as every target can be resolved: a kept target is settled, and for
+# an interior target both ends of its chain are (unless the source lies before it on that chain).
 
 
 @compiled_inline
@@ -371,49 +374,21 @@ def grow(
     workspace: Workspace,
     lazy: Lazy,
 ) -> None:
-    """Grow the canonical shortest-path tree from ``source`` (all kept nodes with cost <= ``limit``).
-
-    With ``targets`` non-empty the search stops as soon as every target can be resolved: a kept target is
-    settled, and for an interior target both ends of its chain are (unless the source lies before it on
-    that chain). ``workspace`` is reset here; read the result with ``resolve`` and ``unfold``. The queue (a
-    bucket ring, or a heap for spread metrics) and the lazy metric are described above."""
-    cost, tie1, tie2, pse, pstart, state = (
-        workspace.cost,
-        workspace.tie1,
-        workspace.tie2,
-        workspace.pse,
-        workspace.pstart,
-        workspace.state,
-    )
-    nxt, prv, ring, bits, need, touched = (
-        workspace.nxt,
-        workspace.prv,
-        workspace.ring,
-        workspace.bits,
-        workspace.need,
-        workspace.touched,
-    )
-    indptr, se_head, se_tie1, se_tie2, dead_end = (
-        graph.indptr,
-        graph.se_head,
-        graph.se_tie1,
-        graph.se_tie2,
-        graph.dead_end,
-    )
+    """Grow the canonical shortest-path tree from ``source`` (all kept nodes with cost <= ``limit``), or until
+    every one of ``targets`` can be resolved; the queue, the lazy metric and the stop are described above.
+    ``workspace`` is reset here; read the result with ``resolve`` and ``unfold``."""
+    cost, tie1, tie2, pse = workspace.cost, workspace.tie1, workspace.tie2, workspace.pse
+    pstart, state, nxt, prv = workspace.pstart, workspace.state, workspace.nxt, workspace.prv
+    ring, bits, need, touched = workspace.ring, workspace.bits, workspace.need, workspace.touched
+    indptr, se_head, se_tie1, se_tie2 = graph.indptr, graph.se_head, graph.se_tie1, graph.se_tie2
+    dead_end, se_ptr, se_edges = graph.dead_end, graph.se_ptr, graph.se_edges
     lazy_on, fixed, zmask, term = lazy.on, lazy.fixed, lazy.zmask, lazy.term
-    se_ptr, se_edges, ec_ptr, ec_cell, time_s = (
-        graph.se_ptr,
-        graph.se_edges,
-        edges.ec_ptr,
-        edges.ec_cell,
-        edges.time_s,
-    )
+    ec_ptr, ec_cell, time_s = edges.ec_ptr, edges.ec_cell, edges.time_s
     umax, kappa, width, span, se_cost = lazy.umax, lazy.kappa, costs.width, costs.span, costs.se
-    use_ring, early = span <= ring.shape[0], targets.shape[0] > 0
+    use_ring, early, complete = span <= ring.shape[0], targets.shape[0] > 0, 1
     size, pos, n_touched, remaining = _grow_start(
         graph, edges, costs, source, limit, targets, workspace, lazy
     )
-    complete = 1
     while size > 0:
         if use_ring:
             k, pos = _ring_take(ring, bits, nxt, prv, span, pos)

@@ -40,9 +40,9 @@ def improve_routes(
     n_slots: int,
 ) -> tuple[list[Route], list[float], int]:
     """Algorithm 2 over ``routes`` (route ``i`` is taxi ``taxi_ids[i]``'s, row ``i`` of ``counted``;
-    ``fastest[i]`` its fastest path to the same POI), every route departing at ``epoch.now`` on gain tables of
-    ``n_slots`` intervals from ``epoch.k0``. Returns the routes, the joint utility after the
-    initial matching and after each accepted re-plan, and the number of passes.
+    ``fastest[i]`` its fastest path to the same POI), every route departing at ``epoch.now`` on gain tables
+    of ``n_slots`` intervals from ``epoch.k0``. Returns the routes, the joint utility after the initial
+    matching and after each accepted re-plan, and the number of passes.
 
     The others' planned visits enter each re-plan's gain table as a dense count per (slot, cell), kept up
     to date as routes are replaced (counts are whole numbers, so Lambda + n is the same float either way).
@@ -50,14 +50,8 @@ def improve_routes(
     ``workers`` threads) and taken in order; after an acceptance the rest of the batch is planned again
     against the new counts, so the outcome is that of one re-plan after the other.
     """
-    city, graph, counts, depart_s, k0, pool = (
-        epoch.city,
-        epoch.graph,
-        epoch.counts,
-        epoch.now,
-        epoch.k0,
-        epoch.pool,
-    )
+    city, graph, counts, pool = epoch.city, epoch.graph, epoch.counts, epoch.pool
+    depart_s, k0 = epoch.now, epoch.k0
     kappas = city.params.kappas
     visited = [counts.visited.get(t, frozenset()) for t in taxi_ids]
     pairs = [route_pairs(city, r.edges, v, depart_s) for r, v in zip(routes, visited, strict=True)]
@@ -83,8 +77,7 @@ def improve_routes(
         return out
 
     batch = 1 if epoch.workers <= 1 else 4 * epoch.workers
-    passes = 0
-    accepted = 0  # routes replaced so far; a taxi re-planned since the last replacement would repeat itself
+    passes, accepted = 0, 0  # accepted: routes replaced so far (a taxi re-planned since would repeat itself)
     planned_at = [-1] * len(routes)
     accepted_by = [False] * len(routes)  # the route is a re-plan's
     for _ in range(city.params.max_iter):
