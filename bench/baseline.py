@@ -12,6 +12,7 @@ as pickles of the core's types, which both checkouts must share.
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import subprocess
@@ -60,6 +61,17 @@ class Baseline:
         proc.wait(timeout=60)
 
 
+def as_the_server() -> None:
+    """The API process's garbage collector (``app.api.warmup``): its thresholds, and what start-up built
+    (the city, the compiled kernels' objects) frozen out of the collector's reach, so that a timed
+    ``decide`` pays the collections the server pays, not the full scans of a default process."""
+    from app.api.warmup import GC_THRESHOLD
+
+    gc.set_threshold(*GC_THRESHOLD)
+    gc.collect()
+    gc.freeze()
+
+
 def _serve(inp: IO[bytes], out: IO[bytes]) -> None:
     import services
     from services.dispatch import decide, warm_up
@@ -73,6 +85,7 @@ def _serve(inp: IO[bytes], out: IO[bytes]) -> None:
         if message[0] == "city":
             city = message[1]
             warm_up(city)
+            as_the_server()
             reply: Any = str(Path(services.__file__).resolve().parents[1])
         else:
             _, view, snap, tasks, workers = message

@@ -8,7 +8,8 @@ until a taxi serves them, and demand lies around centres (the bundled cities: th
 Epoch 0 is solved and committed untimed on every path, epochs 1..n are timed. Per epoch, in the same run:
 
 * in-process: ``services.dispatch.decide`` with the default threads and with one (alternating which goes
-  first); the two decisions are checked equal;
+  first); the two decisions are checked equal; the garbage collector set as the server sets its own
+  (``bench.baseline.as_the_server``);
 * floor: with scipy, one reverse search per rider bounded by the pickup radius, one full reverse tree per
   new task's POI, and the two assignments (instrumented and ordinary taxis x riders over the pickup times);
 * HTTP: a real ``python -m app run`` (uvicorn; in-memory store with the fleet worker inside, a fleet solve
@@ -60,7 +61,7 @@ import scipy.sparse.csgraph as cg
 from scipy.optimize import linear_sum_assignment
 
 from bench import metro
-from bench.baseline import Baseline
+from bench.baseline import Baseline, as_the_server
 from bench.load import Centres, CentresDemand, Demand, Load, Platform, RecordedDemand, SpreadDemand
 from bench.report import ROOT, stamp, write_section
 from bench.rss import TreePeak
@@ -255,6 +256,7 @@ def run_inprocess(sc: Scenario, n: int, baseline: Path | None = None) -> dict[st
     lat, lat1, lat_b, flo, phases, open_n, free_n, digests = [], [], [], [], [], [], [], []
     base = Baseline(baseline, city) if baseline is not None else None
     warm_up(city)  # every kernel compiled (or loaded from the cache) outside timing, as the server does
+    as_the_server()  # and its garbage collector
     for e in range(n + 1):
         snap, tasks = epochs.next()
         ledger.tasks.update({t.id: t for t in tasks})
@@ -906,8 +908,10 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "destinations, POIs and taxis spread uniformly over the whole network; on metro250k, and on grid53, a",
         "150 x 150 grid of 104 m blocks that takes 53 minutes to cross, so no Step 3 reach applies. limits:",
         "the API's largest epoch (module docstring). In-process = `services.dispatch.decide` with the default",
-        "threads and with one (decisions checked equal); previous code = the same epochs decided by the checkout",
-        "the run was given (`--baseline`), in its own process, decisions checked equal; HTTP = a real",
+        "threads and with one (decisions checked equal), the process's garbage collector set as the server sets",
+        "its own (`app.api.warmup`: its thresholds, start-up's objects frozen); previous code = the same epochs",
+        "decided by the checkout the run was given (`--baseline`), in its own process with the same collector,",
+        "decisions checked equal; HTTP = a real",
         "`python -m app run` (uvicorn, in-memory store, the fleet worker inside it as `make run` runs it) posting",
         "the same epochs (decisions checked equal to the in-process ones), with a fleet solve of the city requested",
         "after the untimed first epoch (a city without its days of recorded history is refused one), so that the",
