@@ -10,6 +10,7 @@
 * ``unfolding``: results read off a search (resolve, unfold, labels, paths) and the batch searches.
 * ``point_to_point``: fastest paths between pairs with the landmark bounds; the landmarks; the crossing
   time.
+* ``hierarchy``: fastest paths between pairs through a contraction hierarchy (``shortcuts`` builds it).
 * ``scratch``: per-thread search scratch (``Scratch``) lent by a pool (``ScratchPool``).
 """
 

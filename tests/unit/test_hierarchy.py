@@ -16,7 +16,7 @@ import pytest
 
 from bench import metro
 from services.citydata import load_city
-from services.network import heaps, hierarchy, point_to_point
+from services.network import heaps, hierarchy, point_to_point, shortcuts
 from services.network.graph import INF, RoadGraph, road_graph
 from services.network.scratch import Scratch
 from tests.citymaker import grid_city, make_city
@@ -48,7 +48,7 @@ def test_every_pair_gets_the_reference_path_or_none(make, some_unreachable):
     lattice of equal blocks has many routes of the same time: the tie words decide), and where none
     exists the query says so."""
     graph = road_graph(make())
-    h = hierarchy.build(
+    h = shortcuts.build(
         graph.n_nodes,
         graph.edges.tail,
         graph.edges.head,
@@ -90,7 +90,7 @@ def test_chengdu_paths_are_the_searched_ones_interior_ends_included():
     graph = road_graph(load_city(BUNDLES / "chengdu"))
     h = hierarchy.hierarchy(graph)
     assert h is not None and hierarchy.hierarchy(graph) is h
-    assert h.arc_tail.shape[0] <= hierarchy.ARCS_PER_EDGE * graph.n_edges
+    assert h.arc_tail.shape[0] <= shortcuts.ARCS_PER_EDGE * graph.n_edges
     rng = np.random.default_rng(11)
     interior = np.flatnonzero(graph.forward.kept_of < 0)
     src, dst = rng.integers(graph.n_nodes, size=400), rng.integers(graph.n_nodes, size=400)
