@@ -93,6 +93,8 @@ def snap_all(city: City, locations: Sequence[LocationIn]) -> Snapped:
 
 def _unique(ids: Sequence[str], where: str) -> None:
     """422 naming the first id that repeats an earlier one."""
+    if len(set(ids)) == len(ids):
+        return
     seen: set[str] = set()
     for i, ident in enumerate(ids):
         if ident in seen:
@@ -121,6 +123,19 @@ def _riders(city: City, body: EpochIn, time_s: float, snapped: Snapped) -> list[
 def _plain_riders(city: City, plain: PlainRiders, time_s: float) -> list[Rider]:
     """Riders read by ``plain_riders``, checked in the same order with the same errors as ``_riders``."""
     index_of = city.network.index_of
+    if not plain.ids:
+        return []
+    if max(plain.requested_at_s) <= time_s:
+        try:  # the common case, every node known: no error to name
+            origins, destinations = (
+                list(map(index_of, plain.origins)),
+                list(map(index_of, plain.destinations)),
+            )
+        except SnapError:
+            pass
+        else:
+            ids = cast(tuple[RiderId, ...], plain.ids)
+            return list(map(Rider, ids, origins, destinations, plain.requested_at_s))
     riders: list[Rider] = []
     for i, (ident, origin, destination, requested_s) in enumerate(
         zip(plain.ids, plain.origins, plain.destinations, plain.requested_at_s, strict=True)
@@ -167,12 +182,15 @@ def snapshot_of(
     index_of = city.network.index_of
     taxis: list[Taxi] = []
     if plain is not None:
-        nodes: list[int] = []
-        for i, node_id in enumerate(plain.node_ids):
-            try:
-                nodes.append(index_of(node_id))
-            except SnapError:
-                node_of(city, LocationIn(node=node_id), f"taxis[{i}].location")  # raises, naming the field
+        try:  # the common case, every node known: no error to name
+            nodes = list(map(index_of, plain.node_ids))
+        except SnapError:
+            for i, node_id in enumerate(plain.node_ids):
+                try:
+                    index_of(node_id)
+                except SnapError:
+                    node_of(city, LocationIn(node=node_id), f"taxis[{i}].location")  # raises, naming it
+            raise
         ids = cast(tuple[TaxiId, ...], plain.ids)
         taxis = list(map(Taxi, ids, nodes, plain.instrumented, plain.vacant))
     for i, t in enumerate(body.taxis):

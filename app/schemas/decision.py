@@ -4,13 +4,15 @@ as the response document renders it (stored with the commit and returned verbati
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import hashlib
 import json
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from json.encoder import encode_basestring_ascii
-from typing import Any, Literal
+from operator import itemgetter
+from typing import Any, Literal, cast
 
 from pydantic import Field, StrictBool
 
@@ -70,8 +72,11 @@ class EpochIn(TimedRequest):
     taxis: list[TaxiIn]
 
 
-_TAXI_KEYS = frozenset({"id", "location", "instrumented", "status"})
-_RIDER_KEYS = frozenset({"id", "origin", "destination", "requested_at"})
+_TAXI_FIELDS = ("id", "location", "instrumented", "status")
+_RIDER_FIELDS = ("id", "origin", "destination", "requested_at")
+_TAXI_KEYS = frozenset(_TAXI_FIELDS)
+_RIDER_KEYS = frozenset(_RIDER_FIELDS)
+_NODE = itemgetter("node")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 _INT64 = (-(2**63), 2**63 - 1)
 _LOCATION_KEYS = frozenset({"node", "lon", "lat"})
@@ -92,25 +97,49 @@ _PLAIN_TIME = re.compile(
 )
 
 
-def _plain_node(loc: object) -> int | None:
-    """The node id of a location of the form ``{"node": a JSON integer in int64}``, else ``None``."""
-    if type(loc) is not dict or len(loc) != 1:
+def _columns(value: object, fields: tuple[str, ...]) -> tuple[tuple[Any, ...], ...] | None:
+    """The values of ``fields`` of every item of ``value``, field by field, when ``value`` is a list of
+    objects that each have exactly these keys, else ``None`` (a list with no items: one empty column per
+    field)."""
+    if type(value) is not list:
         return None
-    node = loc.get("node")
+    if not value:
+        return tuple(() for _ in fields)
+    if set(map(type, value)) != {dict} or set(map(len, value)) != {len(fields)}:
+        return None
+    try:  # as many keys as fields, and every field there: exactly these keys
+        return tuple(zip(*map(itemgetter(*fields), value), strict=True))
+    except KeyError:
+        return None
+
+
+def _plain_nodes(locations: tuple[Any, ...]) -> tuple[int, ...] | None:
+    """The node ids of locations that all have the form ``{"node": a JSON integer in int64}``, else
+    ``None``."""
+    if not locations:
+        return ()
+    if set(map(type, locations)) != {dict} or set(map(len, locations)) != {1}:
+        return None
+    try:
+        nodes = tuple(map(_NODE, locations))
+    except KeyError:
+        return None
     lo, hi = _INT64
-    return node if type(node) is int and lo <= node <= hi else None
+    if set(map(type, nodes)) != {int} or min(nodes) < lo or max(nodes) > hi:
+        return None
+    return nodes
 
 
-def _plain_ids(ids: Sequence[str]) -> bool:
-    """Whether every id is printable ASCII of 1..``ID_MAX_LEN`` characters (what ``Identifier`` keeps)."""
-    if not all(0 < len(ident) <= ID_MAX_LEN for ident in ids):
+def _plain_ids(ids: Sequence[object]) -> bool:
+    """Whether every id is printable ASCII text of 1..``ID_MAX_LEN`` characters (what ``Identifier``
+    keeps)."""
+    if not set(map(type, ids)) <= {str}:
         return False
-    every_id = "".join(ids)  # no id is empty, so one look at them all
+    texts = cast(Sequence[str], ids)
+    if not all(0 < len(ident) <= ID_MAX_LEN for ident in texts):
+        return False
+    every_id = "".join(texts)  # no id is empty, so one look at them all
     return every_id.isascii() and not _CONTROL.search(every_id)
-
-
-def _location_json(node: int) -> str:
-    return f'{{"lat":null,"lon":null,"node":{node}}}'
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,39 +158,31 @@ def plain_taxis(value: object) -> PlainTaxis | None:
     common form ``{"id": printable ASCII text of 1..128 characters, "location": {"node": a JSON integer in
     int64}, "instrumented": true or false, "status": "vacant" or "busy"}``: exactly what ``TaxiIn`` accepts
     and keeps unchanged in that form. ``None`` for anything else, including every item ``TaxiIn`` would
-    refuse: the model then validates the taxis and says what is wrong (``app.api.bodies``)."""
-    if type(value) is not list:
+    refuse: the model then validates the taxis and says what is wrong (``app.api.bodies``). Each check
+    looks at one field of every taxi at once (``_columns``)."""
+    columns = _columns(value, _TAXI_FIELDS)
+    if columns is None:
         return None
-    ids: list[str] = []
-    nodes: list[int] = []
-    instrumented: list[bool] = []
-    vacant: list[bool] = []
-    parts: list[str] = []
-    for item in value:
-        if type(item) is not dict or item.keys() != _TAXI_KEYS:
-            return None
-        ident, instr, status = item["id"], item["instrumented"], item["status"]
-        node = _plain_node(item["location"])
-        if (
-            node is None
-            or type(ident) is not str
-            or type(instr) is not bool
-            or (status != "vacant" and status != "busy")
-        ):
-            return None
-        ids.append(ident)
-        nodes.append(node)
-        instrumented.append(instr)
-        vacant.append(status == "vacant")
-        parts.append(
-            f'{{"id":{encode_basestring_ascii(ident)},"instrumented":{"true" if instr else "false"},'
-            f'"location":{_location_json(node)},"status":"{status}"}}'
-        )
-    if not _plain_ids(ids):
+    ids, locations, instrumented, status = columns
+    nodes = _plain_nodes(locations)
+    if (
+        nodes is None
+        or not set(map(type, instrumented)) <= {bool}
+        or not set(map(type, status)) <= {str}
+        or not set(status) <= {"vacant", "busy"}
+        or not _plain_ids(ids)
+    ):
         return None
-    return PlainTaxis(
-        tuple(ids), tuple(nodes), tuple(instrumented), tuple(vacant), "[" + ",".join(parts) + "]"
+    canonical = ",".join(
+        [
+            f'{{"id":{ident},"instrumented":{"true" if instr else "false"},'
+            f'"location":{{"lat":null,"lon":null,"node":{node}}},"status":"{state}"}}'
+            for ident, instr, node, state in zip(
+                map(encode_basestring_ascii, ids), instrumented, nodes, status, strict=True
+            )
+        ]
     )
+    return PlainTaxis(ids, nodes, instrumented, tuple(map("vacant".__eq__, status)), f"[{canonical}]")
 
 
 @dataclass(frozen=True, slots=True)
@@ -179,7 +200,12 @@ class PlainRiders:
 def _plain_time_s(text: object) -> float | None:
     """POSIX seconds of a request time the model keeps as written (``_PLAIN_TIME``) and accepts (a real
     date whose UTC instant lies in the API's years), else ``None``."""
-    if type(text) is not str or not _PLAIN_TIME.fullmatch(text):
+    return _plain_text_s(text) if type(text) is str else None
+
+
+@functools.lru_cache(maxsize=8192)  # a waiting rider is posted again, with the same text, every epoch
+def _plain_text_s(text: str) -> float | None:
+    if not _PLAIN_TIME.fullmatch(text):
         return None
     try:
         when = dt.datetime.fromisoformat(text)
@@ -198,35 +224,28 @@ def plain_riders(value: object) -> PlainRiders | None:
     int64}, "destination": the same, "requested_at": "YYYY-MM-DDTHH:MM:SS+HH:MM"}`` (an offset other than
     +00:00 or -00:00, a real date whose UTC instant lies in the API's years): exactly what ``RiderIn``
     accepts and keeps unchanged in that form. ``None`` for anything else, including every item ``RiderIn``
-    would refuse: the model then validates the riders and says what is wrong (``app.api.bodies``)."""
-    if type(value) is not list:
+    would refuse: the model then validates the riders and says what is wrong (``app.api.bodies``). Each
+    check looks at one field of every rider at once (``_columns``)."""
+    columns = _columns(value, _RIDER_FIELDS)
+    if columns is None:
         return None
-    ids: list[str] = []
-    origins: list[int] = []
-    destinations: list[int] = []
-    times: list[float] = []
-    parts: list[str] = []
-    for item in value:
-        if type(item) is not dict or item.keys() != _RIDER_KEYS:
-            return None
-        ident, text = item["id"], item["requested_at"]
-        origin, destination = _plain_node(item["origin"]), _plain_node(item["destination"])
-        time_s = _plain_time_s(text)
-        if origin is None or destination is None or time_s is None or type(ident) is not str:
-            return None
-        ids.append(ident)
-        origins.append(origin)
-        destinations.append(destination)
-        times.append(time_s)
-        parts.append(
-            f'{{"destination":{_location_json(destination)},"id":{encode_basestring_ascii(ident)},'
-            f'"origin":{_location_json(origin)},"requested_at":"{text}"}}'
-        )
-    if not _plain_ids(ids):
+    ids, origin_locs, destination_locs, texts = columns
+    origins, destinations = _plain_nodes(origin_locs), _plain_nodes(destination_locs)
+    if origins is None or destinations is None or not _plain_ids(ids):
         return None
-    return PlainRiders(
-        tuple(ids), tuple(origins), tuple(destinations), tuple(times), "[" + ",".join(parts) + "]"
+    times = tuple(map(_plain_time_s, texts))
+    if None in times:
+        return None
+    canonical = ",".join(
+        [
+            f'{{"destination":{{"lat":null,"lon":null,"node":{destination}}},"id":{ident},'
+            f'"origin":{{"lat":null,"lon":null,"node":{origin}}},"requested_at":"{text}"}}'
+            for ident, origin, destination, text in zip(
+                map(encode_basestring_ascii, ids), origins, destinations, texts, strict=True
+            )
+        ]
     )
+    return PlainRiders(ids, origins, destinations, cast(tuple[float, ...], times), f"[{canonical}]")
 
 
 def _canonical(value: Any) -> str:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import functools
 import json
 import logging
 import math
@@ -389,6 +390,13 @@ def opens_horizon(city: City, last_epoch_s: float | None, time_s: float) -> bool
     return start <= time_s < start + hz.length_s and (last_epoch_s is None or last_epoch_s < start)
 
 
+@functools.lru_cache(maxsize=8192)
+def _local_time(time_s: float, tz: str) -> str:
+    """``format_time``, remembered: a rider still waiting is recorded again, with the same request time, by
+    every epoch that posts it."""
+    return format_time(time_s, tz)
+
+
 class _DemandRecord:
     """What an epoch records for the fleet-sizing worker (docs/FLEET.md, "The platform's history"): its
     riders (a waiting rider recurs: the worker dedupes by id), how many instrumented and ordinary taxis it
@@ -411,7 +419,7 @@ class _DemandRecord:
                     "id": str(r.id),
                     "origin": int(ids[r.origin]),
                     "destination": int(ids[r.destination]),
-                    "requested_at": format_time(r.requested_at_s, tz),
+                    "requested_at": _local_time(r.requested_at_s, tz),
                     "requested_at_s": r.requested_at_s,
                 }
                 for r in snapshot.riders
