@@ -67,6 +67,8 @@ def as_the_server() -> None:
     ``decide`` pays the collections the server pays, not the full scans of a default process."""
     from app.api.warmup import GC_THRESHOLD
 
+    # written out rather than calling the server's start-up (``app.api.warmup.warm``, which also loads every
+    # served city): the previous code's process runs whatever app the checkout it is given has
     gc.set_threshold(*GC_THRESHOLD)
     gc.collect()
     gc.freeze()

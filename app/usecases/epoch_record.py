@@ -201,12 +201,9 @@ def epoch_doc(result: EpochResult) -> dict[str, Any]:
     JSON is byte for byte ``EpochOut.of(result).model_dump_json()`` (tests/api/test_render.py)."""
     city, decision, snapshot = result.city, result.decision, result.epoch.snapshot
     matches, routes = decision.rider_matches, decision.task_assignments
-    stats = _core_stats(decision)
-    by_step = decision.matches_by_step
+    stats = _core_stats(decision)  # decide's own diagnostics, its counts of matches per step among them
     stats.update(
         {
-            "step1_matches": by_step[1],
-            "step2_matches": by_step[2],
             "task_assignments": len(decision.task_assignments),
             "tasks_completed": len(decision.tasks_completed),
             "riders": len(snapshot.riders),
