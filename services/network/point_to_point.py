@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import threading
 import weakref
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +29,8 @@ __all__ = [
     "path",
     "LANDMARKS",
     "landmarks",
+    "landmark_nodes",
+    "landmark_table",
     "crossing_us",
 ]
 
@@ -97,7 +100,9 @@ def path(graph: RoadGraph, workspace: Workspace, costs: Costs, source: int, targ
 LANDMARKS = 8
 """Landmarks per city for the goal-directed point-to-point searches (``landmarks``)."""
 
-_landmarks: weakref.WeakKeyDictionary[RoadGraph, NDArray[np.int64]] = weakref.WeakKeyDictionary()
+_landmarks: weakref.WeakKeyDictionary[RoadGraph, tuple[NDArray[np.int64], NDArray[np.int64]]] = (
+    weakref.WeakKeyDictionary()
+)
 _landmarks_lock = threading.Lock()
 
 
@@ -108,18 +113,28 @@ def landmarks(graph: RoadGraph, count: int = LANDMARKS) -> NDArray[np.int64]:
     from the ones before, starting from node 0's farthest), so that for most pairs one lies beyond the
     target and its bound (``_bound``) is close to the true time (the "ALT" bounds of Goldberg and
     Harrelson, 2005). Only speed depends on the choice."""
+    return _picked(graph, count)[0]
+
+
+def landmark_nodes(graph: RoadGraph, count: int = LANDMARKS) -> NDArray[np.int64]:
+    """The nodes ``landmarks`` picked, in the order of its columns."""
+    return _picked(graph, count)[1]
+
+
+def _picked(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     count = min(count, graph.n_nodes)
     with _landmarks_lock:
-        table = _landmarks.get(graph)
-        if table is None or table.shape[1] != 2 * count:
-            table = _landmarks[graph] = _landmark_table(graph, count)
-        return table
+        got = _landmarks.get(graph)
+        if got is None or got[1].shape[0] != count:
+            got = _landmarks[graph] = _landmark_table(graph, count)
+        return got
 
 
-def _landmark_table(graph: RoadGraph, count: int) -> NDArray[np.int64]:
+def _landmark_table(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     n = graph.n_nodes
     nodes = np.arange(n, dtype=np.int64)
     table = np.full((n, 2 * count), INF, dtype=np.int64)
+    picked = np.zeros(count, dtype=np.int64)
     wf, wr = workspace(graph), workspace(graph, reverse=True)
     out = np.empty((3, n), dtype=np.int64)
     empty = np.zeros(0, dtype=np.int64)
@@ -136,10 +151,36 @@ def _landmark_table(graph: RoadGraph, count: int) -> NDArray[np.int64]:
     spread = np.where((to0 < INF) & (from0 < INF), to0 + from0, -1)  # nodes that reach 0 and back
     for i in range(count):
         v = int(np.argmax(spread))
+        picked[i] = v
         table[:, i], table[:, count + i] = there_and_back(v)
         there, back = table[:, i], table[:, count + i]
         both = np.where((there < INF) & (back < INF), there + back, -1)
         spread = both if i == 0 else np.minimum(spread, both)
+    return table, picked
+
+
+def landmark_table(
+    graph: RoadGraph, at: NDArray[np.int64], forward: Costs, reverse: Costs, workers: int
+) -> NDArray[np.int64]:
+    """``landmarks``' table for the landmarks ``at`` under the metric prepared as ``forward`` and
+    ``reverse`` (its ``_bound`` is then a lower bound on that metric, and on any metric no cheaper on any
+    edge), its searches on ``workers`` threads of their own. Not kept: the caller keeps it."""
+    n, count = graph.n_nodes, at.shape[0]
+    table = np.full((n, 2 * count), INF, dtype=np.int64)
+    nodes = np.arange(n, dtype=np.int64)
+    empty = np.zeros(0, dtype=np.int64)
+
+    def column(j: int) -> None:
+        back = j >= count  # column count + i: from landmark i; column i: to it (a reverse search)
+        sg, costs = (graph.forward, forward) if back else (graph.reverse, reverse)
+        ws = workspace(graph, reverse=not back)
+        out = np.empty((3, n), dtype=np.int64)
+        run(sg, graph.edges, costs, int(at[j % count]), INF, empty, ws)
+        labels(sg, graph.edges, costs, INF, nodes, ws, out)
+        table[:, j] = out[0]
+
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        list(pool.map(column, range(2 * count)))
     return table
 
 

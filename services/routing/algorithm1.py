@@ -36,8 +36,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.kernel.jit import compiled, compiled_inline
-from services.kernel.parallel import parallel_map
-from services.network import astar, dijkstra, heaps, unfolding
+from services.kernel.parallel import default_workers, parallel_map
+from services.network import astar, dijkstra, heaps, point_to_point, unfolding
 from services.network.graph import (
     INF,
     Costs,
@@ -48,6 +48,7 @@ from services.network.graph import (
     fixed_super_edges,
     kappa_cost,
     no_lazy,
+    prepare,
     prepare_into,
 )
 from services.network.scratch import Scratch, ScratchPool
@@ -75,6 +76,7 @@ __all__ = [
     "route_pair",
     "evaluate",
     "kappa_graph",
+    "floor_metric",
 ]
 
 
@@ -89,9 +91,10 @@ fastest routes enter its counted cells."""
 
 class KappaGraph(NamedTuple):
     """The network as Algorithm 1's kernels take it: the edges, both search graphs with the travel time
-    prepared for each, the edges that enter a cell (the only ones whose utility can be positive), and the
+    prepared for each, the edges that enter a cell (the only ones whose utility can be positive), the
     bucket queue's geometry of any taxi's kappa metric (row q: kappa ``kappas[q]``; width: the cheapest
-    super-edge when every edge is discounted fully)."""
+    super-edge when every edge is discounted fully), and the landmarks' bounds that guide the searches
+    between two given nodes (``_guided_path``)."""
 
     ed: Edges
     fg: SearchGraph
@@ -102,6 +105,8 @@ class KappaGraph(NamedTuple):
     fixed: NDArray[np.int64]  # (S,) forward: the cost of a super-edge that enters no cell, else -1
     floor_width: NDArray[np.int64]
     floor_span: NDArray[np.int64]
+    time_lm: NDArray[np.int64]  # (n, 2 L) the landmarks' table (``point_to_point.landmarks``)
+    floor_lm: NDArray[np.int64]  # (n, 2 L) the same landmarks' under ``floor_metric`` ((0, 0): no kappa > 0)
 
 
 class RouteScratch(NamedTuple):
@@ -753,6 +758,34 @@ def _floor(
     return width, span
 
 
+@compiled
+def floor_metric(edges: Edges, kappa: float) -> NDArray[np.int64]:
+    """Per edge, the least it costs under any taxi's kappa metric of a family whose largest kappa is
+    ``kappa``: an edge that enters a cell discounted fully (``kappa_cost(t, 1, 1, kappa)``), any other its
+    travel time (``kappa_cost`` is monotone in both, so no metric of the family costs less anywhere)."""
+    m = edges.time_s.shape[0]
+    out = np.empty(m, dtype=np.int64)
+    for e in range(m):
+        crossing = edges.ec_ptr[e + 1] - edges.ec_ptr[e] > 1
+        out[e] = kappa_cost(edges.time_s[e], 1.0 if crossing else 0.0, 1.0, kappa)
+    return out
+
+
+def _floor_landmarks(graph: RoadGraph, kappa: float) -> NDArray[np.int64]:
+    """The landmarks' table under ``floor_metric`` (``point_to_point.landmark_table``): lower bounds on every
+    kappa metric of the family, a potential for ``astar.guided`` (none when no kappa is positive)."""
+    if kappa <= 0.0:
+        return np.zeros((0, 0), dtype=np.int64)
+    floor = floor_metric(graph.edges, kappa)
+    return point_to_point.landmark_table(
+        graph,
+        point_to_point.landmark_nodes(graph),
+        prepare(graph.forward, floor),
+        prepare(graph.reverse, floor),
+        default_workers(),
+    )
+
+
 _kits: weakref.WeakKeyDictionary[RoadGraph, dict[tuple[float, ...], KappaGraph]] = weakref.WeakKeyDictionary()
 _kits_lock = threading.Lock()
 
@@ -775,6 +808,8 @@ def kappa_graph(graph: RoadGraph, kappas: tuple[float, ...]) -> KappaGraph:
                 fixed_super_edges(graph.forward, ed, graph.time_forward),
                 width,
                 span,
+                point_to_point.landmarks(graph),
+                _floor_landmarks(graph, max(kappas, default=0.0)),
             )
         return got
 
@@ -824,6 +859,34 @@ def _path(
 
 
 @compiled
+def _guided_path(
+    net: KappaGraph, workspace: heaps.Workspace, costs: Costs, lazy: Lazy, drive: Drive, lm: NDArray[np.int64]
+) -> NDArray[np.int64]:
+    """``_path``, searched goal-directed by the bounds of the landmarks' table ``lm`` (``astar.guided``; shape
+    (0, 0): plainly): the same canonical path. ``lm`` must bound the metric ``costs`` from below: the travel
+    time's table (``time_lm``) for the travel time, ``floor_lm`` for any kappa metric of the family."""
+    if lm.shape[0] == 0:
+        return _path(net, workspace, costs, lazy, drive)
+    none = np.zeros(0, dtype=np.int64)
+    guide = astar.Guide(
+        np.zeros((3, 0), dtype=np.int64),
+        lm,
+        none,
+        none,
+        none,
+        none,
+        0,
+        np.zeros((0, astar.CLEAN_WORDS), dtype=np.uint64),
+        np.zeros(astar.CLEAN_WORDS, dtype=np.uint64),
+    )
+    astar.guided(net.fg, net.ed, costs, drive.source, drive.target, workspace, guide, lazy)
+    if not unfolding.unfold(net.fg, net.ed, costs, drive.limit, drive.target, workspace):
+        workspace.info[1] = -1
+        return np.empty(0, dtype=np.int64)
+    return unfolding.path_to(net.ed, 1, workspace.pred, drive.source, drive.target)
+
+
+@compiled
 def _kappa_path(
     net: KappaGraph,
     scratch: RouteScratch,
@@ -838,10 +901,10 @@ def _kappa_path(
     mark(scratch.zmask, counted, drive.i, True)
     umax = _umax_scan(net, gains, scratch.zmask) if kappa != 0.0 else 0.0
     if kappa == 0.0 or umax <= 0.0:
-        route = _path(net, scratch.forward, net.time_fwd, no_lazy(), drive)
+        route = _guided_path(net, scratch.forward, net.time_fwd, no_lazy(), drive, net.time_lm)
     else:
         costs, lazy = _own_metric(net, scratch, gains, kappa_row, kappa, umax)
-        route = _path(net, scratch.forward, costs, lazy, drive)
+        route = _guided_path(net, scratch.forward, costs, lazy, drive, net.floor_lm)
     mark(scratch.zmask, counted, drive.i, False)
     return route
 
@@ -937,7 +1000,7 @@ def _plan_one(
             edges = fastest
         elif umax > 0.0:
             costs, lazy = _own_metric(net, scratch, gains, ki, kappa, umax)
-            edges = _path(net, scratch.forward, costs, lazy, drive)
+            edges = _guided_path(net, scratch.forward, costs, lazy, drive, net.floor_lm)
             if scratch.forward.info[1] == -1:
                 best_k = -1
                 break

@@ -22,7 +22,7 @@ from services.epoch import Epoch
 from services.kernel.parallel import parallel_map
 from services.model import CountsView, IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
 from services.network import heaps, point_to_point, unfolding
-from services.network.graph import INF, prepare, road_graph
+from services.network.graph import INF, kappa_cost, prepare, road_graph
 from services.network.scratch import ScratchPool
 from services.routing import algorithm1
 from services.routing.algorithm1 import Drive, plan_one, plan_routes, problem, route_pair
@@ -246,6 +246,88 @@ def test_a_taxi_counted_where_utility_peaks_gets_its_own_normalization() -> None
             assert p.gain[i, j] == pytest.approx(g, rel=1e-12, abs=1e-300)
             assert p.time_s[i, j] == pytest.approx(t, rel=1e-12)
     assert len({KAPPAS[k] for k in p.kappa_index.ravel()}) > 1
+
+
+def guided_cases(name: str):
+    """A network, its gains and taxis counted in cells along their fastest paths and at random, with pairs
+    to route: the tied lattice (every street block equal), or a bundled city (interior ends included)."""
+    if name == "lattice":
+        rng, city, now, k0, counts, taxis = instance(3, jitter=0.0)
+    else:
+        rng = np.random.default_rng(11)
+        city = load_city(BUNDLES / name)
+        hz = city.horizon  # half an hour into a day's first interval of the horizon, where cells gain
+        now = hz.interval_start_s(IntervalKey(19_877 * hz.per_day)) + 1800.0
+        k0 = city.horizon.interval_of(now)
+        counts = CountsView(
+            {IntervalKey(k0 + s): rng.integers(0, 3, city.grid.n_cells) for s in range(2)}, {}
+        )
+        taxis = [TaxiId(f"t{i}") for i in range(6)]
+    graph = road_graph(city)
+    pairs = rng.choice(graph.n_nodes, (len(taxis), 6, 2))
+    interior = np.flatnonzero(graph.forward.kept_of < 0)
+    if interior.size:
+        pairs[:, :2, 0] = rng.choice(interior, (len(taxis), 2))
+        pairs[:, 1:3, 1] = rng.choice(interior, (len(taxis), 2))
+    with ScratchPool(graph).take() as scratch:
+        cells = [  # each taxi counted in the cells its first fastest path enters and a few others
+            {
+                int(c)
+                for c in timed_cells(
+                    city, point_to_point.fastest_path(graph, scratch.forward, *p[0]), now
+                ).cells
+            }
+            | set(rng.integers(0, city.grid.n_cells, 3).tolist())
+            for p in pairs.tolist()
+        ]
+    visited = {t: frozenset((IntervalKey(k0), c) for c in cs) for t, cs in zip(taxis, cells, strict=True)}
+    counts = CountsView(dict(counts.counts), {**counts.visited, **visited})
+    return city, graph, now, k0, counts, taxis, pairs
+
+
+@pytest.mark.parametrize("name", ["lattice", "chengdu", "manhattan"])
+def test_searches_between_two_nodes_guided_by_landmarks_find_the_plain_paths(name: str) -> None:
+    """The routes found again after Step 3's assignment (``route_pair``) and Algorithm 2's re-plans
+    (``plan_one``) search goal-directed: the fastest path by the landmarks' travel-time bounds, a kappa
+    route by the same landmarks' bounds under the floor metric (every edge that enters a cell discounted
+    fully at the family's largest kappa). The floor is nowhere above any taxi's kappa metric, and every
+    path is the one the plain search finds (the graph without landmark tables), for every taxi (its own
+    cells zeroed), kappa and pair."""
+    city, graph, now, k0, counts, taxis, pairs = guided_cases(name)
+    gn = gain_table(city, counts.counts, k0, 3, now)
+    counted = counted_csr(counts.visited, taxis, k0)
+    kt = algorithm1.kappa_graph(graph, KAPPAS)
+    none = np.zeros((0, 0), dtype=np.int64)
+    plain = kt._replace(time_lm=none, floor_lm=none)
+    floor = algorithm1.floor_metric(graph.edges, max(KAPPAS))
+    ed = graph.edges
+    crossing = np.flatnonzero(np.diff(ed.ec_ptr) > 1)
+    assert (floor[np.diff(ed.ec_ptr) <= 1] == ed.time_us[np.diff(ed.ec_ptr) <= 1]).all()
+    with ScratchPool(graph).take() as thread_scratch:
+        scratch = algorithm1.route_scratch(thread_scratch, gn)
+        for i in range(len(taxis)):
+            zmask = np.zeros(gn.term.shape[1], dtype=np.bool_)
+            zmask[[c for s, c in zeroed(counted, i) if s == 0]] = True
+            u = np.array(
+                [
+                    gn.term[0, ed.ec_cell[ed.ec_ptr[e] + 1 : ed.ec_ptr[e + 1]]][
+                        ~zmask[ed.ec_cell[ed.ec_ptr[e] + 1 : ed.ec_ptr[e + 1]]]
+                    ].sum()
+                    for e in crossing
+                ]
+            )
+            umax = u.max()
+            assert umax > 0  # the taxi's kappa metrics are its own, not the travel time
+            for q, kappa in enumerate(KAPPAS):
+                own = [kappa_cost(ed.time_s[e], x, umax, kappa) for e, x in zip(crossing, u, strict=True)]
+                assert (floor[crossing] <= np.array(own)).all()
+                for a, b in pairs[i].tolist():
+                    drive = Drive(i, a, b, int(INF) - 1)
+                    args = (scratch, gn, counted, drive, q, kappa)
+                    assert (
+                        algorithm1._kappa_path(kt, *args).tolist()
+                        == algorithm1._kappa_path(plain, *args).tolist()
+                    )
 
 
 @pytest.mark.parametrize("seed", range(6))
