@@ -274,14 +274,12 @@ class _Facts:
             float(city.horizon.interval_s),
             city.grid.n_cells,
         )
-        self.n_cols = city.grid.n_cols
+        self.rows, self.cols = np.divmod(self.cells, city.grid.n_cols)
         self.visited = epoch.counts.visited
 
     def cells_of(self, q: int) -> tuple[tuple[int, int], ...]:
-        n_cols, cells = self.n_cols, self.cells
-        return tuple(
-            (c % n_cols, c // n_cols) for c in cells[self.cell_ptr[q] : self.cell_ptr[q + 1]].tolist()
-        )
+        lo, hi = self.cell_ptr[q], self.cell_ptr[q + 1]
+        return tuple(zip(self.cols[lo:hi].tolist(), self.rows[lo:hi].tolist(), strict=True))
 
     def visits_of(self, q: int, taxi: Taxi) -> list[Visit]:
         seen = self.visited.get(taxi.id, frozenset())

@@ -16,6 +16,7 @@ interval ``floor((t + shift) / interval)``; a (slot, cell) pair counts at its fi
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from itertools import chain
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -113,16 +114,13 @@ def counted_csr(
     visited: Mapping[TaxiId, frozenset[tuple[IntervalKey, int]]], taxis: Sequence[TaxiId], k0: int
 ) -> Counted:
     """The pairs each of ``taxis`` is counted in from interval ``k0`` on."""
+    rows = [visited.get(taxi, ()) for taxi in taxis]
+    sizes = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
+    pairs = np.array(list(chain.from_iterable(rows)), dtype=np.int64).reshape(-1, 2)  # (interval, cell)
+    keep = pairs[:, 0] >= k0
     ptr = np.zeros(len(taxis) + 1, dtype=np.int64)
-    slots: list[int] = []
-    cells: list[int] = []
-    for i, taxi in enumerate(taxis):
-        for k, c in visited.get(taxi, ()):
-            if k >= k0:
-                slots.append(int(k) - k0)
-                cells.append(int(c))
-        ptr[i + 1] = len(slots)
-    return Counted(ptr, np.array(slots, dtype=np.int64), np.array(cells, dtype=np.int64))
+    ptr[1:] = np.cumsum(np.bincount(np.repeat(np.arange(len(rows)), sizes)[keep], minlength=len(rows)))
+    return Counted(ptr, pairs[keep, 0] - k0, pairs[keep, 1].copy())
 
 
 def counted_rows(counted: Counted, rows: NDArray[np.int64] | Sequence[int]) -> Counted:
