@@ -7,14 +7,23 @@ import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar, cast
 
 from app.runs.cache import ResultCache
-from app.runs.executor import Executor, InlineExecutor, Started
+from app.runs.executor import Executor, ExecutorUnavailable, Finished, InlineExecutor, Started
 from app.runs.result import RunResult
 from app.runs.spec import RunJob
 from app.runs.workload import run_job
 
-__all__ = ["RunFn", "Progress", "ProgressFn", "RunBatch", "Runner"]
+T = TypeVar("T")
+R = TypeVar("R")
+
+__all__ = ["RunFn", "Progress", "ProgressFn", "RunBatch", "Runner", "CallFailed"]
+
+
+class CallFailed(RuntimeError):
+    """A function ``Runner.call`` ran on the executor raised (its message: the executor's reason)."""
+
 
 RunFn = Callable[[RunJob], RunResult]
 
@@ -124,6 +133,19 @@ class Runner:
                         results[job.key] = event.value
                 report()
         return RunBatch(results, failures, cached, time.perf_counter() - started)
+
+    def call(self, fn: Callable[[T], R], item: T) -> R:
+        """``fn(item)`` on the executor, where the runs go (so the service's epochs pause it with them);
+        ``fn`` must be a module-level function when the executor sends work to other processes.
+
+        Raises ``CallFailed`` with the executor's reason when it raised, ``ExecutorUnavailable`` when
+        nothing can run."""
+        for event in self.executor.map_unordered(fn, [item]):
+            if isinstance(event, Finished):
+                if event.error is not None:
+                    raise CallFailed(event.error)
+                return cast(R, event.value)
+        raise ExecutorUnavailable("the executor ended without an outcome")
 
     def close(self) -> None:
         """Release the executor's workers."""

@@ -25,9 +25,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal, Protocol, runtime_checkable
 
+import numpy as np
+from numpy.typing import NDArray
+
 from app.ports import FleetRecord, SolveRequest, WorkerBeat, WorkerStore
 from app.runs import ExecutorUnavailable, ProgressFn, RunBatch, RunJob, RunResult, RunSpec, TaskTemplate
 from app.runs.outcomes import day_outcomes, hourly_volumes
+from app.runs.runner import CallFailed
 from app.usecases.cities import CityCatalog
 from app.usecases.fleet_history import (
     DemandLog,
@@ -42,7 +46,15 @@ from app.usecases.fleet_history import (
     start_nodes,
 )
 from services.city import City
-from services.fleet.sizing import CostModel, FleetPlan, SubsidyPoint, plan_fleet, subsidy_sweep
+from services.fleet.sizing import (
+    Ambiguity,
+    CostModel,
+    DayOutcomes,
+    FleetPlan,
+    SubsidyPoint,
+    plan_fleet,
+    subsidy_sweep,
+)
 from services.model import IntervalKey, Task
 from services.sim.demand import DemandSet
 
@@ -100,6 +112,10 @@ class RunnerPort(Protocol):
 
     def run(self, jobs: Sequence[RunJob], progress: ProgressFn | None = None) -> RunBatch:
         """Every job's result or the reason it failed."""
+        ...
+
+    def call(self, fn: Callable[[PlanInputs], PlanOutcome], item: PlanInputs) -> PlanOutcome:
+        """``fn(item)`` where the runs execute (``CallFailed`` when it raised)."""
         ...
 
 
@@ -485,35 +501,37 @@ class FleetSolver:
         runs: dict[int, list[RunResult]],
         observed: Observed,
     ) -> tuple[FleetPlan, tuple[SubsidyPoint, ...]]:
-        """The plan at the configured subsidy and the sweep's other subsidies, from the runs."""
+        """The plan at the configured subsidy and the sweep's other subsidies, from the runs: decided where
+        the runs go (``Runner.call``), so that a service embedding the worker pauses it with them while its
+        epochs are solved instead of sharing its interpreter with them; here when it cannot run there (a
+        solve whose runs were all cached publishes without its cluster)."""
         tau = city.horizon.interval_s / 3600.0
-        volumes = hourly_volumes(runs[cfg.sizes[0]])
+        hour = city.horizon.position(target)
+        zeta = cfg.subsidy_cny_per_vehicle_hour
         try:
-            outcomes = {x: day_outcomes(r, city.horizon, cfg.reach_s) for x, r in runs.items()}
-            plan = plan_fleet(
-                outcomes,
-                volumes,
+            inputs = PlanInputs(
+                {x: day_outcomes(r, city.horizon, cfg.reach_s) for x, r in runs.items()},
+                hourly_volumes(runs[cfg.sizes[0]]),
                 cfg.ambiguity,
-                CostModel(cfg.subsidy_cny_per_vehicle_hour, tau),
-                observed=observed.requests_per_hour,
-                keep=cfg.rolling_days,
-                target=cfg.completion_target,
-            )
-            hour = city.horizon.position(target)
-            zeta = cfg.subsidy_cny_per_vehicle_hour
-            others = subsidy_sweep(  # the configured subsidy's point is the plan's own
-                outcomes,
-                volumes,
-                [z for z in cfg.subsidy_sweep if z != zeta],
-                hour=hour,
-                ambiguity=cfg.ambiguity,
-                interval_hours=tau,
-                observed=observed.requests_per_hour,
-                keep=cfg.rolling_days,
-                target=cfg.completion_target,
+                CostModel(zeta, tau),
+                tuple(z for z in cfg.subsidy_sweep if z != zeta),  # the configured one's point is the plan's
+                hour,
+                observed.requests_per_hour,
+                cfg.rolling_days,
+                cfg.completion_target,
             )
         except ValueError as exc:
             raise SolveFailed(f"fleet sizing rejected the samples: {exc}") from exc
+        try:
+            got = self.runner.call(plan_and_sweep, inputs)
+        except (CallFailed, ExecutorUnavailable) as exc:  # e.g. a cluster lost after its runs: size here
+            log.warning(
+                "fleet %s: the sizing could not run where the runs go (%s); sized here", city.name, exc
+            )
+            got = plan_and_sweep(inputs)
+        if isinstance(got, str):
+            raise SolveFailed(f"fleet sizing rejected the samples: {got}")
+        plan, others = got
         sweep = tuple(sorted((*others, plan.point(hour)), key=lambda p: p.subsidy_cny_per_vehicle_hour))
         return plan, sweep
 
@@ -612,3 +630,54 @@ class FleetSolver:
     def _record_failure(self, city: str, target: IntervalKey, reason: str, request_id: str | None) -> None:
         record = FleetRecord("failed", self.clock(), int(target), reason=reason, request_id=request_id)
         self.store.record_solve_failure(city, record, self.history_limit)
+
+
+@dataclass(frozen=True, slots=True)
+class PlanInputs:
+    """What one solve's sizing reads, sent whole to where the runs go (``plan_and_sweep``): the day outcomes
+    per fleet size, the requests per interval of the first size's days, the ambiguity set, the cost model
+    at the configured subsidy, the sweep's other subsidies, the target interval's position in the day, the
+    requests observed so far today, the days kept for the rolling horizon and the completion target."""
+
+    outcomes: dict[int, DayOutcomes]
+    volumes: NDArray[np.float64]
+    ambiguity: Ambiguity
+    costs: CostModel
+    others: tuple[float, ...]
+    hour: int
+    observed: tuple[int, ...]
+    keep: int
+    target: float | None
+
+
+PlanOutcome = tuple[FleetPlan, tuple[SubsidyPoint, ...]] | str
+"""``plan_and_sweep``'s: the plan and the sweep's other points, or why the samples were rejected."""
+
+
+def plan_and_sweep(inputs: PlanInputs) -> PlanOutcome:
+    """``plan_fleet`` at the configured subsidy and ``subsidy_sweep`` at the others; the message when the
+    samples are rejected (a ``ValueError`` of the sizing), so that the solve can say so."""
+    try:
+        plan = plan_fleet(
+            inputs.outcomes,
+            inputs.volumes,
+            inputs.ambiguity,
+            inputs.costs,
+            observed=inputs.observed,
+            keep=inputs.keep,
+            target=inputs.target,
+        )
+        others = subsidy_sweep(
+            inputs.outcomes,
+            inputs.volumes,
+            list(inputs.others),
+            hour=inputs.hour,
+            ambiguity=inputs.ambiguity,
+            interval_hours=inputs.costs.interval_hours,
+            observed=inputs.observed,
+            keep=inputs.keep,
+            target=inputs.target,
+        )
+    except ValueError as exc:
+        return str(exc)
+    return plan, others

@@ -64,3 +64,8 @@ def executor_then_die(directory: str) -> None:
     server: Any = forkserver._forkserver  # the running forkserver, for the test to end it
     (here / "forkserver").write_text(str(server._forkserver_pid))
     os._exit(0)
+
+
+def pid_and_square(x: int) -> tuple[int, int]:
+    """The process it ran in, and ``square_unless_3(x)``."""
+    return os.getpid(), square_unless_3(x)

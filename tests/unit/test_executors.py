@@ -32,8 +32,15 @@ from app.runs import (
 from app.runs.bundles import BundleFiles, install_shipped, shipped_copy
 from app.runs.executor import Foreground
 from app.runs.localcluster import free_port
+from app.runs.runner import CallFailed
 from tests.api.fakes import CITY, build_bundle
-from tests.unit.pool_tasks import count_until_stopped, executor_then_die, exit_on_2, square_unless_3
+from tests.unit.pool_tasks import (
+    count_until_stopped,
+    executor_then_die,
+    exit_on_2,
+    pid_and_square,
+    square_unless_3,
+)
 from tests.unit.test_worker_parts import result
 
 T = TypeVar("T")
@@ -70,6 +77,23 @@ def test_local_processes_report_starts_from_their_own_pids_and_every_outcome() -
             }
     finally:
         executor.close()
+
+
+@pytest.mark.slow
+def test_a_call_runs_where_the_runs_go(tmp_path: Path) -> None:
+    """``Runner.call`` (how a fleet solve's sizing follows its runs, so that an epoch pauses it with them):
+    one function on the executor -- in a process of the pool, not this one, on local processes -- its value
+    back; a raise is ``CallFailed`` with the executor's reason; inline, in this process."""
+    executor = ProcessExecutor(1)
+    try:
+        runner = Runner(RunCache(tmp_path), executor)
+        pid, value = runner.call(pid_and_square, 4)
+        assert value == 16 and pid != os.getpid()
+        with pytest.raises(CallFailed, match="ValueError: three"):
+            runner.call(pid_and_square, 3)
+    finally:
+        executor.close()
+    assert Runner(RunCache(tmp_path)).call(pid_and_square, 5) == (os.getpid(), 25)
 
 
 @pytest.mark.slow

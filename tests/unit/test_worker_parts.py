@@ -673,6 +673,9 @@ class _NoRuns:
     def run(self, jobs: Any, progress: Any = None) -> Any:
         raise AssertionError(f"{len(jobs)} runs started for a city that cannot be sized")
 
+    def call(self, fn: Any, item: Any) -> Any:
+        raise AssertionError("a plan was asked for a city that cannot be sized")
+
 
 def test_a_city_without_its_history_starts_no_run_and_is_reported_once(
     tiny_cities: CityRegistry, caplog: pytest.LogCaptureFixture
