@@ -29,6 +29,7 @@ __all__ = [
     "path_cells",
     "tree_guide",
     "run_guided",
+    "potential_guide",
     "guided",
 ]
 
@@ -249,10 +250,16 @@ def run_guided(
 ) -> None:
     """``guided`` with the potential ``pot`` or the landmark table ``landmarks`` (shape (0, 0): none), the
     metric held in ``costs``."""
+    guided(graph, edges, costs, source, target, workspace, potential_guide(pot, landmarks), no_lazy())
+
+
+@compiled
+def potential_guide(pot: NDArray[np.int64], landmarks: NDArray[np.int64]) -> Guide:
+    """The ``Guide`` of the potential ``pot`` ((3, K); shape (3, 0) with a table) or the landmark table
+    ``landmarks`` (shape (0, 0): none), with no in-tree and no cell test."""
     none = np.zeros(0, dtype=np.int64)
     bits = np.zeros((0, CLEAN_WORDS), dtype=np.uint64)
-    gd = Guide(pot, landmarks, none, none, none, none, 0, bits, np.zeros(CLEAN_WORDS, dtype=np.uint64))
-    guided(graph, edges, costs, source, target, workspace, gd, no_lazy())
+    return Guide(pot, landmarks, none, none, none, none, 0, bits, np.zeros(CLEAN_WORDS, dtype=np.uint64))
 
 
 @compiled_inline

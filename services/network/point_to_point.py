@@ -130,22 +130,28 @@ def _picked(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np
         return got
 
 
+def _costs_to_or_from(graph: RoadGraph, costs: Costs, v: int, back: bool, ws: Workspace) -> NDArray[np.int64]:
+    """Every node's cost to node ``v`` (a reverse search, ``costs`` prepared for it), or from ``v`` when
+    ``back`` (forward); ``INF``: no path. ``ws``: a workspace of that direction."""
+    sg = graph.forward if back else graph.reverse
+    out = np.empty((3, graph.n_nodes), dtype=np.int64)
+    run(sg, graph.edges, costs, v, INF, np.zeros(0, dtype=np.int64), ws)
+    labels(sg, graph.edges, costs, INF, np.arange(graph.n_nodes, dtype=np.int64), ws, out)
+    costs_of: NDArray[np.int64] = out[0]
+    return costs_of
+
+
 def _landmark_table(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     n = graph.n_nodes
-    nodes = np.arange(n, dtype=np.int64)
     table = np.full((n, 2 * count), INF, dtype=np.int64)
     picked = np.zeros(count, dtype=np.int64)
     wf, wr = workspace(graph), workspace(graph, reverse=True)
-    out = np.empty((3, n), dtype=np.int64)
-    empty = np.zeros(0, dtype=np.int64)
 
     def there_and_back(v: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        run(graph.reverse, graph.edges, graph.time_reverse, v, INF, empty, wr)
-        labels(graph.reverse, graph.edges, graph.time_reverse, INF, nodes, wr, out)
-        to_v = out[0].copy()
-        run(graph.forward, graph.edges, graph.time_forward, v, INF, empty, wf)
-        labels(graph.forward, graph.edges, graph.time_forward, INF, nodes, wf, out)
-        return to_v, out[0].copy()
+        return (
+            _costs_to_or_from(graph, graph.time_reverse, v, False, wr),
+            _costs_to_or_from(graph, graph.time_forward, v, True, wf),
+        )
 
     to0, from0 = there_and_back(0)
     spread = np.where((to0 < INF) & (from0 < INF), to0 + from0, -1)  # nodes that reach 0 and back
@@ -167,17 +173,11 @@ def landmark_table(
     edge), its searches on ``workers`` threads of their own. Not kept: the caller keeps it."""
     n, count = graph.n_nodes, at.shape[0]
     table = np.full((n, 2 * count), INF, dtype=np.int64)
-    nodes = np.arange(n, dtype=np.int64)
-    empty = np.zeros(0, dtype=np.int64)
 
     def column(j: int) -> None:
         back = j >= count  # column count + i: from landmark i; column i: to it (a reverse search)
-        sg, costs = (graph.forward, forward) if back else (graph.reverse, reverse)
         ws = workspace(graph, reverse=not back)
-        out = np.empty((3, n), dtype=np.int64)
-        run(sg, graph.edges, costs, int(at[j % count]), INF, empty, ws)
-        labels(sg, graph.edges, costs, INF, nodes, ws, out)
-        table[:, j] = out[0]
+        table[:, j] = _costs_to_or_from(graph, forward if back else reverse, int(at[j % count]), back, ws)
 
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         list(pool.map(column, range(2 * count)))

@@ -867,18 +867,7 @@ def _guided_path(
     time's table (``time_lm``) for the travel time, ``floor_lm`` for any kappa metric of the family."""
     if lm.shape[0] == 0:
         return _path(net, workspace, costs, lazy, drive)
-    none = np.zeros(0, dtype=np.int64)
-    guide = astar.Guide(
-        np.zeros((3, 0), dtype=np.int64),
-        lm,
-        none,
-        none,
-        none,
-        none,
-        0,
-        np.zeros((0, astar.CLEAN_WORDS), dtype=np.uint64),
-        np.zeros(astar.CLEAN_WORDS, dtype=np.uint64),
-    )
+    guide = astar.potential_guide(np.zeros((3, 0), dtype=np.int64), lm)
     astar.guided(net.fg, net.ed, costs, drive.source, drive.target, workspace, guide, lazy)
     if not unfolding.unfold(net.fg, net.ed, costs, drive.limit, drive.target, workspace):
         workspace.info[1] = -1

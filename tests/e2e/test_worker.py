@@ -11,7 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 from zoneinfo import ZoneInfo
 
 import numpy as np
@@ -189,14 +189,23 @@ def test_hourly_solves_publish_and_later_hours_reuse_the_runs(
         ]
 
 
+T = TypeVar("T")
+R = TypeVar("R")
+
+
 class CountingRunner(Runner):
     def __init__(self, cache: RunCache) -> None:
         super().__init__(cache)
         self.batches = 0
+        self.calls = 0  # the sizing after the runs, sent where they went
 
     def run(self, jobs: Sequence[RunJob], progress: ProgressFn | None = None) -> RunBatch:
         self.batches += 1
         return super().run(jobs, progress)
+
+    def call(self, fn: Callable[[T], R], item: T) -> R:
+        self.calls += 1
+        return super().call(fn, item)
 
 
 def test_two_workers_racing_for_one_hour_solve_it_once(
@@ -226,6 +235,7 @@ def test_two_workers_racing_for_one_hour_solve_it_once(
     finals = sorted(s[-1] for s in seen)
     assert finals == ["published", "skipped"], seen
     assert sum(r.batches for r in runners) == 1  # exactly one solve simulated anything
+    assert sum(r.calls for r in runners) == 1  # and sized its runs, through its runner's executor
     store = make_store()
     assert [(h.status, h.version) for h in store.recommendation_history(CITY, 10)] == [("published", 1)]
 
