@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.kernel.jit import compiled, compiled_inline
-from services.network.dijkstra import _crossing_cost, _lazy_ends, _need_targets, _seed
+from services.network.dijkstra import _crossing_cost, _label, _lazy_ends, _need_targets, _seed
 from services.network.graph import (
     INF,
     Costs,
@@ -73,6 +73,26 @@ def _guided_up(
         _put(heap, hkey, state, i, heap[p], hkey[p, 0], hkey[p, 1], hkey[p, 2])
         i = p
     _put(heap, hkey, state, i, k, c, a, b)
+
+
+@compiled_inline
+def _enqueue(
+    heap: NDArray[np.int64],
+    hkey: NDArray[np.int64],
+    state: NDArray[np.int64],
+    size: int,
+    k: int,
+    c: int,
+    a: int,
+    b: int,
+) -> int:
+    """Queue node ``k`` with key ``(c, a, b)``, or move it up to that key if queued; the queue's new size."""
+    at = state[k]
+    if at < 0:
+        at = size
+        size += 1
+    _guided_up(heap, hkey, state, at, k, c, a, b)
+    return size
 
 
 @compiled_inline
@@ -321,21 +341,23 @@ def _guided_seed(
 
 
 @compiled_inline
-def _meets(guide: Guide, k: int) -> bool:
-    """``guided`` may stop at kept node ``k`` (just settled) when ``guide`` holds an in-tree's path cells and
-    ``k``'s in-tree path enters none of the cells ``guide.zbits`` holds: that path costs the searched metric
-    what it costs the in-tree's, and no other path from ``k`` costs less (the metric is nowhere cheaper
-    than the in-tree's), so ``k``'s key -- its label plus that path's label -- is the label of a path to
-    the target. Every path whose last kept node is not settled yet costs at least that key (keys leave the
-    queue in order); the others reach an interior target inside its chain, from the source in it or from a
-    settled end of it, and are never queued. ``guided`` stops only where the key is better than the best of
-    those (``_into_target``): then it is the target's label, and the canonical path is the one to ``k``
-    (``unfold``) followed by the in-tree's path from ``k``."""
-    if guide.clean.shape[0] == 0 or guide.tree_state[k] != -2:
+def _meets(
+    clean: NDArray[np.uint64], zbits: NDArray[np.uint64], tree_state: NDArray[np.int64], k: int
+) -> bool:
+    """``guided`` may stop at kept node ``k`` (just settled) when its guide holds an in-tree's path cells
+    ``clean`` (``Guide``) and ``k``'s in-tree path enters none of the cells ``zbits`` holds: that path
+    costs the searched metric what it costs the in-tree's, and no other path from ``k`` costs less (the
+    metric is nowhere cheaper than the in-tree's), so ``k``'s key -- its label plus that path's label --
+    is the label of a path to the target. Every path whose last kept node is not settled yet costs at
+    least that key (keys leave the queue in order); the others reach an interior target inside its chain,
+    from the source in it or from a settled end of it, and are never queued. ``guided`` stops only where
+    the key is better than the best of those (``_into_target``): then it is the target's label, and the
+    canonical path is the one to ``k`` (``unfold``) followed by the in-tree's path from ``k``."""
+    if clean.shape[0] == 0 or tree_state[k] != -2:
         return False
     hit = np.uint64(0)
-    for w in range(guide.zbits.shape[0]):
-        hit |= guide.clean[k, w] & guide.zbits[w]
+    for w in range(zbits.shape[0]):
+        hit |= clean[k, w] & zbits[w]
     return bool(hit == 0)
 
 
@@ -442,6 +464,7 @@ def guided(
     target's)."""
     cost, tie1, tie2, state = workspace.cost, workspace.tie1, workspace.tie2, workspace.state
     heap, hkey, need, se_cost = workspace.nxt, workspace.hkey, workspace.need, costs.se
+    pse, pstart, touched = workspace.pse, workspace.pstart, workspace.touched
     lazy_on, fixed, zmask, term = lazy.on, lazy.fixed, lazy.zmask, lazy.term
     umax, kappa, se_ptr, se_edges = lazy.umax, lazy.kappa, graph.se_ptr, graph.se_edges
     ec_ptr, ec_cell, time_s = edges.ec_ptr, edges.ec_cell, edges.time_s
@@ -449,6 +472,10 @@ def guided(
         graph, edges, costs, workspace, guide, lazy, source, target
     )
     watch = guide.clean.shape[0] > 0 and graph.kept_of[target] < 0
+    use_tree = tl.shape[0] == 0 and guide.tree_state.shape[0] > 0
+    t_cost, t_tie1, t_tie2, t_state = guide.tree_cost, guide.tree_tie1, guide.tree_tie2, guide.tree_state
+    cutoff, clean, zbits = guide.cutoff, guide.clean, guide.zbits
+    indptr, se_head, se_tie1, se_tie2 = graph.indptr, graph.se_head, graph.se_tie1, graph.se_tie2
     complete, meet = 1, -1
     while size > 0:
         k = heap[0]
@@ -460,20 +487,22 @@ def guided(
             if remaining == 0:
                 complete = 0
                 break
-        if _meets(guide, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
+        if _meets(clean, zbits, t_state, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
             complete, meet = 0, k
             break
         if watch and need[k]:
             found = _into_target(graph, edges, costs, source, target, k, (cost[k], tie1[k], tie2[k]), found)
-        d = cost[k]
-        a0 = tie1[k]
-        b0 = tie2[k]
-        for s in range(graph.indptr[k], graph.indptr[k + 1]):
-            h = graph.se_head[s]
-            st = state[h]
-            if st == -2:
+        d, a0, b0 = cost[k], tie1[k], tie2[k]
+        for s in range(indptr[k], indptr[k + 1]):
+            h = se_head[s]
+            if state[h] == -2:
                 continue
-            p0, p1, p2 = _potential(guide, tl, graph.kept[h], h)
+            if not use_tree:
+                p0, p1, p2 = _potential(guide, tl, graph.kept[h], h)
+            elif t_state[h] == -2:
+                p0, p1, p2 = t_cost[h], t_tie1[h], t_tie2[h]
+            else:
+                p0, p1, p2 = cutoff, 0, 0
             if p0 >= INF:
                 continue
             if not lazy_on:
@@ -482,10 +511,13 @@ def guided(
                 c = d + fixed[s]
             else:
                 c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
-            a = a0 + graph.se_tie1[s]
-            b = b0 + graph.se_tie2[s]
+            a, b = a0 + se_tie1[s], b0 + se_tie2[s]
             if _less(c, a, b, cost[h], tie1[h], tie2[h]):
-                size, n_touched = _guided_label(workspace, h, (c, a, b), s, 0, (p0, p1, p2), size, n_touched)
+                if cost[h] == INF and not need[h]:
+                    touched[n_touched] = h
+                    n_touched += 1
+                _label(cost, tie1, tie2, pse, pstart, h, c, a, b, s)
+                size = _enqueue(heap, hkey, state, size, h, c + p0, a + p1, b + p2)
     workspace.info[1] = complete
     workspace.info[2] = n_touched
     return meet
