@@ -5,7 +5,8 @@ contract suite (``tests/contract``)."""
 from __future__ import annotations
 
 import datetime as dt
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 from zoneinfo import ZoneInfo
@@ -58,16 +59,17 @@ class CityState:
 
     ``version`` counts committed epochs of the city; a commit names the version it was computed on.
     ``counts[k][cell]`` is Lambda (sparse: cells with a zero count are absent), for the intervals asked for.
-    ``visited[taxi]`` lists the (interval, cell) pairs that taxi is already counted in, for the taxis and
-    intervals asked for. ``tasks`` are the city's open tasks (pending or assigned): a finished task
-    (completed or expired) is history, listed by ``list_tasks`` but never read by an epoch.
+    ``visited[taxi]`` holds the (interval, cell) pairs that taxi is already counted in, for the taxis and
+    intervals asked for (a set or a frozen set, possibly the store's own: read it, never change it).
+    ``tasks`` are the city's open tasks (pending or assigned): a finished task (completed or expired) is
+    history, listed by ``list_tasks`` but never read by an epoch.
     """
 
     version: int
     last_epoch_id: str | None
     last_epoch_time_s: float | None
     counts: dict[IntervalKey, dict[int, int]]
-    visited: dict[TaxiId, set[tuple[IntervalKey, int]]]
+    visited: Mapping[TaxiId, AbstractSet[tuple[IntervalKey, int]]]
     tasks: list[Task]
 
 

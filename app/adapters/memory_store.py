@@ -148,18 +148,7 @@ class MemoryStore:
             c = self._city(city)
             ks = list(dict.fromkeys(intervals))
             vks = ks if visits_from is None else [k for k in ks if k >= visits_from]
-            visits, cache = c.ledger.visits, c.visit_pairs
-            visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {}
-            for taxi in dict.fromkeys(taxi_ids):
-                pairs: set[tuple[IntervalKey, int]] = set()
-                for k in vks:
-                    cells = visits.get((k, taxi))
-                    if cells:
-                        hit = cache.get((k, taxi))
-                        if hit is None or hit[0] is not cells or hit[1] != len(cells):
-                            hit = cache[(k, taxi)] = (cells, len(cells), frozenset(zip(repeat(k), cells)))
-                        pairs.update(hit[2])
-                visited[taxi] = pairs
+            visited = {taxi: self._visited(c, taxi, vks) for taxi in dict.fromkeys(taxi_ids)}
             return CityState(
                 version=c.version,
                 last_epoch_id=c.last_epoch_id,
@@ -168,6 +157,23 @@ class MemoryStore:
                 visited=visited,
                 tasks=[c.ledger.tasks[t] for t in sorted(c.ledger.tasks)],
             )
+
+    @staticmethod
+    def _visited(c: _City, taxi: TaxiId, ks: Sequence[IntervalKey]) -> frozenset[tuple[IntervalKey, int]]:
+        """The (interval, cell) pairs ``taxi`` is counted in over ``ks``: the one frozen set an interval's
+        pairs are kept as when only one of ``ks`` has any (the common case: no copy), their union else."""
+        visits, cache = c.ledger.visits, c.visit_pairs
+        found: list[frozenset[tuple[IntervalKey, int]]] = []
+        for k in ks:
+            cells = visits.get((k, taxi))
+            if cells:
+                hit = cache.get((k, taxi))
+                if hit is None or hit[0] is not cells or hit[1] != len(cells):
+                    hit = cache[(k, taxi)] = (cells, len(cells), frozenset(zip(repeat(k), cells)))
+                found.append(hit[2])
+        if len(found) == 1:
+            return found[0]
+        return frozenset().union(*found)
 
     def commit_epoch(self, city: str, commit: EpochCommit) -> CommitResult:
         """Check and apply one epoch under the lock (see ``app.ports.Store.commit_epoch``)."""

@@ -6,7 +6,6 @@ cluster client) all of a city's keys share one slot: each script and transaction
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 import uuid
@@ -16,6 +15,7 @@ from importlib import resources
 from typing import Any, Literal, TypeVar, cast
 from urllib.parse import urlsplit
 
+import orjson
 import redis
 from redis.backoff import ExponentialBackoff
 from redis.cluster import RedisCluster
@@ -410,7 +410,7 @@ class RedisStore:
         sent = time.monotonic()
         try:
             with self._guard("committing an epoch"):
-                arg = json.dumps(doc, ensure_ascii=False)
+                arg = orjson.dumps(doc).decode()
                 demand = commit.demand_json if commit.demand_json is not None else ""
                 reply = cast(list[Any], self._eval("commit", keys, [arg, commit.response_json, demand]))
         except BaseException:

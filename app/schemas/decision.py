@@ -136,7 +136,8 @@ def _plain_ids(ids: Sequence[object]) -> bool:
     if not set(map(type, ids)) <= {str}:
         return False
     texts = cast(Sequence[str], ids)
-    if not all(0 < len(ident) <= ID_MAX_LEN for ident in texts):
+    lengths = set(map(len, texts))
+    if lengths and (min(lengths) < 1 or max(lengths) > ID_MAX_LEN):
         return False
     every_id = "".join(texts)  # no id is empty, so one look at them all
     return every_id.isascii() and not _CONTROL.search(every_id)

@@ -14,7 +14,7 @@ from itertools import chain
 from typing import Any
 
 import numpy as np
-import pydantic_core
+import orjson
 
 from services.city import City
 from services.model import (
@@ -37,6 +37,7 @@ __all__ = [
     "EpochRenderer",
     "StoredDecision",
     "EpochReader",
+    "external_ids",
     "task_doc",
     "task_of",
     "epoch_doc",
@@ -135,7 +136,7 @@ _EXTERNAL_IDS: dict[int, tuple[Network, list[int]]] = {}  # id(network) -> (netw
 _EXTERNAL_IDS_LOCK = threading.Lock()  # responses are rendered on the threadpool
 
 
-def _external_ids(city: City) -> list[int]:
+def external_ids(city: City) -> list[int]:
     """The city's external node ids as a list of ints, kept for the few most recent networks (the entry
     holds its network, so an id is never taken for another network's while it is kept)."""
     net = city.network
@@ -150,7 +151,7 @@ def _external_ids(city: City) -> list[int]:
 
 def _ext_paths(city: City, paths: Sequence[tuple[int, ...]]) -> list[list[int]]:
     """External node ids along each path."""
-    at = _external_ids(city).__getitem__
+    at = external_ids(city).__getitem__
     return [list(map(at, path)) for path in paths]
 
 
@@ -260,9 +261,11 @@ def _core_stats(decision: Decision) -> dict[str, float | int | str]:
 
 
 def render_epoch(result: EpochResult) -> str:
-    """The response document of a decided epoch (``EpochService``'s renderer): ``epoch_doc`` encoded by
-    pydantic's JSON encoder, without validating the values it was built from a second time."""
-    return pydantic_core.to_json(epoch_doc(result), inf_nan_mode="null").decode()
+    """The response document of a decided epoch (``EpochService``'s renderer): ``epoch_doc`` encoded once by
+    orjson, without validating the values it was built from a second time. orjson writes what pydantic's
+    JSON encoder writes for these values (shortest round-trip floats, UTF-8 text, NaN and infinities as
+    ``null``), about three times as fast (tests/api/test_render.py)."""
+    return orjson.dumps(epoch_doc(result)).decode()
 
 
 def decision_of(city: City, doc: Mapping[str, Any]) -> StoredDecision:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import functools
-import json
 import logging
 import math
 import threading
@@ -20,6 +19,8 @@ from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 from zoneinfo import ZoneInfo
+
+import orjson
 
 from app.errors import (
     Busy,
@@ -43,6 +44,7 @@ from app.usecases.epoch_record import (
     EpochRenderer,
     EpochResult,
     StoredDecision,
+    external_ids,
     read_epoch,
     render_epoch,
 )
@@ -403,7 +405,7 @@ class _DemandRecord:
     posted, and, for the epoch that opens the day's horizon, where each of them stood."""
 
     def __init__(self, city: City, epoch: EpochCommand) -> None:
-        ids = city.network.node_ids
+        ids = external_ids(city)
         snapshot = epoch.snapshot
         tz = city.horizon.timezone
         self.city = city
@@ -417,8 +419,8 @@ class _DemandRecord:
             "riders": [
                 {
                     "id": str(r.id),
-                    "origin": int(ids[r.origin]),
-                    "destination": int(ids[r.destination]),
+                    "origin": ids[r.origin],
+                    "destination": ids[r.destination],
                     "requested_at": _local_time(r.requested_at_s, tz),
                     "requested_at_s": r.requested_at_s,
                 }
@@ -433,14 +435,14 @@ class _DemandRecord:
         if opening not in self._text:
             doc = self._doc
             if opening:
-                ids = self.city.network.node_ids
+                ids = external_ids(self.city)
                 taxis = self.snapshot.taxis
                 doc = {
                     **doc,
                     "fleet_at_open": {
-                        "instrumented": [int(ids[t.node]) for t in taxis if t.instrumented],
-                        "ordinary": [int(ids[t.node]) for t in taxis if not t.instrumented],
+                        "instrumented": [ids[t.node] for t in taxis if t.instrumented],
+                        "ordinary": [ids[t.node] for t in taxis if not t.instrumented],
                     },
                 }
-            self._text[opening] = json.dumps(doc, separators=(",", ":"))
+            self._text[opening] = orjson.dumps(doc).decode()
         return self._text[opening]

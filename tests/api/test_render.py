@@ -221,6 +221,36 @@ def test_awkward_values_render_as_the_validated_models_do() -> None:
     assert doc["rider_matches"][0]["path"] == [int(v) for v in city.network.node_ids[[0, 1, 2]]]
 
 
+def test_floats_of_every_magnitude_render_as_the_validated_models_do() -> None:
+    """Finite doubles drawn from random bit patterns (every exponent, subnormals, whole numbers past 1e16)
+    and the round numbers between: each written as the models write it."""
+    city = grid_city(3, 300.0, cell_m=500.0)
+    rng = np.random.default_rng(7)
+    bits = rng.integers(0, 2**63, size=4000, dtype=np.uint64) | (rng.integers(0, 2, 4000, np.uint64) << 63)
+    drawn = [float(x) for x in bits.view(np.float64) if math.isfinite(x)]
+    drawn += [1e15, 1e16, 1e17, 1e21, 1e22, 2.0**53, 0.1, 1e-5, 1e-7, 5e-324, 123.456, -0.0, 3.0]
+    fields = [tuple(drawn[i : i + 5]) for i in range(0, len(drawn) - 4, 5)]
+    matches = tuple(
+        RiderMatch(1, TaxiId(f"t{i}"), RiderId(f"r{i}"), a, b, c, d, e, (0,), ((0, 0),))
+        for i, (a, b, c, d, e) in enumerate(fields)
+    )
+    decision = Decision(
+        epoch_id="e",
+        time_s=T0,
+        rider_matches=matches,
+        task_assignments=(),
+        tasks_completed=(),
+        task_updates=(),
+        unmatched_rider_ids=(),
+        expired_rider_ids=(),
+        visits=(),
+        intervals_touched=(),
+        stats={"x": drawn[0], "y": drawn[1], "step1_matches": len(matches), "step2_matches": 0},
+    )
+    snapshot = Snapshot("e", T0, (), (Taxi(TaxiId("t"), 0, True, True),))
+    _check(_result(city, decision, snapshot, solve_ms=drawn[2], gamma_before=drawn[3], gamma_after=drawn[4]))
+
+
 def test_paths_read_their_own_networks_ids_under_threads() -> None:
     """Sixteen threads render paths of twelve networks at once, more networks than the id cache keeps: every
     path reads its own network's node ids."""

@@ -126,6 +126,21 @@ def test_load_state_reads_visits_from_an_interval_on(store: Store) -> None:
     assert state.visited == {A: {(K2, 6)}, B: set()}  # the pairs from K2 on (K3 is an earlier interval)
 
 
+def test_a_loaded_state_stays_as_it_was_read(store: Store) -> None:
+    """A state read before a commit keeps the counts and the pairs it was read with (a store may hand out
+    its own frozen sets, never one that a later commit grows)."""
+    store.commit_epoch(CITY, commit("e1", version=0, visits=[visit(A, K1, 5), visit(B, K1, 5)]))
+    before = store.load_state(CITY, [K1, K2], [A, B])
+    again = store.load_state(CITY, [K1, K2], [A, B])
+    visits = [visit(A, K1, 6), visit(A, K2, 7), visit(B, K1, 6)]
+    assert store.commit_epoch(CITY, commit("e2", version=1, visits=visits)).status == "committed"
+    for state in (before, again):
+        assert state.counts == {K1: {5: 2}, K2: {}}
+        assert state.visited == {A: {(K1, 5)}, B: {(K1, 5)}}
+    after = store.load_state(CITY, [K1, K2], [A, B])
+    assert after.visited == {A: {(K1, 5), (K1, 6), (K2, 7)}, B: {(K1, 5), (K1, 6)}}
+
+
 def test_same_visit_in_two_epochs_counts_once(store: Store) -> None:
     store.commit_epoch(CITY, commit("e1", version=0, visits=[visit(A, K1, 5)]))
     result = store.commit_epoch(CITY, commit("e2", version=1, visits=[visit(A, K1, 5), visit(A, K1, 5)]))
