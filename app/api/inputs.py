@@ -5,7 +5,6 @@ the offending field, raised before the store is touched."""
 from __future__ import annotations
 
 import re
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import cast
@@ -18,9 +17,10 @@ from app.schemas.decision import EpochIn, PlainRiders, PlainTaxis, body_hash
 from app.schemas.tasks import TaskIn
 from app.settings import Settings
 from app.usecases import EpochCommand
+from app.usecases.epoch_record import node_index
 from services.city import City
 from services.model import IntervalKey, Rider, RiderId, Snapshot, Task, TaskId, Taxi, TaxiId
-from services.network.network import Network, SnapError
+from services.network.network import SnapError
 
 __all__ = [
     "Limits",
@@ -92,27 +92,6 @@ def snap_all(city: City, locations: Sequence[LocationIn]) -> Snapped:
     }
 
 
-_NODE_INDEX: dict[int, tuple[Network, dict[int, int]]] = {}  # id(network) -> (network, node id -> index)
-_NODE_INDEX_LOCK = threading.Lock()  # epochs are resolved on the threadpool
-
-
-def _node_index(city: City) -> dict[int, int]:
-    """The city's node indices by external node id, for a plain look-up per node (``Network.index_of`` is a
-    method call per node); kept for the few most recent networks, each entry holding its network so that
-    an id is never taken for another network's while it is kept."""
-    net = city.network
-    with _NODE_INDEX_LOCK:
-        hit = _NODE_INDEX.get(id(net))
-        if hit is None or hit[0] is not net:
-            if len(_NODE_INDEX) >= 8:
-                _NODE_INDEX.pop(next(iter(_NODE_INDEX)))
-            hit = _NODE_INDEX[id(net)] = (
-                net,
-                dict(zip(net.node_ids.tolist(), range(net.n_nodes), strict=True)),
-            )
-        return hit[1]
-
-
 def _unique(ids: Sequence[str], where: str) -> None:
     """422 naming the first id that repeats an earlier one."""
     if len(set(ids)) == len(ids):
@@ -148,7 +127,7 @@ def _plain_riders(city: City, plain: PlainRiders, time_s: float) -> list[Rider]:
     if not plain.ids:
         return []
     if max(plain.requested_at_s) <= time_s:
-        at = _node_index(city).__getitem__  # the node ids are ints in int64 (``plain_riders``)
+        at = node_index(city).__getitem__  # the node ids are ints in int64 (``plain_riders``)
         try:  # the common case, every node known: no error to name
             origins, destinations = list(map(at, plain.origins)), list(map(at, plain.destinations))
         except KeyError:
@@ -203,7 +182,7 @@ def snapshot_of(
     taxis: list[Taxi] = []
     if plain is not None:
         try:  # the common case, every node known: no error to name (node ids are ints in int64)
-            nodes = list(map(_node_index(city).__getitem__, plain.node_ids))
+            nodes = list(map(node_index(city).__getitem__, plain.node_ids))
         except KeyError:
             for i, node_id in enumerate(plain.node_ids):
                 try:

@@ -11,7 +11,7 @@ import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import chain
-from typing import Any
+from typing import Any, Generic, TypeVar, cast
 
 import numpy as np
 import orjson
@@ -31,6 +31,8 @@ from services.model import (
 from services.network.network import Network
 from services.rfc3339 import format_time, parse_rfc3339
 
+T = TypeVar("T")
+
 __all__ = [
     "EpochCommand",
     "EpochResult",
@@ -38,6 +40,7 @@ __all__ = [
     "StoredDecision",
     "EpochReader",
     "external_ids",
+    "node_index",
     "task_doc",
     "task_of",
     "epoch_doc",
@@ -132,21 +135,41 @@ def task_of(city: City, doc: Mapping[str, Any]) -> Task:
     )
 
 
-_EXTERNAL_IDS: dict[int, tuple[Network, list[int]]] = {}  # id(network) -> (network, its node ids as ints)
-_EXTERNAL_IDS_LOCK = threading.Lock()  # responses are rendered on the threadpool
+class _PerNetwork(Generic[T]):
+    """A value made from a network, kept for the few most recent networks: each entry holds its network, so a
+    value is never taken for another network's while it is kept (``id`` may be reused once it is gone).
+    Safe on the threadpool, where epochs are resolved and responses rendered."""
+
+    def __init__(self, make: Callable[[Network], T], keep: int = 8) -> None:
+        self._make = make
+        self._keep = keep
+        self._kept: dict[int, tuple[Network, T]] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, city: City) -> T:
+        net = city.network
+        with self._lock:
+            hit = self._kept.get(id(net))
+            if hit is None or hit[0] is not net:
+                if len(self._kept) >= self._keep:
+                    self._kept.pop(next(iter(self._kept)))
+                hit = self._kept[id(net)] = (net, self._make(net))
+            return hit[1]
+
+
+_EXTERNAL_IDS = _PerNetwork(lambda net: cast(list[int], net.node_ids.tolist()))
+_NODE_INDEX = _PerNetwork(lambda net: dict(zip(net.node_ids.tolist(), range(net.n_nodes), strict=True)))
 
 
 def external_ids(city: City) -> list[int]:
-    """The city's external node ids as a list of ints, kept for the few most recent networks (the entry
-    holds its network, so an id is never taken for another network's while it is kept)."""
-    net = city.network
-    with _EXTERNAL_IDS_LOCK:
-        hit = _EXTERNAL_IDS.get(id(net))
-        if hit is None or hit[0] is not net:
-            if len(_EXTERNAL_IDS) >= 8:
-                _EXTERNAL_IDS.pop(next(iter(_EXTERNAL_IDS)))
-            hit = _EXTERNAL_IDS[id(net)] = (net, net.node_ids.tolist())
-        return hit[1]
+    """The city's external node ids as a list of ints (``_PerNetwork``)."""
+    return _EXTERNAL_IDS(city)
+
+
+def node_index(city: City) -> dict[int, int]:
+    """The city's node indices by external node id (``_PerNetwork``), for a plain look-up per node where
+    ``Network.index_of`` is a method call per node."""
+    return _NODE_INDEX(city)
 
 
 def _ext_paths(city: City, paths: Sequence[tuple[int, ...]]) -> list[list[int]]:

@@ -1,9 +1,10 @@
-"""The node indices an epoch's plain taxis and riders are resolved with (``app.api.inputs._node_index``):
-each network's own, as ``Network.index_of`` gives them, while more networks come and go than are kept."""
+"""The node indices an epoch's plain taxis and riders are resolved with
+(``app.usecases.epoch_record.node_index``): each network's own, as ``Network.index_of`` gives them, while
+more networks come and go than are kept."""
 
 from __future__ import annotations
 
-from app.api.inputs import _node_index
+from app.usecases.epoch_record import node_index
 from tests.citymaker import grid_city
 
 
@@ -12,6 +13,6 @@ def test_each_network_resolves_its_own_node_ids() -> None:
     for _ in range(2):
         for city in cities:
             net = city.network
-            index = _node_index(city)
+            index = node_index(city)
             assert len(index) == net.n_nodes
             assert all(index[node_id] == net.index_of(node_id) for node_id in net.node_ids.tolist())
