@@ -26,7 +26,6 @@ __all__ = [
     "Guide",
     "CLEAN_WORDS",
     "cell_bit",
-    "path_cells",
     "tree_guide",
     "run_guided",
     "potential_guide",
@@ -150,8 +149,10 @@ class Guide(NamedTuple):
     ``cutoff - 1`` and not stopped early, so that a node it did not settle costs at least ``cutoff``; or
     ``pot`` (3, K), a label per kept node.
 
-    With an in-tree, ``clean`` (K, ``CLEAN_WORDS``) may hold the cells each settled node's in-tree path
-    enters (``path_cells``) and ``zbits`` the cells whose entering edges the searched metric prices
+    With an in-tree, ``clean`` (K, ``CLEAN_WORDS``) holds the cells each settled node's in-tree path enters,
+    written when the search first asks (``_cells_up``: the reverse graph's super-edges ``up_*``, the
+    in-tree's ``tree_pse`` and ``tree_pstart``; ``done[k] == stamp`` marks node ``k`` written, ``stack``
+    is scratch of K entries), and ``zbits`` the cells whose entering edges the searched metric prices
     differently from the in-tree's (as ``cell_bit`` sets; ``clean`` of shape (0, W): no such test)."""
 
     pot: NDArray[np.int64]
@@ -163,6 +164,14 @@ class Guide(NamedTuple):
     cutoff: int
     clean: NDArray[np.uint64]
     zbits: NDArray[np.uint64]
+    tree_pse: NDArray[np.int64]
+    tree_pstart: NDArray[np.int64]
+    up_tail: NDArray[np.int64]
+    up_ptr: NDArray[np.int64]
+    up_edges: NDArray[np.int64]
+    done: NDArray[np.int64]
+    stamp: int
+    stack: NDArray[np.int64]
 
 
 CLEAN_WORDS = 4
@@ -178,56 +187,63 @@ def cell_bit(bits: NDArray[np.uint64], c: int) -> None:
 
 
 @compiled
-def path_cells(
-    graph: SearchGraph,
-    edges: Edges,
-    tree: Workspace,
-    out: NDArray[np.uint64],
-    done: NDArray[np.int64],
-    stamp: int,
-    stack: NDArray[np.int64],
-) -> None:
-    """For every kept node the in-tree grown in ``tree`` (``run`` on the reverse graph ``graph``) settled, the
-    cells its tree path to the root enters (each edge's cells but its first) into ``out[k]`` as a
-    ``cell_bit`` set; ``done[k] = stamp`` marks each node written. ``stack``: scratch of K entries."""
-    for i in range(tree.info[2]):
-        k0 = tree.touched[i]
-        if tree.state[k0] != -2 or done[k0] == stamp:
-            continue
-        top = 0
-        k = k0
-        while True:  # toward the root, to a node written or the root's super-edge
-            stack[top] = k
-            top += 1
-            s = tree.pse[k]
-            if s < 0 or tree.pstart[k] != 0:
-                break
-            k = graph.se_tail[s]
-            if done[k] == stamp:
-                break
-        while top > 0:  # back, each node's set from the next node's toward the root
-            top -= 1
-            k = stack[top]
-            s = tree.pse[k]
-            for w in range(CLEAN_WORDS):
-                out[k, w] = 0
-            if s >= 0:
-                start = tree.pstart[k]
-                if start == 0:
-                    nxt = graph.se_tail[s]
-                    for w in range(CLEAN_WORDS):
-                        out[k, w] = out[nxt, w]
-                for p in range(graph.se_ptr[s] + start, graph.se_ptr[s + 1]):
-                    e = graph.se_edges[p]
-                    for j in range(edges.ec_ptr[e] + 1, edges.ec_ptr[e + 1]):
-                        cell_bit(out[k], edges.ec_cell[j])
-            done[k] = stamp
+def _cells_up(guide: Guide, edges: Edges, k0: int) -> None:
+    """Write ``guide.clean[k]`` for kept node ``k0`` the in-tree settled, and for the nodes on its tree path
+    not written yet: the cells the path to the root enters (each edge's cells but its first), as a
+    ``cell_bit`` set, each node's from the next node's toward the root."""
+    clean, done, stamp, stack = guide.clean, guide.done, guide.stamp, guide.stack
+    pse, pstart, up_tail, up_ptr, up_edges = (
+        guide.tree_pse,
+        guide.tree_pstart,
+        guide.up_tail,
+        guide.up_ptr,
+        guide.up_edges,
+    )
+    ec_ptr, ec_cell = edges.ec_ptr, edges.ec_cell
+    top = 0
+    k = k0
+    while True:  # toward the root, to a node written or the root's super-edge
+        stack[top] = k
+        top += 1
+        s = pse[k]
+        if s < 0 or pstart[k] != 0:
+            break
+        k = up_tail[s]
+        if done[k] == stamp:
+            break
+    while top > 0:
+        top -= 1
+        k = stack[top]
+        s = pse[k]
+        for w in range(CLEAN_WORDS):
+            clean[k, w] = 0
+        if s >= 0:
+            start = pstart[k]
+            if start == 0:
+                nxt = up_tail[s]
+                for w in range(CLEAN_WORDS):
+                    clean[k, w] = clean[nxt, w]
+            for p in range(up_ptr[s] + start, up_ptr[s + 1]):
+                e = up_edges[p]
+                for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
+                    cell_bit(clean[k], ec_cell[j])
+        done[k] = stamp
 
 
 @compiled
-def tree_guide(tree: Workspace, limit: int, clean: NDArray[np.uint64], zbits: NDArray[np.uint64]) -> Guide:
-    """The ``Guide`` of the in-tree grown in ``tree`` to ``limit`` (``run`` with no targets), with its
-    nodes' path cells ``clean`` and the searched metric's cells ``zbits`` (``clean`` (0, W): no test)."""
+def tree_guide(
+    graph: SearchGraph,
+    tree: Workspace,
+    limit: int,
+    cells: tuple[NDArray[np.uint64], NDArray[np.int64], NDArray[np.int64]],
+    stamp: int,
+    zbits: NDArray[np.uint64],
+) -> Guide:
+    """The ``Guide`` of the in-tree grown in ``tree`` on the reverse graph ``graph`` to ``limit`` (``run``
+    with no targets), the searched metric's cells ``zbits``, and ``cells`` = (clean, done, stack) where its
+    nodes' path cells are written on demand under ``stamp`` (a stamp new for each in-tree; ``clean`` of
+    shape (0, W): no test)."""
+    clean, done, stack = cells
     return Guide(
         np.zeros((3, 0), dtype=np.int64),
         np.zeros((0, 0), dtype=np.int64),
@@ -238,6 +254,14 @@ def tree_guide(tree: Workspace, limit: int, clean: NDArray[np.uint64], zbits: ND
         limit + 1,
         clean,
         zbits,
+        tree.pse,
+        tree.pstart,
+        graph.se_tail,
+        graph.se_ptr,
+        graph.se_edges,
+        done,
+        stamp,
+        stack,
     )
 
 
@@ -279,7 +303,10 @@ def potential_guide(pot: NDArray[np.int64], landmarks: NDArray[np.int64]) -> Gui
     ``landmarks`` (shape (0, 0): none), with no in-tree and no cell test."""
     none = np.zeros(0, dtype=np.int64)
     bits = np.zeros((0, CLEAN_WORDS), dtype=np.uint64)
-    return Guide(pot, landmarks, none, none, none, none, 0, bits, np.zeros(CLEAN_WORDS, dtype=np.uint64))
+    zbits = np.zeros(CLEAN_WORDS, dtype=np.uint64)
+    return Guide(
+        pot, landmarks, none, none, none, none, 0, bits, zbits, none, none, none, none, none, none, 0, none
+    )
 
 
 @compiled_inline
@@ -475,6 +502,7 @@ def guided(
     use_tree = tl.shape[0] == 0 and guide.tree_state.shape[0] > 0
     t_cost, t_tie1, t_tie2, t_state = guide.tree_cost, guide.tree_tie1, guide.tree_tie2, guide.tree_state
     cutoff, clean, zbits = guide.cutoff, guide.clean, guide.zbits
+    watch_cells, done, stamp = clean.shape[0] > 0, guide.done, guide.stamp
     indptr, se_head, se_tie1, se_tie2 = graph.indptr, graph.se_head, graph.se_tie1, graph.se_tie2
     complete, meet = 1, -1
     while size > 0:
@@ -487,6 +515,8 @@ def guided(
             if remaining == 0:
                 complete = 0
                 break
+        if watch_cells and t_state[k] == -2 and done[k] != stamp:
+            _cells_up(guide, edges, k)
         if _meets(clean, zbits, t_state, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
             complete, meet = 0, k
             break

@@ -123,7 +123,7 @@ class RouteScratch(NamedTuple):
     edge_cost: NDArray[np.int64]  # (m,)
     se_cost: NDArray[np.int64]  # (S,) forward super-edges
     tree: TreeScratch
-    cbits: NDArray[np.uint64]  # (K, astar.CLEAN_WORDS) an in-tree's path cells (astar.path_cells)
+    cbits: NDArray[np.uint64]  # (K, astar.CLEAN_WORDS) an in-tree's path cells (astar.Guide)
     cdone: NDArray[np.int64]  # (K,) and the stamp of the in-tree they were written for
     cstack: NDArray[np.int64]  # (K,)
     zbits: NDArray[np.uint64]  # (astar.CLEAN_WORDS,) a taxi's counted cells
@@ -433,7 +433,9 @@ def _kappas_to(
         dijkstra.run(net.rg, ed, costs, root, limit, np.empty(0, dtype=np.int64), scratch.reverse)
         if not unfolding.unfold_many(net.rg, ed, costs, limit, nodes, scratch.reverse, reached):
             raise AssertionError("a discounted route costs more than the fastest path's time")
-        cells = False  # the in-tree's path cells, written at the first taxi searched again
+        stamp = scratch.next_stamp[0]  # the in-tree's path cells, written as guided searches ask
+        scratch.next_stamp[0] = stamp + 1
+        cells = (scratch.cbits, scratch.cdone, scratch.cstack)
         for r in range(n):
             a = who[r]
             mark(scratch.zmask, problem.counted, a, True)
@@ -441,16 +443,8 @@ def _kappas_to(
                 ed, problem.gn, scratch, scratch.reverse.pred, nodes[r], root, problem.depart_s
             )
             if touch:
-                if not cells:
-                    stamp = scratch.next_stamp[0]
-                    scratch.next_stamp[0] = stamp + 1
-                    astar.path_cells(
-                        net.rg, ed, scratch.reverse, scratch.cbits, scratch.cdone, stamp, scratch.cstack
-                    )
-                    cells = True
-                gd = astar.tree_guide(
-                    scratch.reverse, limit, scratch.cbits, _zbits(problem.counted, a, scratch.zbits)
-                )
+                zbits = _zbits(problem.counted, a, scratch.zbits)
+                gd = astar.tree_guide(net.rg, scratch.reverse, limit, cells, stamp, zbits)
                 mine, lazy = _own_metric(net, scratch, problem.gn, q, kappa, base.umax)
                 leg = Drive(a, nodes[r], root, limit)
                 g, t, length, ms = _own_route(net, problem, scratch, costs, gd, lazy, mine, leg)

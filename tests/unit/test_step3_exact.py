@@ -223,22 +223,24 @@ def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_c
     kt = algorithm1.kappa_graph(graph, KAPPAS)
     base = algorithm1._base_kappa(kt, gn, pb.kappas, True)
     stopped = searched = 0
+    stamp = 10**9  # a stamp new for each in-tree, above any the scratch has used
+    written = 0
     with ScratchPool(graph).take() as scratch:
         sc = algorithm1.route_scratch(scratch, gn)
         for root in pb.targets.tolist():
             for q in (1, 3):
                 costs = Costs(base.edge[q], base.se[q], base.width[q], base.span[q])
                 dijkstra.run(kt.rg, kt.ed, costs, root, INF - 1, np.zeros(0, np.int64), sc.reverse)
-                astar.path_cells(kt.rg, kt.ed, sc.reverse, sc.cbits, sc.cdone, 10**9 + q, sc.cstack)
+                stamp += 1
                 for a, src in enumerate(sources.tolist()):
                     mark(sc.zmask, counted, a, True)
                     mine, lazy = algorithm1._own_metric(kt, sc, gn, q, KAPPAS[q], base.umax)
                     leg = Drive(a, src, root, INF - 1)
                     got = []
                     for clean in (sc.cbits, sc.cbits[:0]):
-                        gd = astar.tree_guide(
-                            sc.reverse, INF - 1, clean, algorithm1._zbits(counted, a, sc.zbits)
-                        )
+                        zbits = algorithm1._zbits(counted, a, sc.zbits)
+                        cells = (clean, sc.cdone, sc.cstack)
+                        gd = astar.tree_guide(kt.rg, sc.reverse, INF - 1, cells, stamp, zbits)
                         got.append(algorithm1._own_route(kt, pb, sc, costs, gd, lazy, mine, leg))
                         if clean.shape[0]:
                             meet = astar.guided(kt.fg, kt.ed, mine, src, root, sc.forward, gd, lazy)
@@ -246,7 +248,28 @@ def test_a_re_searched_route_stopped_where_the_in_tree_path_leaves_the_counted_c
                     mark(sc.zmask, counted, a, False)
                     assert got[0] == got[1]
                     searched += 1
+                written += _check_path_cells(kt, costs, sc, stamp)
     assert stopped > searched // 4
+    assert written > 0
+
+
+def _check_path_cells(
+    kt: algorithm1.KappaGraph, costs: Costs, sc: algorithm1.RouteScratch, stamp: int
+) -> int:
+    """Every in-tree node whose path cells the guided searches had written (``cdone == stamp``) holds the
+    cells its in-tree path (unfolded edge by edge) enters, each edge's cells but its first; returns how many
+    there were."""
+    written = np.flatnonzero(sc.cdone == stamp)
+    root = sc.reverse.info[0]
+    for k in written.tolist():
+        x = int(kt.rg.kept[k])
+        assert unfolding.unfold(kt.rg, kt.ed, costs, INF - 1, x, sc.reverse)
+        want = np.zeros(astar.CLEAN_WORDS, np.uint64)
+        for e in unfolding.walk(kt.ed, sc.reverse.pred, x, root).tolist():
+            for c in kt.ed.ec_cell[kt.ed.ec_ptr[e] + 1 : kt.ed.ec_ptr[e + 1]].tolist():
+                astar.cell_bit(want, c)
+        assert sc.cbits[k].tolist() == want.tolist(), x
+    return int(written.shape[0])
 
 
 def _route(g, mine: Costs, base_rev: Costs, wsf, wsr, gd: astar.Guide, src: int, dst: int) -> list[int]:
@@ -309,16 +332,16 @@ def _every_pair(
     routes = {}
     for dst in range(g.n_nodes):
         dijkstra.run(g.reverse, ed, base_rev, dst, INF - 1, np.zeros(0, np.int64), wsr)
-        astar.path_cells(g.reverse, ed, wsr, clean, np.zeros(k, np.int64), 1, np.zeros(k, np.int64))
+        done, stack = np.zeros(k, np.int64), np.zeros(k, np.int64)
         for src in range(g.n_nodes):
             dijkstra.run(g.forward, ed, mine_fwd, src, INF - 1, np.array([dst]), wsf)
             if not unfolding.unfold(g.forward, ed, mine_fwd, INF, dst, wsf):
                 continue  # a spur's end, on one-way streets
             plain = unfolding.path_to(ed, 1, wsf.pred, src, dst).tolist()
-            full_gd = astar.tree_guide(wsr, INF - 1, clean[:0], zbits)
+            full_gd = astar.tree_guide(g.reverse, wsr, INF - 1, (clean[:0], done, stack), dst + 1, zbits)
             full = _route(g, mine_fwd, base_rev, wsf, wsr, full_gd, src, dst)
             assert full == plain
-            gd = astar.tree_guide(wsr, INF - 1, clean, zbits)
+            gd = astar.tree_guide(g.reverse, wsr, INF - 1, (clean, done, stack), dst + 1, zbits)
             stopped += astar.guided(g.forward, ed, mine_fwd, src, dst, wsf, gd, no_lazy()) >= 0
             assert _route(g, mine_fwd, base_rev, wsf, wsr, gd, src, dst) == full, (order[src], order[dst])
             route = [(order[ed.tail[e]], order[ed.head[e]]) for e in full]
