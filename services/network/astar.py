@@ -186,20 +186,25 @@ def cell_bit(bits: NDArray[np.uint64], c: int) -> None:
     bits[b >> 6] |= np.uint64(1) << np.uint64(b & 63)
 
 
-@compiled
-def _cells_up(guide: Guide, edges: Edges, k0: int) -> None:
-    """Write ``guide.clean[k]`` for kept node ``k0`` the in-tree settled, and for the nodes on its tree path
-    not written yet: the cells the path to the root enters (each edge's cells but its first), as a
-    ``cell_bit`` set, each node's from the next node's toward the root."""
-    clean, done, stamp, stack = guide.clean, guide.done, guide.stamp, guide.stack
-    pse, pstart, up_tail, up_ptr, up_edges = (
-        guide.tree_pse,
-        guide.tree_pstart,
-        guide.up_tail,
-        guide.up_ptr,
-        guide.up_edges,
-    )
-    ec_ptr, ec_cell = edges.ec_ptr, edges.ec_cell
+@compiled_inline
+def _cells_up(
+    clean: NDArray[np.uint64],
+    done: NDArray[np.int64],
+    stamp: int,
+    stack: NDArray[np.int64],
+    tree: tuple[NDArray[np.int64], NDArray[np.int64]],
+    up: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]],
+    ec: tuple[NDArray[np.int64], NDArray[np.int64]],
+    k0: int,
+) -> None:
+    """Write ``clean[k]`` for kept node ``k0`` the in-tree settled, and for the nodes on its tree path not
+    written yet (``done[k] != stamp``): the cells the path to the root enters (each edge's cells but its
+    first), as a ``cell_bit`` set, each node's from the next node's toward the root. ``tree``: the in-tree's
+    ``(pse, pstart)``; ``up``: the reverse graph's ``(se_tail, se_ptr, se_edges)``; ``ec``: the edges'
+    ``(ec_ptr, ec_cell)``; ``stack``: scratch of K entries."""
+    pse, pstart = tree
+    up_tail, up_ptr, up_edges = up
+    ec_ptr, ec_cell = ec
     top = 0
     k = k0
     while True:  # toward the root, to a node written or the root's super-edge
@@ -502,7 +507,9 @@ def guided(
     use_tree = tl.shape[0] == 0 and guide.tree_state.shape[0] > 0
     t_cost, t_tie1, t_tie2, t_state = guide.tree_cost, guide.tree_tie1, guide.tree_tie2, guide.tree_state
     cutoff, clean, zbits = guide.cutoff, guide.clean, guide.zbits
-    watch_cells, done, stamp = clean.shape[0] > 0, guide.done, guide.stamp
+    watch_cells, done, stamp, stack = clean.shape[0] > 0, guide.done, guide.stamp, guide.stack
+    t_tree, t_up = (guide.tree_pse, guide.tree_pstart), (guide.up_tail, guide.up_ptr, guide.up_edges)
+    t_ec = (ec_ptr, ec_cell)
     indptr, se_head, se_tie1, se_tie2 = graph.indptr, graph.se_head, graph.se_tie1, graph.se_tie2
     complete, meet = 1, -1
     while size > 0:
@@ -516,7 +523,7 @@ def guided(
                 complete = 0
                 break
         if watch_cells and t_state[k] == -2 and done[k] != stamp:
-            _cells_up(guide, edges, k)
+            _cells_up(clean, done, stamp, stack, t_tree, t_up, t_ec, k)
         if _meets(clean, zbits, t_state, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
             complete, meet = 0, k
             break
