@@ -33,23 +33,10 @@ __all__ = [
 ]
 
 
-@compiled_inline
-def _put(
-    heap: NDArray[np.int64],
-    hkey: NDArray[np.int64],
-    state: NDArray[np.int64],
-    i: int,
-    k: int,
-    c: int,
-    a: int,
-    b: int,
-) -> None:
-    """Heap entry ``i`` := node ``k`` with key ``(c, a, b)``."""
-    heap[i] = k
-    hkey[i, 0] = c
-    hkey[i, 1] = a
-    hkey[i, 2] = b
-    state[k] = i
+# The binary heap of guided's queue: ``heap[i]`` the node at position ``i``, ``hkey[i]`` its key beside it
+# (a comparison reads one row), ``state[k]`` node ``k``'s position. Its helpers write entries in place
+# rather than through a helper of their own: an inlined call inside their loops counts a reference to each
+# array it takes, every step.
 
 
 @compiled_inline
@@ -64,14 +51,19 @@ def _guided_up(
     b: int,
 ) -> None:
     """Put node ``k`` with key ``(c, a, b)`` at heap position ``i`` (a free slot, or ``k``'s own with a key
-    no larger than before) and sift it up. Keys sit beside the entries: a comparison reads one row."""
+    no larger than before) and sift it up."""
     while i > 0:
         p = (i - 1) >> 1
         if not _less(c, a, b, hkey[p, 0], hkey[p, 1], hkey[p, 2]):
             break
-        _put(heap, hkey, state, i, heap[p], hkey[p, 0], hkey[p, 1], hkey[p, 2])
+        q = heap[p]
+        heap[i] = q
+        hkey[i, 0], hkey[i, 1], hkey[i, 2] = hkey[p, 0], hkey[p, 1], hkey[p, 2]
+        state[q] = i
         i = p
-    _put(heap, hkey, state, i, k, c, a, b)
+    heap[i] = k
+    hkey[i, 0], hkey[i, 1], hkey[i, 2] = c, a, b
+    state[k] = i
 
 
 @compiled_inline
@@ -112,9 +104,14 @@ def _guided_pop(heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray
             c += 1
         if not _less(hkey[c, 0], hkey[c, 1], hkey[c, 2], c0, c1, c2):
             break
-        _put(heap, hkey, state, i, heap[c], hkey[c, 0], hkey[c, 1], hkey[c, 2])
+        q = heap[c]
+        heap[i] = q
+        hkey[i, 0], hkey[i, 1], hkey[i, 2] = hkey[c, 0], hkey[c, 1], hkey[c, 2]
+        state[q] = i
         i = c
-    _put(heap, hkey, state, i, k, c0, c1, c2)
+    heap[i] = k
+    hkey[i, 0], hkey[i, 1], hkey[i, 2] = c0, c1, c2
+    state[k] = i
     return size
 
 
@@ -175,8 +172,9 @@ class Guide(NamedTuple):
 
 
 CLEAN_WORDS = 4
-"""Words of a cell set (``cell_bit``): cell ``c`` is bit ``c % (64 * CLEAN_WORDS)``, so on a network of more
-cells two cells may share a bit (a set then holds more cells than it should, never fewer)."""
+"""Words of a cell set (``cell_bit``; ``guided`` reads the four by name): cell ``c`` is bit
+``c % (64 * CLEAN_WORDS)``, so on a network of more cells two cells may share a bit (a set then holds
+more cells than it should, never fewer)."""
 
 
 @compiled_inline
@@ -192,19 +190,23 @@ def _cells_up(
     done: NDArray[np.int64],
     stamp: int,
     stack: NDArray[np.int64],
-    tree: tuple[NDArray[np.int64], NDArray[np.int64]],
-    up: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]],
-    ec: tuple[NDArray[np.int64], NDArray[np.int64]],
+    walk: tuple[
+        NDArray[np.int64],
+        NDArray[np.int64],
+        NDArray[np.int64],
+        NDArray[np.int64],
+        NDArray[np.int64],
+        NDArray[np.int64],
+        NDArray[np.int64],
+    ],
     k0: int,
 ) -> None:
     """Write ``clean[k]`` for kept node ``k0`` the in-tree settled, and for the nodes on its tree path not
     written yet (``done[k] != stamp``): the cells the path to the root enters (each edge's cells but its
-    first), as a ``cell_bit`` set, each node's from the next node's toward the root. ``tree``: the in-tree's
-    ``(pse, pstart)``; ``up``: the reverse graph's ``(se_tail, se_ptr, se_edges)``; ``ec``: the edges'
-    ``(ec_ptr, ec_cell)``; ``stack``: scratch of K entries."""
-    pse, pstart = tree
-    up_tail, up_ptr, up_edges = up
-    ec_ptr, ec_cell = ec
+    first), as a ``cell_bit`` set, each node's from the next node's toward the root. ``walk``: the in-tree's
+    ``pse`` and ``pstart``, the reverse graph's ``se_tail``, ``se_ptr`` and ``se_edges``, the edges'
+    ``ec_ptr`` and ``ec_cell``; ``stack``: scratch of K entries."""
+    pse, pstart, up_tail, up_ptr, up_edges, ec_ptr, ec_cell = walk
     top = 0
     k = k0
     while True:  # toward the root, to a node written or the root's super-edge
@@ -372,25 +374,17 @@ def _guided_seed(
     return size, n_touched
 
 
-@compiled_inline
-def _meets(
-    clean: NDArray[np.uint64], zbits: NDArray[np.uint64], tree_state: NDArray[np.int64], k: int
-) -> bool:
-    """``guided`` may stop at kept node ``k`` (just settled) when its guide holds an in-tree's path cells
-    ``clean`` (``Guide``) and ``k``'s in-tree path enters none of the cells ``zbits`` holds: that path
-    costs the searched metric what it costs the in-tree's, and no other path from ``k`` costs less (the
-    metric is nowhere cheaper than the in-tree's), so ``k``'s key -- its label plus that path's label --
-    is the label of a path to the target. Every path whose last kept node is not settled yet costs at
-    least that key (keys leave the queue in order); the others reach an interior target inside its chain,
-    from the source in it or from a settled end of it, and are never queued. ``guided`` stops only where
-    the key is better than the best of those (``_into_target``): then it is the target's label, and the
-    canonical path is the one to ``k`` (``unfold``) followed by the in-tree's path from ``k``."""
-    if clean.shape[0] == 0 or tree_state[k] != -2:
-        return False
-    hit = np.uint64(0)
-    for w in range(zbits.shape[0]):
-        hit |= clean[k, w] & zbits[w]
-    return bool(hit == 0)
+# guided's stop: ``guided`` may stop at kept node ``k`` (just settled) when its guide holds an in-tree's
+# path cells ``clean`` (``Guide``) and ``k``'s in-tree path enters none of the cells ``zbits`` holds: that
+# path costs the searched metric what it costs the in-tree's, and no other path from ``k`` costs less (the
+# metric is nowhere cheaper than the in-tree's), so ``k``'s key -- its label plus that path's label --
+# is the label of a path to the target. Every path whose last kept node is not settled yet costs at
+# least that key (keys leave the queue in order); the others reach an interior target inside its chain,
+# from the source in it or from a settled end of it, and are never queued. ``guided`` stops only where
+# the key is better than the best of those (``_into_target``): then it is the target's label, and the
+# canonical path is the one to ``k`` (``unfold``) followed by the in-tree's path from ``k``.
+# (The test reads the words of the cell sets in place: a call that takes the arrays counts a reference to
+# each per settled node.)
 
 
 @compiled_inline
@@ -489,11 +483,9 @@ def guided(
     lazy: Lazy,
 ) -> int:
     """The canonical path from ``source`` to ``target`` as ``run`` finds it, searched goal-directed (A*) in
-    the order described above. The search stops when the target can be resolved and settles no node that
-    cannot reach it. ``lazy``: as in ``grow``. Returns -1, or the kept node where it stopped before the
-    target (``_meets``): only where that node's key is better than every path to an interior target found
-    so far and never queued (``_into_target``: inside the source's chain, or from a settled end of the
-    target's)."""
+    the order described above, stopped when the target can be resolved; it settles no node that cannot reach
+    it. ``lazy``: as in ``grow``. Returns -1, or the kept node where it stopped before the target (guided's
+    stop, above: where that node's key beats every path to an interior target found so far)."""
     cost, tie1, tie2, state = workspace.cost, workspace.tie1, workspace.tie2, workspace.state
     heap, hkey, need, se_cost = workspace.nxt, workspace.hkey, workspace.need, costs.se
     pse, pstart, touched = workspace.pse, workspace.pstart, workspace.touched
@@ -508,8 +500,8 @@ def guided(
     t_cost, t_tie1, t_tie2, t_state = guide.tree_cost, guide.tree_tie1, guide.tree_tie2, guide.tree_state
     cutoff, clean, zbits = guide.cutoff, guide.clean, guide.zbits
     watch_cells, done, stamp, stack = clean.shape[0] > 0, guide.done, guide.stamp, guide.stack
-    t_tree, t_up = (guide.tree_pse, guide.tree_pstart), (guide.up_tail, guide.up_ptr, guide.up_edges)
-    t_ec = (ec_ptr, ec_cell)
+    walk = (guide.tree_pse, guide.tree_pstart, guide.up_tail, guide.up_ptr, guide.up_edges, ec_ptr, ec_cell)
+    z0, z1, z2, z3 = zbits[0], zbits[1], zbits[2], zbits[3]  # the cell set's words, as scalars in the loop
     indptr, se_head, se_tie1, se_tie2 = graph.indptr, graph.se_head, graph.se_tie1, graph.se_tie2
     complete, meet = 1, -1
     while size > 0:
@@ -522,11 +514,13 @@ def guided(
             if remaining == 0:
                 complete = 0
                 break
-        if watch_cells and t_state[k] == -2 and done[k] != stamp:
-            _cells_up(clean, done, stamp, stack, t_tree, t_up, t_ec, k)
-        if _meets(clean, zbits, t_state, k) and _less(kc, ka, kb, found[0], found[1], found[2]):
-            complete, meet = 0, k
-            break
+        if watch_cells and t_state[k] == -2:  # may stop here (guided's stop, above)
+            if done[k] != stamp:
+                _cells_up(clean, done, stamp, stack, walk, k)
+            hit = (clean[k, 0] & z0) | (clean[k, 1] & z1) | (clean[k, 2] & z2) | (clean[k, 3] & z3)
+            if hit == 0 and _less(kc, ka, kb, found[0], found[1], found[2]):
+                complete, meet = 0, k
+                break
         if watch and need[k]:
             found = _into_target(graph, edges, costs, source, target, k, (cost[k], tie1[k], tie2[k]), found)
         d, a0, b0 = cost[k], tie1[k], tie2[k]

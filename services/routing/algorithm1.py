@@ -283,7 +283,11 @@ def _eval_walk(
     """``gains.eval_path`` along the in-tree path from ``start`` to ``root`` (same operations, same order),
     and whether the path enters a cell the taxi is counted in during the first slot (its zero mask's row 0):
     only on such an edge can the taxi's own kappa metric exceed the base one."""
-    n_slots = gains.term.shape[0]
+    term, zmask, stamp = gains.term, scratch.zmask, scratch.stamp
+    shift_s, interval_s, k0 = gains.shift_s, gains.interval_s, gains.k0
+    time_s, length_m, head = edges.time_s, edges.length_m, edges.head
+    ec_ptr, ec_cell, ec_frac = edges.ec_ptr, edges.ec_cell, edges.ec_frac
+    n_slots = term.shape[0]
     sid = scratch.next_stamp[0]
     scratch.next_stamp[0] = sid + 1
     t = depart_s
@@ -292,27 +296,27 @@ def _eval_walk(
     max_slot = 0
     touched = False
     x = start
-    while x != root:
+    while x != root:  # the records' arrays taken out above: a read in the loop counts a reference
         e = succ[x]
-        te = edges.time_s[e]
-        first = edges.ec_ptr[e]
-        for j in range(first, edges.ec_ptr[e + 1]):
-            c = edges.ec_cell[j]
-            if j > first and scratch.zmask[0, c]:
+        te = time_s[e]
+        first = ec_ptr[e]
+        for j in range(first, ec_ptr[e + 1]):
+            c = ec_cell[j]
+            if j > first and zmask[0, c]:
                 touched = True
-            slot = int(np.floor((t + edges.ec_frac[j] * te + gains.shift_s) / gains.interval_s)) - gains.k0
+            slot = int(np.floor((t + ec_frac[j] * te + shift_s) / interval_s)) - k0
             if slot > max_slot:
                 max_slot = slot
             if slot >= n_slots:
                 continue
-            if scratch.stamp[slot, c] == sid:
+            if stamp[slot, c] == sid:
                 continue
-            scratch.stamp[slot, c] = sid
-            if not scratch.zmask[slot, c]:
-                g += gains.term[slot, c]
+            stamp[slot, c] = sid
+            if not zmask[slot, c]:
+                g += term[slot, c]
         t += te
-        length += edges.length_m[e]
-        x = edges.head[e]
+        length += length_m[e]
+        x = head[e]
     return g, t - depart_s, length, max_slot, touched
 
 

@@ -162,30 +162,36 @@ def eval_path(
     """Exact marginal gain of one path (Eq. 3): ``(gain, fixed-point gain, travel time, length, largest
     slot reached)``; a slot beyond the table is reported but gains nothing there. ``stamp`` (shape of the
     table, values below ``stamp_id`` on entry) records the pairs this path has entered."""
-    n_slots = gains.term.shape[0]
+    term, term_q = gains.term, gains.term_q
+    shift_s, interval_s, k0 = gains.shift_s, gains.interval_s, gains.k0
+    time_s, length_m = road_edges.time_s, road_edges.length_m
+    ec_ptr, ec_cell, ec_frac = road_edges.ec_ptr, road_edges.ec_cell, road_edges.ec_frac
+    n_slots = term.shape[0]
     t = depart_s
     g = 0.0
     gq = 0
     length = 0.0
     max_slot = 0
-    for i in range(edges.shape[0]):
+    for i in range(
+        edges.shape[0]
+    ):  # the records' arrays taken out above: a read in the loop counts a reference
         e = edges[i]
-        te = road_edges.time_s[e]
-        for j in range(road_edges.ec_ptr[e], road_edges.ec_ptr[e + 1]):
-            slot = _slot(t + road_edges.ec_frac[j] * te, gains.shift_s, gains.interval_s, gains.k0)
+        te = time_s[e]
+        for j in range(ec_ptr[e], ec_ptr[e + 1]):
+            slot = _slot(t + ec_frac[j] * te, shift_s, interval_s, k0)
             if slot > max_slot:
                 max_slot = slot
             if slot >= n_slots:
                 continue
-            c = road_edges.ec_cell[j]
+            c = ec_cell[j]
             if stamp[slot, c] == stamp_id:
                 continue
             stamp[slot, c] = stamp_id
             if not zmask[slot, c]:
-                g += gains.term[slot, c]
-                gq += gains.term_q[slot, c]
+                g += term[slot, c]
+                gq += term_q[slot, c]
         t += te
-        length += road_edges.length_m[e]
+        length += length_m[e]
     return g, gq, t - depart_s, length, max_slot
 
 
