@@ -880,7 +880,10 @@ def _rss_facts(r: dict[str, Any], t: dict[str, float]) -> list[str]:
         if not r.get("worker"):
             how = "no fleet worker"
         elif not r.get("worker_solved", True):
-            how = "the fleet worker inside, no solve: the city has too little history to be sized"
+            how = (
+                "the fleet worker inside, no solve of this city: too little history to be sized; its"
+                " scheduled solves of the bundled cities' coming hour may run beside the epochs"
+            )
         elif r.get("worker_solve_over"):
             how = "with the fleet worker's solve"
         else:
