@@ -43,18 +43,20 @@ __all__ = ["Hierarchy", "Lanes", "hierarchy", "lanes", "ch_paths", "fastest_path
 
 class Lanes(NamedTuple):
     """One thread's scratch for queries: per direction (row 0 forward, 1 backward) the labels, the arc each
-    came along, the heap (nodes, and each node's place in it) and the nodes touched."""
+    came along, the heap (nodes, and each node's place in it) and the nodes touched. Nodes, arcs and edges
+    are 32-bit, as in the hierarchy's own arrays: the scratch each dispatch thread holds is 92 bytes per
+    node rather than 136 (24 MB on a 260,000-node network)."""
 
     cost: NDArray[np.int64]  # (2, n)
     tie1: NDArray[np.int64]
     tie2: NDArray[np.int64]
-    pred: NDArray[np.int64]
-    pos: NDArray[np.int64]  # -1 unseen, -2 settled, >= 0 place in the heap
-    heap: NDArray[np.int64]
-    touched: NDArray[np.int64]
+    pred: NDArray[np.int32]
+    pos: NDArray[np.int32]  # -1 unseen, -2 settled, >= 0 place in the heap
+    heap: NDArray[np.int32]
+    touched: NDArray[np.int32]
     n_touched: NDArray[np.int64]  # (2,)
-    buf: NDArray[np.int64]  # (n,) a path's edges (a least path is simple: fewer edges than nodes)
-    stack: NDArray[np.int64]  # (2 n,) the shortcuts being unpacked
+    buf: NDArray[np.int32]  # (n,) a path's edges (a least path is simple: fewer edges than nodes)
+    stack: NDArray[np.int32]  # (2 n,) the shortcuts being unpacked
 
 
 def lanes(n_nodes: int) -> Lanes:
@@ -63,13 +65,13 @@ def lanes(n_nodes: int) -> Lanes:
         np.full((2, n_nodes), INF, dtype=np.int64),
         np.zeros((2, n_nodes), dtype=np.int64),
         np.zeros((2, n_nodes), dtype=np.int64),
-        np.full((2, n_nodes), -1, dtype=np.int64),
-        np.full((2, n_nodes), -1, dtype=np.int64),
-        np.zeros((2, n_nodes), dtype=np.int64),
-        np.zeros((2, n_nodes), dtype=np.int64),
+        np.full((2, n_nodes), -1, dtype=np.int32),
+        np.full((2, n_nodes), -1, dtype=np.int32),
+        np.zeros((2, n_nodes), dtype=np.int32),
+        np.zeros((2, n_nodes), dtype=np.int32),
         np.zeros(2, dtype=np.int64),
-        np.zeros(max(n_nodes, 1), dtype=np.int64),
-        np.zeros(max(2 * n_nodes, 64), dtype=np.int64),
+        np.zeros(max(n_nodes, 1), dtype=np.int32),
+        np.zeros(max(2 * n_nodes, 64), dtype=np.int32),
     )
 
 
@@ -201,7 +203,7 @@ def _meet(h: Hierarchy, lanes: Lanes, s: int, t: int) -> int:
 
 
 @compiled_inline
-def _unpack(h: Hierarchy, x: int, stack: NDArray[np.int64], out: NDArray[np.int64], n_out: int) -> int:
+def _unpack(h: Hierarchy, x: int, stack: NDArray[np.int32], out: NDArray[np.int32], n_out: int) -> int:
     """Append the original edges of arc ``x``, in travel order, to ``out`` from ``n_out``; the new count."""
     top = 1
     stack[0] = x
@@ -242,7 +244,7 @@ def _path(h: Hierarchy, lanes: Lanes, s: int, t: int, m: int) -> NDArray[np.int6
         x = lanes.pred[1, v]
         n_out = _unpack(h, x, stack, out, n_out)
         v = h.arc_head[x]
-    return out[:n_out].copy()
+    return out[:n_out].astype(np.int64)
 
 
 @compiled

@@ -131,8 +131,8 @@ def _sift_up(
     c: NDArray[np.int64],
     a: NDArray[np.int64],
     b: NDArray[np.int64],
-    pos: NDArray[np.int64],
-    heap: NDArray[np.int64],
+    pos: NDArray[np.signedinteger[Any]],
+    heap: NDArray[np.signedinteger[Any]],
     i: int,
     v: int,
 ) -> None:
@@ -155,8 +155,8 @@ def _pop(
     c: NDArray[np.int64],
     a: NDArray[np.int64],
     b: NDArray[np.int64],
-    pos: NDArray[np.int64],
-    heap: NDArray[np.int64],
+    pos: NDArray[np.signedinteger[Any]],
+    heap: NDArray[np.signedinteger[Any]],
     size: int,
 ) -> int:
     """Take the heap's root out; returns the new size (the root is ``heap[0]`` before the call)."""
