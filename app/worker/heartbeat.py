@@ -3,8 +3,9 @@ the store every few seconds for every city it serves.
 
 ``WorkerStatus`` holds the solve in progress (with its runs, fed by the runner's progress callback) and each
 city's next scheduled solve; ``Heartbeat`` is a thread that writes ``WorkerStatus.beat`` to the store every
-``interval_s`` and at once when a solve starts or ends. The API reads the beats: ``POST .../fleet/solve``
-is refused when no worker serving the city has been seen recently, and ``GET .../fleet/status`` shows them.
+``interval_s`` and at once when a solve starts, ends or finishes a run. The API reads the beats:
+``POST .../fleet/solve`` is refused when no worker serving the city has been seen recently, and
+``GET .../fleet/status`` shows them.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ class WorkerStatus:
         self._solving: tuple[str, SolveProgress] | None = None  # (city, its solve)
         self._next: dict[str, tuple[int, float]] = {}  # city -> (interval, due at)
         self._waiting: dict[str, Waiting] = {}  # city -> why it cannot be sized now
-        self.changed = threading.Event()  # set when a solve starts or ends: beat now
+        self.changed = threading.Event()  # set when a solve starts, ends or finishes a run: beat now
 
     @contextmanager
     def solving(
@@ -72,11 +73,13 @@ class WorkerStatus:
             self.changed.set()
 
     def progress(self, p: Progress) -> None:
-        """The runs of the solve in progress (the runner's progress callback)."""
+        """The runs of the solve in progress (the runner's progress callback); beats at once when the count
+        of runs, finished or failed, moves (a run starting waits for the next beat)."""
         with self._lock:
             if self._solving is None:
                 return
             city, s = self._solving
+            moved = (s.runs_total, s.runs_done, s.runs_failed) != (p.total, p.done, p.failed)
             self._solving = (
                 city,
                 replace(
@@ -88,6 +91,8 @@ class WorkerStatus:
                     runs_failed=p.failed,
                 ),
             )
+        if moved:
+            self.changed.set()
 
     def schedule(self, city: str, interval: int, due_at_s: float) -> None:
         """The city's next scheduled solve: hour ``interval``, due at ``due_at_s``."""
@@ -134,8 +139,8 @@ class WorkerStatus:
 
 
 class Heartbeat:
-    """Writes the worker's beat for each of ``cities`` every ``interval_s`` (and when a solve starts or ends)
-    on a daemon thread; a store outage is logged once and retried at the next beat."""
+    """Writes the worker's beat for each of ``cities`` every ``interval_s`` (and when a solve starts, ends or
+    finishes a run) on a daemon thread; a store outage is logged once and retried at the next beat."""
 
     def __init__(
         self,

@@ -714,3 +714,27 @@ def test_a_city_without_its_history_starts_no_run_and_is_reported_once(
     assert asked.status == "waiting" and asked.request_id == "req-1"
     (entry,) = store.recommendation_history(CITY, 10)
     assert entry.status == "failed" and entry.request_id == "req-1" and entry.reason == asked.reason
+
+
+def test_the_status_asks_for_a_beat_when_a_solves_runs_move_not_when_one_starts() -> None:
+    """A solve of a few short runs can end within one heartbeat interval: the count of runs known, finished
+    or failed asks the heartbeat to beat at once, so a dashboard sees the runs; a run starting does not."""
+    from app.runs.runner import Progress
+    from app.worker.heartbeat import WorkerStatus
+
+    status = WorkerStatus(embedded=True, poll_s=1.0, clock=lambda: 0.0)
+    status.progress(Progress(6, 0, 0, 0))  # no solve in progress: nothing to show
+    assert not status.changed.is_set() and status.beat(CITY).solving is None
+    asked: list[bool] = []
+    with status.solving(CITY, 9, "request", "req-1"):
+        status.changed.clear()
+        for p in [Progress(6, 0, 0, 0), Progress(6, 0, 0, 0, running=1), Progress(6, 1, 0, 0, running=0)]:
+            status.progress(p)
+            asked.append(status.changed.is_set())
+            status.changed.clear()
+        status.progress(Progress(6, 2, 0, 1))
+        solving = status.beat(CITY).solving
+        assert solving is not None
+        assert (solving.runs_total, solving.runs_done, solving.runs_failed) == (6, 2, 1)
+        assert status.changed.is_set()
+    assert asked == [True, False, True]
