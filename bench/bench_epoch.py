@@ -467,19 +467,23 @@ WORKER_WAIT_S = 60.0
 """How long after the last epoch the memory of the service is still sampled while its worker solves."""
 
 
-def _request_solve(svc: _Service) -> bool:
-    """Ask the service's worker for a fleet solve of the city: ``True`` when accepted, ``False`` when the
+BUNDLED_CITY = "chengdu"
+"""The bundled city whose fleet solve runs beside the epochs of a city that cannot be sized."""
+
+
+def _request_solve(svc: _Service, city: str) -> bool:
+    """Ask the service's worker for a fleet solve of ``city``: ``True`` when accepted, ``False`` when the
     city has too little recorded history to be sized (409 ``insufficient_history``: no run starts)."""
-    r = svc.client.post(f"/v1/cities/{svc.name}/fleet/solve")
+    r = svc.client.post(f"/v1/cities/{city}/fleet/solve")
     if r.status_code == 409 and r.json().get("error") == "insufficient_history":
         return False
     r.raise_for_status()
     return True
 
 
-def _solve_over(svc: _Service) -> bool:
-    """Whether the worker has no solve of the city running or pending."""
-    st = svc.client.get(f"/v1/cities/{svc.name}/fleet/status").json()
+def _solve_over(svc: _Service, city: str) -> bool:
+    """Whether the worker has no solve of ``city`` running or pending."""
+    st = svc.client.get(f"/v1/cities/{city}/fleet/status").json()
     return st.get("solving") is None and st.get("pending_request") is None
 
 
@@ -494,9 +498,10 @@ def run_http(
 ) -> dict[str, Any]:
     """Post the scenario's epochs to the real service over HTTP (``_service``), sampling the resident memory
     of the API process and of the service's whole process tree (``bench.rss``). With ``worker``, a fleet
-    solve of the city is requested after the untimed first epoch, so that the timed epochs run beside the
-    worker's simulation runs as on a platform at the top of an hour; its memory is sampled until that solve
-    is over, for at most ``worker_wait_s`` after the last epoch. ``root``: the checkout whose service runs."""
+    solve of the city is requested after the untimed first epoch (of ``BUNDLED_CITY`` when the city has too
+    little history to be sized), so that the timed epochs run beside the worker's simulation runs as on a
+    platform at the top of an hour; its memory is sampled until that solve is over, for at most
+    ``worker_wait_s`` after the last epoch. ``root``: the checkout whose service runs."""
     from app.usecases.epoch_record import decision_of
 
     city = load_city(sc)
@@ -505,6 +510,7 @@ def run_http(
     solve: list[float] = []  # the server's own solve time of each epoch (its response's stats.solve_ms)
     digests: list[str] = []
     solving = False  # a fleet solve was accepted (a city without its M days of history gets none)
+    sized = ""  # the city the worker solves beside the epochs
     with _service(sc, city, redis_url, worker, port, root) as svc, TreePeak(svc.proc.pid) as peak:
         for e in range(n + 1):
             snap, tasks = epochs.next()
@@ -515,7 +521,11 @@ def run_http(
             if epochs.platform is not None:
                 epochs.platform.apply(d.rider_matches, d.task_assignments, expired)
             if e == 0 and worker:
-                solving = _request_solve(svc)
+                sized = svc.name
+                solving = _request_solve(svc, sized)
+                if not solving:  # too little history: the worker's processes run a bundled city's solve
+                    sized = BUNDLED_CITY
+                    solving = _request_solve(svc, sized)
             if e > 0:  # the server's first epoch may still compile kernels: epochs 1..n are timed
                 lat.append(took)
                 solve.append(float(doc["stats"]["solve_ms"]) / 1000.0)
@@ -524,19 +534,25 @@ def run_http(
                     flush=True,
                 )
         waited = time.monotonic()
-        while solving and not _solve_over(svc) and time.monotonic() - waited < worker_wait_s:
+        while solving and not _solve_over(svc, sized) and time.monotonic() - waited < worker_wait_s:
             time.sleep(1.0)
-        solve_over = not solving or _solve_over(svc)
+        solve_over = not solving or _solve_over(svc, sized)
         ready_s = svc.ready_s
-    print(f"  [{sc.name}] peak RSS: API {peak.process_mb:.0f} MB, service {peak.tree_mb:.0f} MB", flush=True)
+    print(
+        f"  [{sc.name}] peak: API RSS {peak.process_mb:.0f} MB, service PSS {peak.tree_mb:.0f} MB"
+        f" (RSS sum {peak.tree_rss_mb:.0f} MB)",
+        flush=True,
+    )
     return {
         "latency": lat,
         "server_solve": solve,
         "server_peak_rss_mb": peak.process_mb,
-        "service_peak_rss_mb": peak.tree_mb,
+        "service_peak_pss_mb": peak.tree_mb,
+        "service_peak_rss_sum_mb": peak.tree_rss_mb,
         "worker": worker,
         "worker_solve_over": solve_over,
         "worker_solved": solving,
+        "worker_city": sized,
         "digests": digests,
         "ready_s": ready_s,
     }
@@ -665,10 +681,12 @@ def measure(
         res["http_minus_solve"], res["http_over_solve_pct"] = over_solve(h)
         for key in (
             "server_peak_rss_mb",
-            "service_peak_rss_mb",
+            "service_peak_pss_mb",
+            "service_peak_rss_sum_mb",
             "worker",
             "worker_solve_over",
             "worker_solved",
+            "worker_city",
         ):
             res[key] = h[key]
         res["ready_s"] = h["ready_s"]
@@ -858,7 +876,7 @@ def _facts(name: str, r: dict[str, Any]) -> str:
             f"HTTP round trip over the server's solve: median {pct:+.1f} % (target <= +15 %: {_verdict(pct <= 15)}), "
             f"{r['http_minus_solve']['p50_ms']:.1f} ms (p99 {r['http_minus_solve']['p99_ms']:.1f} ms)"
         )
-        facts += _rss_facts(r, t)
+        facts += _rss_facts(name, r, t)
         if "ready_s" in t:
             ok = r["ready_s"] <= t["ready_s"]
             facts.append(
@@ -867,7 +885,7 @@ def _facts(name: str, r: dict[str, Any]) -> str:
     return f"- {name}: " + "; ".join(facts)
 
 
-def _rss_facts(r: dict[str, Any], t: dict[str, float]) -> list[str]:
+def _rss_facts(name: str, r: dict[str, Any], t: dict[str, float]) -> list[str]:
     """The API process's peak resident memory and the whole service's (children included), with targets."""
 
     def target(mb: float, limit: float | None) -> str:
@@ -875,21 +893,25 @@ def _rss_facts(r: dict[str, Any], t: dict[str, float]) -> list[str]:
 
     api = r["server_peak_rss_mb"]
     facts = [f"API process peak RSS {api:.0f} MB{target(api, t.get('rss_mb'))}"]
-    if "service_peak_rss_mb" in r:  # results of runs made before the service's peak was sampled lack it
-        whole = r["service_peak_rss_mb"]
+    if "service_peak_pss_mb" in r:  # results of runs made before the service's peak was sampled lack it
+        whole = r["service_peak_pss_mb"]
+        solved = r.get("worker_city", "")
         if not r.get("worker"):
             how = "no fleet worker"
         elif not r.get("worker_solved", True):
-            how = (
-                "the fleet worker inside, no solve of this city: too little history to be sized; its"
-                " scheduled solves of the bundled cities' coming hour may run beside the epochs"
-            )
-        elif r.get("worker_solve_over"):
-            how = "with the fleet worker's solve"
+            how = "the fleet worker inside, no solve requested"
         else:
-            how = f"with the fleet worker's solve, still running {WORKER_WAIT_S:.0f} s after the last epoch"
+            of = (
+                "" if solved in ("", name) else f" of {solved} (this city has too little history to be sized)"
+            )
+            how = f"with the fleet worker's solve{of}"
+            if not r.get("worker_solve_over"):
+                how += f", still running {WORKER_WAIT_S:.0f} s after the last epoch"
         limit = SERVICE_RSS_MB if "rss_mb" in t else None
-        facts.append(f"the whole service's peak RSS {whole:.0f} MB ({how}){target(whole, limit)}")
+        facts.append(
+            f"the whole service's peak {whole:.0f} MB (the sum of its processes' PSS, {how}; their RSS sum"
+            f" {r['service_peak_rss_sum_mb']:.0f} MB){target(whole, limit)}"
+        )
     return facts
 
 
@@ -917,11 +939,13 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "decisions checked equal; HTTP = a real",
         "`python -m app run` (uvicorn, in-memory store, the fleet worker inside it as `make run` runs it) posting",
         "the same epochs (decisions checked equal to the in-process ones), with a fleet solve of the city requested",
-        "after the untimed first epoch (a city without its days of recorded history is refused one), so that the",
-        "timed epochs run beside the worker's simulation processes as at the top of an hour;",
-        "peak RSS: the API process's high-water mark (VmHWM), and the largest sum of the resident memory of the",
-        "service's processes (the API and the worker's, sampled every 50 ms until the solve is over, at most",
-        f"{WORKER_WAIT_S:.0f} s after the last epoch; `bench/rss.py`). Floor = with scipy, one",
+        f"after the untimed first epoch (of {BUNDLED_CITY} when the city has too little recorded history to be",
+        "sized), so that the timed epochs run beside the worker's simulation processes as at the top of an hour;",
+        "peak memory: the API process's high-water mark (VmHWM), and the largest sum of the proportional set",
+        "sizes of the service's processes (the API and the worker's: a page shared by n processes counts 1/n in",
+        "each, so every page the service holds counts once), with the largest sum of their RSS beside it (a",
+        "shared library's pages count once per process there), sampled every 100 ms until the solve is over, at",
+        f"most {WORKER_WAIT_S:.0f} s after the last epoch; `bench/rss.py`. Floor = with scipy, one",
         "reverse search per rider bounded by the pickup radius, one full reverse tree per new task's POI, and the",
         "two assignments over the pickup times, on the same epochs.",
         "",
