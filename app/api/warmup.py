@@ -60,6 +60,19 @@ def compile_apart(registry: CityCatalog) -> str | None:
     return smallest.name
 
 
+def _prune_kernel_caches() -> None:
+    """Remove the compiled kernels of other sources left on disk by earlier versions
+    (``services.kernel.jit.prune_stale``), and say so."""
+    import numba
+
+    from services.kernel.jit import prune_stale
+
+    removed = prune_stale(numba.config.CACHE_DIR)  # type: ignore[attr-defined]
+    if removed:
+        mb = sum(size for _, size in removed) / 1e6
+        log.info("removed %d stale kernel cache directories (%.1f MB)", len(removed), mb)
+
+
 def warm(
     registry: CityCatalog,
     freeze: bool = False,
@@ -72,12 +85,14 @@ def warm(
     built (the cities, the app, the compiled kernels' Python objects) is then moved out of the collector's
     reach (``gc.freeze``): it lives as long as the process, and scanning it made each full collection
     ~100 ms at Manhattan scale. ``done`` is set at the end, whatever happened (a city that failed to load
-    is /readyz's to report). With ``apart`` the kernels are compiled in a child first (``compile_apart``)."""
+    is /readyz's to report). With ``apart`` the kernels are compiled in a child first (``compile_apart``),
+    after the kernel caches of other sources untouched for a day are removed (``_prune_kernel_caches``)."""
     from services.dispatch import warm_up
 
     began = time.perf_counter()
     try:
         if apart:
+            _prune_kernel_caches()
             try:
                 compile_apart(registry)
             except Exception:

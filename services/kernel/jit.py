@@ -5,19 +5,23 @@ the functions' own signatures.
 numba checks a cached function against its own file only, so a kernel that inlines a helper from another
 module would keep its old compiled code after that module changed. The cache therefore lives in a directory
 named after a digest of every source file of ``services`` (``cache_dir``): other code, other directory.
+The directories of other sources are never read again by this code; ``prune_stale`` removes those left
+untouched for a while (the service does at start-up), so that each upgrade does not leave its kernels on disk.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import shutil
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar, cast
 
 import numba
 
-__all__ = ["cache_dir", "compiled", "compiled_inline"]
+__all__ = ["cache_dir", "prune_stale", "STALE_AFTER_S", "compiled", "compiled_inline"]
 
 SERVICES = Path(__file__).resolve().parents[1]
 
@@ -36,6 +40,34 @@ def cache_dir(root: Path = SERVICES, base: str = "") -> str:
         else str(Path.home() / ".cache" / "sensedispatch" / "numba")
     )
     return os.path.join(base, digest.hexdigest()[:16])
+
+
+STALE_AFTER_S = 86_400.0
+"""A cache directory of other sources untouched (no file written) for this long is removed by ``prune_stale``:
+a process of an older checkout still running has its kernels in memory and only recompiles what it loads
+anew (a simulation process starting, say)."""
+
+
+def prune_stale(current: str, older_than_s: float = STALE_AFTER_S) -> list[tuple[str, int]]:
+    """Remove the cache directories beside ``current`` (``cache_dir``'s) that hold other sources' kernels
+    and have had no file written for ``older_than_s``; the removed directories and their bytes."""
+    base = Path(current).parent
+    cutoff = time.time() - older_than_s
+    removed: list[tuple[str, int]] = []
+    try:
+        siblings = [d for d in base.iterdir() if d.is_dir() and d.name != Path(current).name]
+    except OSError:
+        return removed
+    for d in siblings:
+        try:
+            files = [f.stat() for f in d.rglob("*") if f.is_file()]
+            if max((f.st_mtime for f in files), default=d.stat().st_mtime) > cutoff:
+                continue
+            shutil.rmtree(d)
+        except OSError:  # gone meanwhile, or not ours to remove: left as it is
+            continue
+        removed.append((str(d), sum(f.st_size for f in files)))
+    return removed
 
 
 # numba read $NUMBA_CACHE_DIR at its import; its config is read again as each kernel below is decorated

@@ -4,12 +4,16 @@ compiled from sources that are no longer there."""
 
 from __future__ import annotations
 
+import logging
+import os
 import shutil
+import time
 from pathlib import Path
 
 import numba
+import pytest
 
-from services.kernel.jit import SERVICES, cache_dir
+from services.kernel.jit import SERVICES, STALE_AFTER_S, cache_dir, prune_stale
 
 
 def _tree(tmp_path: Path) -> Path:
@@ -46,3 +50,41 @@ def test_any_change_to_any_source_moves_the_cache(tmp_path: Path) -> None:
 def test_numba_cache_dir_is_the_base_when_set(tmp_path: Path) -> None:
     root = _tree(tmp_path)
     assert Path(cache_dir(root, str(tmp_path / "elsewhere"))).parent == tmp_path / "elsewhere"
+
+
+def _kernels(directory: Path, age_s: float) -> None:
+    """A cache directory holding one kernel file written ``age_s`` ago."""
+    (directory / "network").mkdir(parents=True)
+    f = directory / "network" / "heaps.less-1.py311.nbi"
+    f.write_bytes(b"x" * 1000)
+    then = time.time() - age_s
+    os.utime(f, (then, then))
+
+
+def test_other_sources_caches_untouched_for_a_day_are_removed_and_no_other(tmp_path: Path) -> None:
+    base = tmp_path / "numba"
+    current = base / "aaaaaaaaaaaaaaaa"
+    _kernels(current, 10 * STALE_AFTER_S)  # the current sources' kernels, however old: kept
+    _kernels(base / "bbbbbbbbbbbbbbbb", 2 * STALE_AFTER_S)  # an earlier version's: removed
+    _kernels(base / "cccccccccccccccc", 60.0)  # written a minute ago (a process of it may run): kept
+    (base / "notes.txt").write_text("a file beside the directories is not a cache: kept")
+    removed = prune_stale(str(current))
+    assert removed == [(str(base / "bbbbbbbbbbbbbbbb"), 1000)]
+    assert sorted(p.name for p in base.iterdir()) == ["aaaaaaaaaaaaaaaa", "cccccccccccccccc", "notes.txt"]
+    assert prune_stale(str(current)) == []  # nothing left to remove
+    assert prune_stale(str(tmp_path / "absent" / "aaaaaaaaaaaaaaaa")) == []  # no base: nothing to do
+
+
+def test_the_service_start_up_prunes_beside_its_own_cache_and_logs_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    from app.api.warmup import _prune_kernel_caches
+
+    base = tmp_path / "numba"
+    _kernels(base / "aaaaaaaaaaaaaaaa", 0.0)
+    _kernels(base / "bbbbbbbbbbbbbbbb", 2 * STALE_AFTER_S)
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(base / "aaaaaaaaaaaaaaaa"))
+    with caplog.at_level(logging.INFO, logger="app.api.warmup"):
+        _prune_kernel_caches()
+    assert [p.name for p in base.iterdir()] == ["aaaaaaaaaaaaaaaa"]
+    assert "removed 1 stale kernel cache directories (0.0 MB)" in caplog.text
