@@ -901,9 +901,9 @@ def _rss_facts(name: str, r: dict[str, Any], t: dict[str, float]) -> list[str]:
         elif not r.get("worker_solved", True):
             how = "the fleet worker inside, no solve requested"
         else:
-            of = (
-                "" if solved in ("", name) else f" of {solved} (this city has too little history to be sized)"
-            )
+            of = ""
+            if solved == BUNDLED_CITY and SCENARIOS[name].city in GENERATED:
+                of = f" of {solved} (this city has too little history to be sized)"
             how = f"with the fleet worker's solve{of}"
             if not r.get("worker_solve_over"):
                 how += f", still running {WORKER_WAIT_S:.0f} s after the last epoch"
