@@ -354,16 +354,35 @@ def contraction_order(p: _Pool, n: int) -> NDArray[np.int64]:
     return order
 
 
+@compiled_inline
+def _unlink(first: NDArray[np.int32], nxt: NDArray[np.int32], owner: int, x: int) -> None:
+    """Take arc ``x`` out of ``owner``'s list (``first``, ``nxt``: the out- or the in-lists); the other arcs
+    keep their order."""
+    y = first[owner]
+    if y == x:
+        first[owner] = nxt[x]
+        return
+    while y >= 0:
+        z = nxt[y]
+        if z == x:
+            nxt[y] = nxt[x]
+            return
+        y = z
+
+
 @compiled
 def _touch_neighbours(
     p: _Pool, done: NDArray[np.bool_], v: int, deleted: NDArray[np.int64], level: NDArray[np.int64]
 ) -> None:
+    """After contracting ``v``: its remaining neighbours' counts and levels, and its arcs taken out of their
+    lists, where every later search would pass over them (the arcs stay in the pool)."""
     x = p.out_first[v]
     while x >= 0:
         w = p.head[x]
         if not done[w]:
             deleted[w] += 1
             level[w] = max(level[w], level[v] + 1)
+            _unlink(p.in_first, p.nin, w, x)
         x = p.nout[x]
     x = p.in_first[v]
     while x >= 0:
@@ -371,6 +390,7 @@ def _touch_neighbours(
         if not done[w]:
             deleted[w] += 1
             level[w] = max(level[w], level[v] + 1)
+            _unlink(p.out_first, p.nout, w, x)
         x = p.nin[x]
 
 
