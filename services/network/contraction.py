@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from services.kernel.jit import compiled
+
 __all__ = ["Contraction", "contract"]
 
 
@@ -85,85 +87,164 @@ def _interiors(
     """Which nodes are chain interiors (one-way or two-way, before breaking pure chain cycles), and which
     are dead ends (a single neighbour, joined both ways)."""
     n = indptr.shape[0] - 1
-    outdeg = np.diff(indptr)
     indeg = np.bincount(head, minlength=n)
-    in_order = np.argsort(head, kind="stable")
     in_ptr = np.zeros(n + 1, dtype=np.int64)
     in_ptr[1:] = np.cumsum(indeg)
-    interior = np.zeros(n, dtype=bool)
-    dead_end = np.zeros(n, dtype=bool)
-    for v in np.flatnonzero((indeg == outdeg) & ((indeg == 1) | (indeg == 2))).tolist():
-        outs = set(head[indptr[v] : indptr[v + 1]].tolist())
-        ins = set(tail[in_order[in_ptr[v] : in_ptr[v + 1]]].tolist())
-        if len(outs) != outdeg[v] or v in outs:  # parallel edges or self-loops: keep the node
+    in_tail = tail[np.argsort(head, kind="stable")]
+    return _classify(indptr, head, in_ptr, in_tail)
+
+
+@compiled
+def _classify(
+    indptr: NDArray[np.int64], head: NDArray[np.int64], in_ptr: NDArray[np.int64], in_tail: NDArray[np.int64]
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """``_interiors`` from the out-edges' heads and the in-edges' tails of every node: a node with one edge
+    in and one out is an interior unless both join the same neighbour (a dead end); one with two in and
+    two out, when both go to and come from the same two other nodes; a parallel edge or a self-loop keeps
+    a node."""
+    n = indptr.shape[0] - 1
+    interior = np.zeros(n, dtype=np.bool_)
+    dead_end = np.zeros(n, dtype=np.bool_)
+    for v in range(n):
+        k = indptr[v + 1] - indptr[v]
+        if k != in_ptr[v + 1] - in_ptr[v] or not 1 <= k <= 2:
             continue
-        interior[v] = (outs != ins) if indeg[v] == 1 else (outs == ins)
-        dead_end[v] = indeg[v] == 1 and outs == ins
+        o0, o1 = head[indptr[v]], head[indptr[v + 1] - 1]
+        i0, i1 = in_tail[in_ptr[v]], in_tail[in_ptr[v + 1] - 1]
+        if (k == 2 and o0 == o1) or o0 == v or o1 == v:  # parallel edges or self-loops: keep the node
+            continue
+        if k == 1:
+            interior[v] = o0 != i0
+            dead_end[v] = o0 == i0
+        else:
+            interior[v] = i0 != i1 and ((o0 == i0 and o1 == i1) or (o0 == i1 and o1 == i0))
     return interior, dead_end
 
 
+@compiled
+def _walk(
+    ip: NDArray[np.int64],
+    hd: NDArray[np.int64],
+    tail: NDArray[np.int64],
+    interior: NDArray[np.bool_],
+    e: int,
+    flat: NDArray[np.int64],
+    n_flat: int,
+) -> int:
+    """The chain that starts with edge ``e``, appended to ``flat`` from ``n_flat`` on: through each interior
+    node, its out-edge that does not go back. Returns where the chain ends in ``flat``."""
+    prev, x = tail[e], hd[e]
+    flat[n_flat] = e
+    n_flat += 1
+    while interior[x]:
+        f = ip[x]
+        while hd[f] == prev:
+            f += 1
+        flat[n_flat] = f
+        n_flat += 1
+        prev, x = x, hd[f]
+    return n_flat
+
+
+@compiled
 def _chains(
-    ip: list[int], hd: list[int], tail: NDArray[np.int64], interior: NDArray[np.bool_]
-) -> list[list[int]]:
-    """The edges of every chain, walked from each kept node's out-edges; edges left over lie on cycles of
-    interior nodes only, and one node of each such cycle is kept (``interior`` is updated)."""
-    m = len(hd)
-    edge_se = [-1] * m
-    chains: list[list[int]] = []
-
-    def walk(e: int) -> None:
-        prev, x = int(tail[e]), hd[e]
-        edges = [e]
-        edge_se[e] = len(chains)
-        while interior[x]:
-            f = next(f for f in range(ip[x], ip[x + 1]) if hd[f] != prev)
-            edges.append(f)
-            edge_se[f] = len(chains)
-            prev, x = x, hd[f]
-        chains.append(edges)
-
-    for u in np.flatnonzero(~interior).tolist():
+    ip: NDArray[np.int64], hd: NDArray[np.int64], tail: NDArray[np.int64], interior: NDArray[np.bool_]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The edges of every chain (``flat[ptr[s]:ptr[s + 1]]``), walked from each kept node's out-edges; edges
+    left over lie on cycles of interior nodes only, and one node of each such cycle is kept (``interior``
+    is updated)."""
+    n, m = interior.shape[0], hd.shape[0]
+    flat = np.empty(m, dtype=np.int64)
+    ptr = np.zeros(m + 1, dtype=np.int64)
+    on_chain = np.zeros(m, dtype=np.bool_)
+    n_se = 0
+    n_flat = 0
+    for u in range(n):
+        if interior[u]:
+            continue
         for e in range(ip[u], ip[u + 1]):
-            walk(e)
+            n_flat = _walk(ip, hd, tail, interior, e, flat, n_flat)
+            n_se += 1
+            ptr[n_se] = n_flat
+    for j in range(n_flat):
+        on_chain[flat[j]] = True
     for e in range(m):  # edges still free lie on cycles of interiors only: keep one node of each
-        if edge_se[e] < 0:
-            u = int(tail[e])
+        if not on_chain[e]:
+            u = tail[e]
             interior[u] = False
             for f in range(ip[u], ip[u + 1]):
-                walk(f)
-    return chains
+                start = n_flat
+                n_flat = _walk(ip, hd, tail, interior, f, flat, n_flat)
+                n_se += 1
+                ptr[n_se] = n_flat
+                for j in range(start, n_flat):
+                    on_chain[flat[j]] = True
+    return flat, ptr[: n_se + 1].copy()
 
 
+@compiled
+def _reverse_of(
+    ip: NDArray[np.int64],
+    hd: NDArray[np.int64],
+    tail: NDArray[np.int64],
+    flat: NDArray[np.int64],
+    ptr: NDArray[np.int64],
+    first_of: NDArray[np.int64],
+    s: int,
+) -> int:
+    """The chain over the same interior nodes as chain ``s`` in the other direction, -1 if none: the one
+    whose first edge is the last (in edge order) from ``s``'s head back to its last interior node."""
+    last = flat[ptr[s + 1] - 1]
+    u, w = hd[last], tail[last]
+    back = -1
+    for f in range(ip[u], ip[u + 1]):
+        if hd[f] == w:
+            back = f
+    if back < 0 or first_of[back] < 0:
+        return -1
+    r = int(first_of[back])
+    k = ptr[s + 1] - ptr[s]
+    if ptr[r + 1] - ptr[r] != k:
+        return -1
+    for j in range(k - 1):  # r's interior nodes are s's, in reverse
+        if hd[flat[ptr[r] + j]] != hd[flat[ptr[s + 1] - 2 - j]]:
+            return -1
+    return r
+
+
+@compiled
 def _positions(
-    chains: list[list[int]], hd: list[int], tail: NDArray[np.int64], interior: NDArray[np.bool_]
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """Each chain's reverse chain (-1 none) and each interior node's (chain, offset) on at most two chains."""
-    n, m, n_se = len(interior), len(hd), len(chains)
-    first_of = {c[0]: s for s, c in enumerate(chains)}
-    edge_id = {(int(tail[e]), hd[e]): e for e in range(m)}
+    ip: NDArray[np.int64],
+    hd: NDArray[np.int64],
+    tail: NDArray[np.int64],
+    flat: NDArray[np.int64],
+    ptr: NDArray[np.int64],
+    interior: NDArray[np.bool_],
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], int]:
+    """Each chain's reverse chain (-1 none) and each interior node's (chain, offset) on at most two chains,
+    ascending; and an interior node on no chain or on more than two (-1: none)."""
+    n, n_se = interior.shape[0], ptr.shape[0] - 1
+    first_of = np.full(hd.shape[0], -1, dtype=np.int64)
+    for s in range(n_se):
+        first_of[flat[ptr[s]]] = s
     se_rev = np.full(n_se, -1, dtype=np.int64)
-    pos: list[list[tuple[int, int]]] = [[] for _ in range(n)]
-    for s, c in enumerate(chains):
-        if len(c) < 2:
-            continue
-        for off in range(1, len(c)):
-            pos[hd[c[off - 1]]].append((s, off))
-        last = c[-1]
-        back = edge_id.get((hd[last], int(tail[last])))
-        if back is not None and back in first_of and len(chains[first_of[back]]) == len(c):
-            r = first_of[back]
-            if [hd[e] for e in chains[r][:-1]] == [hd[e] for e in reversed(c[:-1])]:
-                se_rev[s] = r
     pos_se = np.full((n, 2), -1, dtype=np.int64)
     pos_off = np.zeros((n, 2), dtype=np.int64)
-    for v in np.flatnonzero(interior).tolist():
-        ps = sorted(pos[v])
-        if not 1 <= len(ps) <= 2:
-            raise AssertionError(f"interior node {v} lies on {len(ps)} super-edges")
-        for j, (s, off) in enumerate(ps):
-            pos_se[v, j] = s
-            pos_off[v, j] = off
-    return se_rev, pos_se, pos_off
+    count = np.zeros(n, dtype=np.int64)
+    for s in range(n_se):
+        if ptr[s + 1] - ptr[s] < 2:
+            continue
+        for off in range(1, ptr[s + 1] - ptr[s]):
+            v = hd[flat[ptr[s] + off - 1]]
+            if count[v] < 2:
+                pos_se[v, count[v]] = s
+                pos_off[v, count[v]] = off
+            count[v] += 1
+        se_rev[s] = _reverse_of(ip, hd, tail, flat, ptr, first_of, s)
+    for v in range(n):  # the chains are met in order, each from its start: (chain, offset) ascend
+        if interior[v] and not 1 <= count[v] <= 2:
+            return se_rev, pos_se, pos_off, v
+    return se_rev, pos_se, pos_off, -1
 
 
 def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contraction:
@@ -186,25 +267,25 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
     n = int(indptr.shape[0] - 1)
     tail = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
     interior, dead_end = _interiors(indptr, head64, tail)
-    ip = indptr.tolist()
-    hd = head64.tolist()
-    chains = _chains(ip, hd, tail, interior)
-    order = sorted(range(len(chains)), key=lambda s: chains[s][0])  # by first edge = by tail, CSR order
-    chains = [chains[s] for s in order]
-    n_se = len(chains)
+    flat, ptr = _chains(indptr, head64, tail, interior)
+    lengths = np.diff(ptr)
+    order = np.argsort(flat[ptr[:-1]])  # by first edge = by tail, CSR order
+    n_se = int(order.shape[0])
+    se_ptr = np.zeros(n_se + 1, dtype=np.int64)
+    se_ptr[1:] = np.cumsum(lengths[order])
+    se_edges = np.concatenate([flat[ptr[s] : ptr[s + 1]] for s in order.tolist()] or [flat[:0]])
     kept = np.flatnonzero(~interior).astype(np.int64)
     kept_of = np.full(n, -1, dtype=np.int64)
     kept_of[kept] = np.arange(kept.shape[0], dtype=np.int64)
-    se_ptr = np.zeros(n_se + 1, dtype=np.int64)
-    se_ptr[1:] = np.cumsum([len(c) for c in chains])
-    se_edges = np.array([e for c in chains for e in c], dtype=np.int64)
     se_tail = kept_of[tail[se_edges[se_ptr[:-1]]]] if n_se else np.zeros(0, dtype=np.int64)
     se_head = kept_of[head64[se_edges[se_ptr[1:] - 1]]] if n_se else np.zeros(0, dtype=np.int64)
     k_indptr = np.zeros(kept.shape[0] + 1, dtype=np.int64)
     np.add.at(k_indptr, se_tail + 1, 1)
     k_indptr = np.cumsum(k_indptr)
 
-    se_rev, pos_se, pos_off = _positions(chains, hd, tail, interior)
+    se_rev, pos_se, pos_off, stray = _positions(indptr, head64, tail, se_edges, se_ptr, interior)
+    if stray >= 0:
+        raise AssertionError(f"interior node {stray} lies on none or more than two super-edges")
     return Contraction(
         n_nodes=n,
         kept=kept,

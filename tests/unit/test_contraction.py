@@ -6,6 +6,8 @@ against the plain lexicographic Dijkstra on the original edges (``tests.referenc
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -13,8 +15,10 @@ from services.network import contraction, heaps, unfolding
 from services.network.graph import INF, RoadGraph, prepare, road_graph
 from tests.citymaker import make_city
 from tests.reference import canonical_tree, tree_path
+from tests.reference_contraction import plain_contract
 
 NONE = np.zeros(0, dtype=np.int64)
+BUNDLES = Path(__file__).resolve().parents[2] / "app" / "data" / "cities"
 
 
 class Graph:
@@ -271,3 +275,37 @@ def test_small_integer_costs_tie_everywhere(seed: int) -> None:
         check(graph, cost, s, False, int(INF), NONE, everyone)
         check(graph, cost, s, True, int(INF), NONE, everyone)
         check(graph, cost, s, False, int(INF), everyone[:5], everyone)
+
+
+_FIELDS = ("kept", "kept_of", "dead_end", "indptr", "se_tail", "se_head", "se_rev", "se_ptr", "se_edges")
+
+
+def _same_contraction(indptr: np.ndarray, head: np.ndarray) -> None:
+    got, want = contraction.contract(indptr, head), plain_contract(indptr, head)
+    assert got.n_nodes == want.n_nodes
+    for name in (*_FIELDS, "se_node", "pos_se", "pos_off"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_compiled_contraction_is_the_plain_ones_array_for_array(seed: int) -> None:
+    """Lattices with every kind of chain, forward and reversed: the compiled contraction gives exactly the
+    arrays of the plain one written from the definition (``tests.reference_contraction``)."""
+    g = chain_graph(seed, side=4 + seed % 4)
+    _same_contraction(g.indptr, g.head)
+    _same_contraction(g.reversed().indptr, g.reversed().head)
+
+
+@pytest.mark.parametrize("name", ["chengdu", "manhattan"])
+def test_the_compiled_contraction_of_a_bundled_city_is_the_plain_ones(name: str) -> None:
+    """The same on the bundled cities' road networks (OpenStreetMap's parallel ways, loops and one-way
+    chains), forward and reversed."""
+    from services.citydata import load_city
+
+    net = load_city(BUNDLES / name).network
+    head = np.asarray(net.edge_v, dtype=np.int64)
+    _same_contraction(np.asarray(net.indptr, dtype=np.int64), head)
+    tail = np.repeat(np.arange(net.n_nodes, dtype=np.int64), np.diff(net.indptr))
+    rev_indptr = np.zeros(net.n_nodes + 1, dtype=np.int64)
+    rev_indptr[1:] = np.cumsum(np.bincount(head, minlength=net.n_nodes))
+    _same_contraction(rev_indptr, tail[np.lexsort((tail, head))])
