@@ -100,20 +100,7 @@ def _positions(
 
 
 def plain_contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contraction:
-    """Contract the degree-2 chains of the CSR graph ``(indptr, head)``.
-
-    Parameters
-    ----------
-    indptr : (n+1,) int
-        Out-edges of node ``u`` are edges ``indptr[u]:indptr[u+1]``.
-    head : (m,) int
-        Head node of each edge.
-
-    Returns
-    -------
-    Contraction
-        Kept nodes, super-edges and the position of every interior node.
-    """
+    """``services.network.contraction.contract`` of the CSR graph ``(indptr, head)``, plainly."""
     indptr = np.asarray(indptr, dtype=np.int64)
     head64 = np.asarray(head, dtype=np.int64)
     n = int(indptr.shape[0] - 1)
