@@ -523,7 +523,7 @@ def run_http(
             if e == 0 and worker:
                 sized = svc.name
                 solving = _request_solve(svc, sized)
-                if not solving:  # too little history: the worker's processes run a bundled city's solve
+                if not solving:  # refused for too little history: a bundled city is sized beside the epochs
                     sized = BUNDLED_CITY
                     solving = _request_solve(svc, sized)
             if e > 0:  # the server's first epoch may still compile kernels: epochs 1..n are timed

@@ -367,7 +367,7 @@ def measure(args: argparse.Namespace, log: Log) -> dict[str, Any]:
                         tail = log_file.read_text(errors="replace").splitlines()[-40:]
                         log("service log, last lines:\n" + "\n".join(tail))
                         raise
-            res["peak_rss_mb"] = {"process": peak.process_mb, "tree": peak.tree_rss_mb, "pss": peak.tree_mb}
+            res["peak_rss_mb"] = {"process": peak.process_mb, "tree": peak.tree_rss_mb}
         finally:
             stop(proc)
             res["service_log_tail"] = log_file.read_text(errors="replace").splitlines()[-40:]

@@ -268,12 +268,13 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
     tail = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
     interior, dead_end = _interiors(indptr, head64, tail)
     flat, ptr = _chains(indptr, head64, tail, interior)
-    lengths = np.diff(ptr)
     order = np.argsort(flat[ptr[:-1]])  # by first edge = by tail, CSR order
+    lengths = np.diff(ptr)[order]
     n_se = int(order.shape[0])
     se_ptr = np.zeros(n_se + 1, dtype=np.int64)
-    se_ptr[1:] = np.cumsum(lengths[order])
-    se_edges = np.concatenate([flat[ptr[s] : ptr[s + 1]] for s in order.tolist()] or [flat[:0]])
+    se_ptr[1:] = np.cumsum(lengths)
+    # the chains' blocks of ``flat`` in that order: each edge's place in its chain plus its chain's start
+    se_edges = flat[np.repeat(ptr[order] - se_ptr[:-1], lengths) + np.arange(flat.shape[0])]
     kept = np.flatnonzero(~interior).astype(np.int64)
     kept_of = np.full(n, -1, dtype=np.int64)
     kept_of[kept] = np.arange(kept.shape[0], dtype=np.int64)
