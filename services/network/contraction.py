@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from services.kernel.jit import compiled
 
-__all__ = ["Contraction", "contract"]
+__all__ = ["Contraction", "contract", "hilbert_key", "renumbered"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -299,6 +299,87 @@ def contract(indptr: NDArray[np.int64], head: NDArray[np.integer]) -> Contractio
         se_ptr=se_ptr,
         se_edges=se_edges,
         se_node=head64[se_edges],
+        pos_se=pos_se,
+        pos_off=pos_off,
+    )
+
+
+HILBERT_BITS = 16
+"""``hilbert_key`` places positions on a 2**16 x 2**16 lattice over their bounding box."""
+
+
+def hilbert_key(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Each position's index along a Hilbert curve over the bounding box of ``(x, y)``: positions near each
+    other on the ground mostly get keys near each other."""
+    n = 1 << HILBERT_BITS
+    xs, ys = (np.asarray(a, dtype=np.float64) for a in (x, y))
+    if xs.size == 0:
+        return np.zeros(0, dtype=np.int64)
+
+    def lattice(a: NDArray[np.float64]) -> NDArray[np.int64]:
+        scaled: NDArray[np.float64] = (a - a.min()) / max(float(np.ptp(a)), 1e-9) * (n - 1)
+        return scaled.astype(np.int64)
+
+    xi, yi = lattice(xs), lattice(ys)
+    key = np.zeros(xs.shape[0], dtype=np.int64)
+    s = n >> 1
+    while s > 0:
+        rx = (xi & s) > 0
+        ry = (yi & s) > 0
+        key += s * s * ((3 * rx.astype(np.int64)) ^ ry.astype(np.int64))
+        flip = ~ry & rx  # rotate the quadrant so that the curve's pieces join
+        xi = np.where(flip, s - 1 - xi, xi)
+        yi = np.where(flip, s - 1 - yi, yi)
+        xi, yi = np.where(ry, xi, yi), np.where(ry, yi, xi)
+        s >>= 1
+    return key
+
+
+def renumbered(c: Contraction, order: NDArray[np.int64]) -> Contraction:
+    """``c`` with its kept nodes renumbered: new kept node ``i`` is old kept node ``order[i]`` (a
+    permutation). Super-edges follow in CSR order of their new tails, each tail's in the order they had (by
+    first edge); every path, cost and interior position is the same, only the indices change.
+
+    A search touches the arrays of the kept nodes near the ones it settles: numbered along a Hilbert curve
+    (``hilbert_key`` of their positions) those lie near each other in memory whatever order the network's
+    nodes came in (an OpenStreetMap extract numbers them by when they were mapped)."""
+    k = c.kept.shape[0]
+    order = np.asarray(order, dtype=np.int64)
+    if order.shape != (k,) or not np.array_equal(np.sort(order), np.arange(k)):
+        raise ValueError("order must be a permutation of the kept nodes")
+    new_of = np.empty(k, dtype=np.int64)
+    new_of[order] = np.arange(k, dtype=np.int64)
+    se_order = np.argsort(new_of[c.se_tail], kind="stable").astype(np.int64)
+    n_se = se_order.shape[0]
+    se_new = np.empty(n_se, dtype=np.int64)
+    se_new[se_order] = np.arange(n_se, dtype=np.int64)
+    lengths = np.diff(c.se_ptr)[se_order]
+    se_ptr = np.zeros(n_se + 1, dtype=np.int64)
+    se_ptr[1:] = np.cumsum(lengths)
+    take = np.repeat(c.se_ptr[:-1][se_order] - se_ptr[:-1], lengths) + np.arange(se_ptr[-1])
+    se_tail = new_of[c.se_tail[se_order]]
+    indptr = np.zeros(k + 1, dtype=np.int64)
+    indptr[1:] = np.cumsum(np.bincount(se_tail, minlength=k))
+    rev = c.se_rev[se_order]
+    pos_se = np.where(c.pos_se >= 0, se_new[np.maximum(c.pos_se, 0)], -1)
+    pos_off = c.pos_off.copy()
+    swap = (pos_se[:, 1] >= 0) & (pos_se[:, 1] < pos_se[:, 0])  # keep each node's two ascending
+    pos_se[swap] = pos_se[swap][:, ::-1]
+    pos_off[swap] = pos_off[swap][:, ::-1]
+    kept_of = c.kept_of.copy()
+    kept_of[c.kept[order]] = np.arange(k, dtype=np.int64)
+    return Contraction(
+        n_nodes=c.n_nodes,
+        kept=c.kept[order],
+        kept_of=kept_of,
+        dead_end=c.dead_end[order],
+        indptr=indptr,
+        se_tail=se_tail,
+        se_head=new_of[c.se_head[se_order]],
+        se_rev=np.where(rev >= 0, se_new[np.maximum(rev, 0)], -1),
+        se_ptr=se_ptr,
+        se_edges=c.se_edges[take],
+        se_node=c.se_node[take],
         pos_se=pos_se,
         pos_off=pos_off,
     )

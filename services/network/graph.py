@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.kernel.jit import compiled, compiled_inline
-from services.network.contraction import contract
+from services.network.contraction import contract, hilbert_key, renumbered
 
 if TYPE_CHECKING:
     from services.city import City
@@ -43,6 +43,7 @@ __all__ = [
     "prepare_into",
     "RoadGraph",
     "road_graph",
+    "build_road_graph",
     "INF",
     "TIE_BITS",
     "US_PER_S",
@@ -253,8 +254,14 @@ def _search_graph(
     tie1: NDArray[np.int64],
     tie2: NDArray[np.int64],
     towards: int,
+    xy: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
 ) -> SearchGraph:
+    """One direction's search graph, its kept nodes numbered along a Hilbert curve over their positions
+    ``xy`` (``contraction.renumbered``: the same graph, laid out so that a search's nodes lie together;
+    None: in the order of the network's nodes)."""
     c = contract(indptr, head)
+    if xy is not None:
+        c = renumbered(c, np.argsort(hilbert_key(xy[0][c.kept], xy[1][c.kept]), kind="stable"))
     se_edges = edge_id[c.se_edges]  # CSR slots -> original edge ids
     g = SearchGraph(
         kept=c.kept,
@@ -285,18 +292,26 @@ def _sum_over_super_edges(graph: SearchGraph, per_edge: NDArray[np.int64]) -> ND
 @functools.lru_cache(maxsize=16)
 def road_graph(city: City) -> RoadGraph:
     """Build (once per city) the edges and the contracted forward and reverse search graphs."""
+    return build_road_graph(city)
+
+
+def build_road_graph(city: City, *, along_curve: bool = True) -> RoadGraph:
+    """``road_graph`` uncached; ``along_curve`` False keeps the kept nodes in the order of the network's
+    nodes instead of numbering them along a Hilbert curve (the same searches, slower where the network's
+    order is not its geography's: the benchmarks compare the two)."""
     net = city.network
+    xy = (net.x_m, net.y_m) if along_curve else None
     m = net.n_edges
     tail = net.edge_u.astype(np.int64)
     head = net.edge_v.astype(np.int64)
     tie1, tie2 = _tie_words(m)
     forward = _search_graph(
-        net.indptr.astype(np.int64), head, np.arange(m, dtype=np.int64), tie1, tie2, towards=1
+        net.indptr.astype(np.int64), head, np.arange(m, dtype=np.int64), tie1, tie2, 1, xy
     )
     order = np.lexsort((tail, head)).astype(np.int64)  # in-edges grouped by head: the reverse CSR
     rev_indptr = np.zeros(net.n_nodes + 1, dtype=np.int64)
     np.add.at(rev_indptr, head + 1, 1)
-    reverse = _search_graph(np.cumsum(rev_indptr), tail[order], order, tie1, tie2, towards=0)
+    reverse = _search_graph(np.cumsum(rev_indptr), tail[order], order, tie1, tie2, 0, xy)
     if not np.array_equal(forward.kept, reverse.kept):  # a chain interior has one way in and one out
         raise AssertionError("the forward and reverse search graphs keep different nodes")
     speed = net.edge_length_m / np.maximum(net.edge_time_s, 1e-12)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from services.network import contraction, heaps, unfolding
-from services.network.graph import INF, RoadGraph, prepare, road_graph
+from services.network.graph import INF, RoadGraph, build_road_graph, prepare, road_graph
 from tests.citymaker import make_city
 from tests.reference import canonical_tree, tree_path
 from tests.reference_contraction import plain_contract
@@ -158,9 +158,12 @@ def check(graph: RoadGraph, cost, s: int, reverse: bool, limit: int, targets, qu
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_contraction_structure(seed: int) -> None:
+@pytest.mark.parametrize("renumber", [False, True])
+def test_contraction_structure(seed: int, renumber: bool) -> None:
     g = chain_graph(seed)
     c = contraction.contract(g.indptr, g.head)
+    if renumber:  # kept nodes in any order: the same structure
+        c = contraction.renumbered(c, np.random.default_rng(seed).permutation(c.n_kept))
     n, m = g.n, len(g.head)
     # every original edge lies on exactly one super-edge, and super-edges are paths between kept nodes
     assert np.array_equal(np.sort(c.se_edges), np.arange(m))
@@ -194,7 +197,8 @@ def test_contraction_structure(seed: int) -> None:
     interior = c.kept_of < 0
     assert not (interior & ~chain).any()
     assert (chain & ~interior).sum() == 2  # one kept node on each of the two cycles of shape nodes
-    assert np.array_equal(c.kept, np.flatnonzero(~interior))
+    assert np.array_equal(np.sort(c.kept), np.flatnonzero(~interior))
+    assert np.array_equal(c.kept_of[c.kept], np.arange(c.n_kept))
     dead_end = np.array([len(in_n[v]) == len(out_n[v]) == 1 and in_n[v] == out_n[v] for v in range(n)])
     assert np.array_equal(c.dead_end, dead_end[c.kept]) and c.dead_end.sum() >= 2  # the spurs' leaves
     for v in np.flatnonzero(interior):
@@ -203,6 +207,78 @@ def test_contraction_structure(seed: int) -> None:
         for j, s in enumerate(ses):
             assert c.se_node[c.se_ptr[s] + c.pos_off[v, j] - 1] == v
     assert c.n_kept < n and c.n_super_edges < m
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_renumbering_back_gives_the_contraction_again(seed: int) -> None:
+    g = chain_graph(seed)
+    c = contraction.contract(g.indptr, g.head)
+    order = np.random.default_rng(seed).permutation(c.n_kept)
+    r = contraction.renumbered(c, order)
+    assert np.array_equal(r.kept, c.kept[order])
+    back = contraction.renumbered(r, np.argsort(order))
+    for name in c.__slots__:
+        assert np.array_equal(getattr(back, name), getattr(c, name)), name
+    with pytest.raises(ValueError, match="permutation"):
+        contraction.renumbered(c, np.zeros(c.n_kept, dtype=np.int64))
+
+
+def test_the_hilbert_key_steps_to_a_neighbour() -> None:
+    # a 16 x 16 lattice of cell centres, the bounding box pinned by two corners: sorted by key, each
+    # point is a lattice neighbour of the one before (the curve at its fourth level)
+    side, step = 16, 4096
+    ij = np.array([(i, j) for i in range(side) for j in range(side)])
+    x = np.concatenate([[0.0, 65535.0], ij[:, 0] * step + step / 2])
+    y = np.concatenate([[0.0, 65535.0], ij[:, 1] * step + step / 2])
+    key = contraction.hilbert_key(x, y)[2:]
+    assert np.unique(key).size == side * side
+    walk = ij[np.argsort(key)]
+    assert (np.abs(np.diff(walk, axis=0)).sum(axis=1) == 1).all()
+    assert contraction.hilbert_key(np.zeros(0), np.zeros(0)).shape == (0,)
+
+
+def test_the_search_graphs_number_kept_nodes_along_the_curve() -> None:
+    from services.citydata import load_city
+
+    net = load_city(BUNDLES / "chengdu").network
+    graph = road_graph(load_city(BUNDLES / "chengdu"))
+    kept = graph.forward.kept
+    assert np.array_equal(graph.reverse.kept, kept)
+    assert (np.diff(contraction.hilbert_key(net.x_m[kept], net.y_m[kept])) >= 0).all()
+    # OpenStreetMap numbers nodes by when they were mapped: the super-edges' ends lie closer in the kept
+    # nodes' order than in the order of their ids
+    fg = graph.forward
+    by_id = np.argsort(np.argsort(kept))
+    gap = np.median(np.abs(fg.se_tail - fg.se_head))
+    assert gap * 5 < np.median(np.abs(by_id[fg.se_tail] - by_id[fg.se_head]))
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_numbering_along_the_curve_changes_no_search(reverse: bool) -> None:
+    # Chengdu's search graphs numbered along the curve and in the order of the network's nodes: from each
+    # source (kept and interior), every node's cost and tie words, and the paths, are the same
+    from services.citydata import load_city
+
+    city = load_city(BUNDLES / "chengdu")
+    graphs = [build_road_graph(city), build_road_graph(city, along_curve=False)]
+    assert not np.array_equal(graphs[0].forward.kept, graphs[1].forward.kept)
+    n = city.network.n_nodes
+    nodes = np.arange(n, dtype=np.int64)
+    rng = np.random.default_rng(7)
+    for s in rng.choice(n, 12, replace=False).tolist():
+        seen = []
+        for graph in graphs:
+            g = graph.reverse if reverse else graph.forward
+            costs = graph.time_reverse if reverse else graph.time_forward
+            ws = heaps.workspace(graph, reverse)
+            out = np.zeros(n, dtype=np.int64)
+            unfolding.tree(g, graph.edges, costs, s, INF, NONE, nodes, ws, out)
+            ties = [unfolding.resolve(g, graph.edges, costs, INF, v, ws)[1:3] for v in range(0, n, 7)]
+            paths = [
+                unfolding.path_to(graph.edges, g.towards, ws.pred, s, int(q)).tolist() for q in nodes[::97]
+            ]
+            seen.append((out.tolist(), ties, paths))
+        assert seen[0] == seen[1]
 
 
 def test_a_cycle_of_shape_nodes_only() -> None:
