@@ -79,11 +79,13 @@ PHASES = ("pickups", "trips", "step1", "step2", "step3", "algorithm2", "tasks")
 @dataclass(frozen=True)
 class Scenario:
     name: str
-    city: str  # a bundled city, "grid" / "grid53" (generated street grids) or "metro" (bench.metro's city)
+    city: str  # a bundled city, "grid" / "grid53" (generated street grids), "metro" (bench.metro's city)
+    # or "metro-shuffled" (the same with its nodes in a random order, bench.metro.shuffled)
     load: Load
     epochs: int
     limits: bool = False  # the API's largest epoch, drawn afresh every epoch (no platform load)
     spread: bool = False  # demand, POIs and taxis spread over the whole network (else around centres)
+    http: bool = True  # also over HTTP (a generated city the service can serve)
 
 
 SCENARIOS = {
@@ -95,6 +97,9 @@ SCENARIOS = {
     "metro250k-heavy": Scenario(
         "metro250k-heavy", "metro", Load(1500, 3500, 800, 100, all_vacant=True), 10, spread=True
     ),
+    "metro250k-shuffled": Scenario(
+        "metro250k-shuffled", "metro-shuffled", Load(1500, 3500, 800, 100), 10, http=False
+    ),
     "grid53-heavy": Scenario(
         "grid53-heavy", "grid53", Load(1500, 3500, 800, 100, all_vacant=True), 10, spread=True
     ),
@@ -102,6 +107,7 @@ SCENARIOS = {
 }
 GENERATED = {"grid": "metrogrid", "grid53": "metrogrid53", "metro": "metro250k"}  # made here: their names
 
+SHUFFLE_SEED = 7  # metro250k-shuffled's node order
 GRID_SIDE = 150
 GRID_BLOCK_M = 120.0
 GRID53_BLOCK_M = 104.0  # 53 minutes across at 35 km/h: under step3_reach_above_s, so no reach applies
@@ -131,6 +137,8 @@ def load_city(sc: Scenario) -> City:
         return grid_city(block_m=GRID53_BLOCK_M, name=GENERATED["grid53"])
     if sc.city == "metro":
         return metro.metro_city()
+    if sc.city == "metro-shuffled":
+        return metro.shuffled(metro.metro_city(), SHUFFLE_SEED)[0]
     from app.runs.workload import open_bundle
 
     return open_bundle(ROOT / "app" / "data" / "cities" / sc.city).city
@@ -140,7 +148,7 @@ def demand(sc: Scenario, city: City) -> Demand:
     """Where the scenario's trips, POIs and taxis are (module docstring)."""
     if sc.spread:
         return SpreadDemand(city)
-    if sc.city == "metro":
+    if sc.city in ("metro", "metro-shuffled"):
         xy, weight = metro.centre_layout(city)
         return CentresDemand(city, Centres(city, xy, weight, 2_500.0))
     if sc.city == "grid":
@@ -672,7 +680,7 @@ def measure(
         res["baseline"] = summary(r["latency_baseline"])
         res["baseline_origin"] = r["baseline"]
         res["over_baseline"] = float(np.median(np.array(r["latency"]) / np.array(r["latency_baseline"])))
-    if http:
+    if http and sc.http:
         print(f"[{sc.name}] over HTTP, {n} epochs ...", flush=True)
         h = run_http(sc, n, worker=worker, port=port)
         if h["digests"] != r["digests"]:
@@ -928,7 +936,9 @@ def write_report(results: dict[str, dict[str, Any]]) -> None:
         "first solved untimed on every path. paper and city: Chengdu's synthetic requests and OSM POIs, Manhattan's",
         "real requests; metro100 and metro300: a generated 150 x 150 street grid (22,500 nodes, 120 m blocks,",
         "35 km/h) with demand around four centres; metro250k: the generated metropolitan network of `bench/metro.py`",
-        "(road hierarchy, one-way streets, a river crossed at 8 places; demand around its five centres). The",
+        "(road hierarchy, one-way streets, a river crossed at 8 places; demand around its five centres), and",
+        "metro250k-shuffled the same network with its nodes in a random order, as an OpenStreetMap extract",
+        "numbers them (in-process only). The",
         "heaviest load (`-heavy`): every taxi vacant every epoch where its last path took it, riders' origins and",
         "destinations, POIs and taxis spread uniformly over the whole network; on metro250k, and on grid53, a",
         "150 x 150 grid of 104 m blocks that takes 53 minutes to cross, so no Step 3 reach applies. limits:",

@@ -23,7 +23,12 @@ built as ``algorithm1._own_metric`` builds it, from the kappa graph of the city'
 8. the contraction hierarchy under the travel time (``services.network.hierarchy``): its build time (once),
    arcs and memory, and ``TRIPS`` trips between nodes drawn uniformly over the whole network (a heavy
    epoch's riders, seed ``SEED``) found through it and goal-directed by the landmarks
-   (``point_to_point.landmark_fastest_paths``), each way once on one thread after an untimed pair, the paths checked equal.
+   (``point_to_point.landmark_fastest_paths``), each way once on one thread after an untimed pair, the paths checked equal;
+9. the kept nodes' order: item 2's bounded trees on the city as generated and on the same network with its
+   nodes shuffled (an imported OpenStreetMap extract numbers them by when they were mapped), each with its
+   search graphs' kept nodes numbered along a Hilbert curve (as the service numbers them) and in the order
+   of the network's nodes (``graph.build_road_graph(..., along_curve=False)``): how far apart a
+   super-edge's ends lie in that order, and the trees' times.
 
 Sources: ``SOURCES`` nodes drawn around the city's centres (``bench.metro.near_centres``, 2.5 km spread, seed
 ``SEED``), where the epoch benchmark's taxis are; each of the service's searches timed as the best of ``REPEATS``
@@ -59,7 +64,7 @@ from services.kernel.parallel import default_workers
 from services.ledger import Ledger, ledger_view
 from services.model import IntervalKey
 from services.network import dijkstra, heaps, hierarchy, point_to_point
-from services.network.graph import INF, US_PER_S, Costs, Lazy, RoadGraph, road_graph
+from services.network.graph import INF, US_PER_S, Costs, Lazy, RoadGraph, build_road_graph, road_graph
 from services.network.scratch import Scratch, scratch_pool
 from services.routing import algorithm1
 from services.routing.algorithm1 import KappaGraph, kappa_graph
@@ -163,11 +168,16 @@ def _settled(ws: heaps.Workspace) -> tuple[NDArray[np.int64], NDArray[np.int64]]
 
 
 def time_trees(
-    graph: RoadGraph, scratch: Scratch, src: NDArray[np.int64], reach_us: int, repeats: int
+    graph: RoadGraph,
+    ws: heaps.Workspace,
+    src: NDArray[np.int64],
+    reach_us: int,
+    repeats: int,
+    limits: tuple[str, ...] = ("bounded", "whole"),
 ) -> dict[str, Any]:
     """Item 2: per source, the forward tree under the travel time bounded by ``reach_us`` and the whole
     tree: nodes settled and the best time of ``repeats``."""
-    fg, ed, costs, ws = graph.forward, graph.edges, graph.time_forward, scratch.forward
+    fg, ed, costs = graph.forward, graph.edges, graph.time_forward
     none = np.zeros(0, dtype=np.int64)
     out: dict[str, list[float]] = {
         "bounded_ms": [],
@@ -176,13 +186,35 @@ def time_trees(
         "whole_settled": [],
     }
     for limit, name in ((reach_us, "bounded"), (INF, "whole")):
+        if name not in limits:
+            continue
         dijkstra.run(fg, ed, costs, int(src[0]), limit, none, ws)  # untimed: workspace and kernel warm
         for v in src.tolist():
             out[f"{name}_ms"].append(
                 best_of(partial(dijkstra.run, fg, ed, costs, v, limit, none, ws), repeats)
             )
             out[f"{name}_settled"].append(float(_settled(ws)[0].shape[0]))
-    return {k: summary(v) for k, v in out.items()} | {"raw": out}
+    return {k: summary(v) for k, v in out.items() if v} | {"raw": out}
+
+
+def node_order(city: City, src: NDArray[np.int64], reach_us: int, repeats: int, seed: int) -> dict[str, Any]:
+    """Item 9: the bounded trees of item 2 on ``city`` and on it shuffled, its kept nodes numbered along the
+    curve and in the network's order; per variant the median distance between a super-edge's ends in that
+    numbering and the trees' times."""
+    other, index = metro.shuffled(city, seed)
+    out: dict[str, Any] = {}
+    for name, c, s in (("generated", city, src), ("shuffled", other, index[src])):
+        for curve in (True, False):
+            graph = build_road_graph(c, along_curve=curve)
+            fg = graph.forward
+            trees = time_trees(graph, heaps.workspace(graph), s, reach_us, repeats, ("bounded",))
+            out[f"{name}_{'curve' if curve else 'nodes'}"] = {
+                "gap": float(np.median(np.abs(fg.se_tail - fg.se_head))),
+                "ms": trees["bounded_ms"],
+                "settled": trees["raw"]["bounded_settled"],
+            }
+            del graph, fg
+    return out
 
 
 def precomputed_metric(kt: KappaGraph, gn: Gains, kappa: float) -> Costs:
@@ -360,7 +392,7 @@ def measure(
             },
             "sizes": sizes(graph, kt),
         }
-        res["travel_time"] = time_trees(graph, scratch, src, reach_us, repeats)
+        res["travel_time"] = time_trees(graph, scratch.forward, src, reach_us, repeats)
         print("travel-time trees done", flush=True)
         res["kappa"] = kappa_trees(kt, kappas, scratch, gn, src, reach_us, repeats)
         print("kappa trees done", flush=True)
@@ -369,6 +401,8 @@ def measure(
         print("hierarchy done", flush=True)
     res["floor"] = floor_trees(city, src[:floor_n])
     print("floor trees done", flush=True)
+    res["node_order"] = node_order(city, src, reach_us, repeats, seed)
+    print("node orders done", flush=True)
     return res
 
 
@@ -422,6 +456,19 @@ def write_report(res: dict[str, Any], doc: Path = PERFORMANCE) -> Path:
             f"  {hy['lanes_mb']:.1f} MB. {hy['trips']} trips between nodes drawn uniformly over the network (a heavy epoch's",
             f"  riders; {hy['edges']:,} edges in all), one thread: {hy['through_s'] * 1000:.0f} ms through it,",
             f"  {hy['guided_s'] * 1000:.0f} ms goal-directed by the landmarks (`point_to_point.landmark_fastest_paths`); the same paths, checked.",
+        ]
+    order = res.get("node_order")
+    if order is not None:
+        gen, shf = (order[f"{k}_curve"] for k in ("generated", "shuffled"))
+        gen_n, shf_n = (order[f"{k}_nodes"] for k in ("generated", "shuffled"))
+        lines += [
+            "- The kept nodes' order (the bounded trees above, `graph.build_road_graph`): numbered along a Hilbert",
+            "  curve over their positions, as the service numbers them, a super-edge's ends lie a median",
+            f"  {gen['gap']:,.0f} kept nodes apart and a tree takes {_range(gen['ms'], '.2f')} ms; in the generator's order",
+            f"  of the network's nodes {gen_n['gap']:,.0f} apart, {_range(gen_n['ms'], '.2f')} ms. The same network with its",
+            "  nodes shuffled (an imported OpenStreetMap extract numbers them by when they were mapped): along the",
+            f"  curve {shf['gap']:,.0f} apart, {_range(shf['ms'], '.2f')} ms; in the shuffled order {shf_n['gap']:,.0f} apart,",
+            f"  {_range(shf_n['ms'], '.2f')} ms.",
         ]
     if lim is not None:
         lines += [

@@ -60,6 +60,7 @@ from services.citydata import EARTH_RADIUS_M, CityMeta, city_from_network, haver
 from services.network.network import build_network, largest_strongly_connected
 
 __all__ = [
+    "shuffled",
     "SEED",
     "SIDE_M",
     "centres",
@@ -964,3 +965,25 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def shuffled(city: City, seed: int) -> tuple[City, NDArray[np.int64]]:
+    """``city``'s network with its nodes in a random order (the same nodes, ids and edges), as a city; and
+    each node's index in it."""
+    net = city.network
+    order = np.random.default_rng(seed).permutation(net.n_nodes)
+    index = np.empty(net.n_nodes, dtype=np.int64)
+    index[order] = np.arange(net.n_nodes, dtype=np.int64)
+    ids = net.node_ids
+    speed_kmh = net.edge_length_m / net.edge_time_s * 3.6
+    out = build_network(
+        ids[order],
+        net.lon[order],
+        net.lat[order],
+        ids[net.edge_u],
+        ids[net.edge_v],
+        net.edge_length_m,
+        speed_kmh,
+    )
+    meta = CityMeta(name=f"{city.name}-shuffled", timezone=city.horizon.timezone, source=city.source)
+    return city_from_network(out, meta), index

@@ -74,3 +74,13 @@ def test_the_hierarchy_fits_its_room_and_its_trips_were_checked() -> None:
     assert hy["arcs"] is not None and 1.0 <= hy["arcs_per_edge"] <= 3.0
     assert hy["trips"] == bench_search.TRIPS and hy["edges"] > 0
     assert hy["through_s"] > 0 and hy["guided_s"] > 0 and hy["hierarchy_mb"] > 0
+
+
+def test_the_node_orders_search_the_same_trees() -> None:
+    """Item 9: the same network in four numberings settles the same nodes in every bounded tree; along the
+    curve a super-edge's ends lie closer than in a shuffled order."""
+    order = _measured()["node_order"]
+    assert set(order) == {"generated_curve", "generated_nodes", "shuffled_curve", "shuffled_nodes"}
+    assert len({tuple(v["settled"]) for v in order.values()}) == 1
+    assert order["shuffled_curve"]["gap"] < order["shuffled_nodes"]["gap"]
+    assert all(v["ms"]["n"] == 4 for v in order.values())
