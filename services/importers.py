@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.citydata import CityDataError, haversine_m
+from services.network.contraction import hilbert_key
 from services.network.network import Network, build_network, largest_strongly_connected
 
 __all__ = [
@@ -108,6 +109,11 @@ def _finish(
     loops = int((u_ids == v_ids).sum())
     if loops:
         notes.append(f"{loops} self-loops dropped")
+    # nodes numbered along a Hilbert curve, not in the file's order (an OpenStreetMap extract's is by
+    # when they were mapped): the arrays a search reads for nearby nodes and edges then lie together
+    if node_ids.shape == lon.shape == lat.shape and np.isfinite(lon).all() and np.isfinite(lat).all():
+        along = np.argsort(hilbert_key(lon, lat), kind="stable")  # else build_network says what is wrong
+        node_ids, lon, lat = node_ids[along], lon[along], lat[along]
     full = build_network(node_ids, lon, lat, u_ids, v_ids, length_m, speed_kmh, default_speed_kmh)
     parallel = int(u_ids.size) - loops - full.n_edges
     if parallel:

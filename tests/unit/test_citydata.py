@@ -12,6 +12,7 @@ import pytest
 
 from services.citydata import CityDataError, CityMeta, haversine_m, load_city, save_bundle, validate_city_name
 from services.importers import read_csv_network, read_node_link, read_osm
+from services.network.contraction import hilbert_key
 from services.network.network import Network
 
 # ---------------------------------------------------------------------------------------------- OSM
@@ -46,9 +47,13 @@ OSM = """<?xml version='1.0' encoding='UTF-8'?>
 """
 
 
-def _edges(net: Network) -> set[tuple[int, int]]:
+def _edge_list(net: Network) -> list[tuple[int, int]]:
     ids = net.node_ids
-    return {(int(ids[u]), int(ids[v])) for u, v in zip(net.edge_u, net.edge_v, strict=True)}
+    return [(int(ids[u]), int(ids[v])) for u, v in zip(net.edge_u, net.edge_v, strict=True)]
+
+
+def _edges(net: Network) -> set[tuple[int, int]]:
+    return set(_edge_list(net))
 
 
 def test_osm_directions_and_exclusions(tmp_path: Path) -> None:
@@ -59,13 +64,15 @@ def test_osm_directions_and_exclusions(tmp_path: Path) -> None:
     # 1<->2 two-way; 2->3 oneway; 102 reversed gives 3->4; roundabout 4->1 only; motorway oneway=no 4<->5;
     # 110 motorway implies oneway 5->4 (parallel to 104's 5->4, same length: one kept)
     assert _edges(net) == {(1, 2), (2, 1), (2, 3), (3, 4), (4, 1), (4, 5), (5, 4)}
-    assert net.node_ids.tolist() == [1, 2, 3, 4, 5]
+    assert sorted(net.node_ids.tolist()) == [1, 2, 3, 4, 5]
     assert result.nodes_dropped == 0 and result.nodes_read == 5
+    # numbered along a Hilbert curve over their positions, not by id
+    assert (np.diff(hilbert_key(net.lon, net.lat)) >= 0).all()
     # only 110's 5->4 duplicates an edge: a two-way 110 would duplicate 4->5 as well
     assert "1 parallel edges dropped (kept the shortest)" in result.notes
     assert any("node missing" in n for n in result.notes)
     # haversine length of 0.001 degree of longitude at 30 N
-    e12 = net.edge_ids([0, 1])[0]
+    e12 = net.edge_ids([net.index_of(1), net.index_of(2)])[0]
     assert net.edge_length_m[e12] == pytest.approx(float(haversine_m(104.0, 30.0, 104.001, 30.0)))
     assert net.edge_length_m[e12] == pytest.approx(96.3, abs=0.5)
     np.testing.assert_allclose(net.edge_time_s, net.edge_length_m / (35 / 3.6))
@@ -115,11 +122,12 @@ def _csv(tmp_path: Path, nodes: str = NODES, edges: str = EDGES) -> tuple[Path, 
 def test_csv_import_reports_dropped_nodes(tmp_path: Path) -> None:
     result = read_csv_network(*_csv(tmp_path))
     net = result.network
-    assert net.node_ids.tolist() == [1, 2, 3]
+    assert sorted(net.node_ids.tolist()) == [1, 2, 3]
     assert result.nodes_dropped == 1 and result.edges_dropped == 1
     assert "dropped 1 nodes" in result.summary()
     # 100 m at 36 km/h = 10 s; blank speed -> 35 km/h; 150 m at 72 km/h = 7.5 s
-    assert net.edge_time_s.tolist() == pytest.approx([10.0, 110 / (35 / 3.6), 7.5])
+    time_s = dict(zip(_edge_list(net), net.edge_time_s.tolist(), strict=True))
+    assert time_s == pytest.approx({(1, 2): 10.0, (2, 3): 110 / (35 / 3.6), (3, 1): 7.5})
 
 
 def test_csv_columns_in_any_order_without_speed(tmp_path: Path) -> None:
