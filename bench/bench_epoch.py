@@ -63,7 +63,7 @@ from scipy.optimize import linear_sum_assignment
 from bench import metro
 from bench.baseline import Baseline, as_the_server
 from bench.load import Centres, CentresDemand, Demand, Load, Platform, RecordedDemand, SpreadDemand
-from bench.report import ROOT, stamp, write_section
+from bench.report import ROOT, machine, stamp, write_section
 from bench.rss import TreePeak
 from services.city import City
 from services.citydata import CityMeta, city_from_network, haversine_m, save_bundle
@@ -666,6 +666,7 @@ def measure(
     r = run_inprocess(sc, n, baseline)
     res: dict[str, Any] = {
         "scenario": asdict(sc),
+        "machine": machine(),
         "city_size": r["city_size"],
         "workers": r["workers"],
         "inprocess": summary(r["latency"]),
@@ -923,11 +924,26 @@ def _rss_facts(name: str, r: dict[str, Any], t: dict[str, float]) -> list[str]:
     return facts
 
 
+def _machines(results: dict[str, dict[str, Any]]) -> tuple[str | None, list[str]]:
+    """The machine most of ``results`` were measured on (None: not recorded) and a line for each scenario
+    measured on another one (a scenario rerun alone and merged with ``--report-only``)."""
+    where = [r.get("machine") for r in results.values()]
+    common = max(set(where), key=where.count) if where else None
+    other = [
+        f"{name} was measured on another machine: {r['machine']}."
+        for name, r in results.items()
+        if r.get("machine") not in (None, common)
+    ]
+    return common, other
+
+
 def write_report(results: dict[str, dict[str, Any]]) -> None:
+    common, other = _machines(results)
     lines = [
         "## Epoch latency",
         "",
-        stamp("python -m bench.bench_epoch"),
+        stamp("python -m bench.bench_epoch", common),
+        *(["", *other] if other else []),
         "",
         "The load (`bench/bench_epoch.py` `SCENARIOS`, `bench/load.py`): taxis continue from where their",
         "committed paths took them; riders wait until matched or their patience (600 s) runs out, and new",

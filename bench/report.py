@@ -52,9 +52,10 @@ def machine() -> str:
     )
 
 
-def stamp(command: str) -> str:
-    """The 'measured when, how, where' line that opens every section."""
-    return f"Measured {dt.date.today().isoformat()} with `{command}`. Machine: {machine()}."
+def stamp(command: str, where: str | None = None) -> str:
+    """The 'measured when, how, where' line that opens every section (``where``: the machine the numbers
+    were measured on, when not this one)."""
+    return f"Measured {dt.date.today().isoformat()} with `{command}`. Machine: {where or machine()}."
 
 
 def write_section(name: str, markdown: str, path: Path = PERFORMANCE) -> Path:

@@ -53,3 +53,13 @@ def test_the_first_section_starts_a_new_document(tmp_path: Path) -> None:
     assert text.startswith("# Performance\n") and text.endswith(
         "<!-- bench:dro -->\n## DRO\nnumbers\n<!-- /bench:dro -->\n"
     )
+
+
+def test_the_epoch_report_names_the_machine_most_scenarios_ran_on_and_the_others() -> None:
+    from bench.bench_epoch import _machines
+
+    results = {"a": {"machine": "X"}, "b": {"machine": "Y"}, "c": {"machine": "X"}, "d": {}}
+    common, other = _machines(results)
+    assert common == "X"
+    assert other == ["b was measured on another machine: Y."]
+    assert _machines({"a": {}}) == (None, [])
