@@ -944,6 +944,28 @@ def describe(city: City) -> dict[str, float]:
     return out
 
 
+def shuffled(city: City, seed: int) -> tuple[City, NDArray[np.int64]]:
+    """``city``'s network with its nodes in a random order (the same nodes, ids and edges), as a city; and
+    each node's index in it."""
+    net = city.network
+    order = np.random.default_rng(seed).permutation(net.n_nodes)
+    index = np.empty(net.n_nodes, dtype=np.int64)
+    index[order] = np.arange(net.n_nodes, dtype=np.int64)
+    ids = net.node_ids
+    speed_kmh = net.edge_length_m / net.edge_time_s * 3.6
+    out = build_network(
+        ids[order],
+        net.lon[order],
+        net.lat[order],
+        ids[net.edge_u],
+        ids[net.edge_v],
+        net.edge_length_m,
+        speed_kmh,
+    )
+    meta = CityMeta(name=f"{city.name}-shuffled", timezone=city.horizon.timezone, source=city.source)
+    return city_from_network(out, meta), index
+
+
 def main(argv: list[str] | None = None) -> int:
     """Build the city, print its counts and the build time."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
@@ -965,25 +987,3 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
-
-
-def shuffled(city: City, seed: int) -> tuple[City, NDArray[np.int64]]:
-    """``city``'s network with its nodes in a random order (the same nodes, ids and edges), as a city; and
-    each node's index in it."""
-    net = city.network
-    order = np.random.default_rng(seed).permutation(net.n_nodes)
-    index = np.empty(net.n_nodes, dtype=np.int64)
-    index[order] = np.arange(net.n_nodes, dtype=np.int64)
-    ids = net.node_ids
-    speed_kmh = net.edge_length_m / net.edge_time_s * 3.6
-    out = build_network(
-        ids[order],
-        net.lon[order],
-        net.lat[order],
-        ids[net.edge_u],
-        ids[net.edge_v],
-        net.edge_length_m,
-        speed_kmh,
-    )
-    meta = CityMeta(name=f"{city.name}-shuffled", timezone=city.horizon.timezone, source=city.source)
-    return city_from_network(out, meta), index
