@@ -17,28 +17,29 @@ is merely redundant), and the query returns the least label over all paths. The 
 canonical path's, so the unpacked path is exactly the path ``dijkstra.run`` finds (two different paths
 with the same cost and both tie sums equal would need two 47-bit sums to collide at once).
 
-Built once per graph (``hierarchy``; the construction is ``services.network.shortcuts``), in a few seconds
-on a metropolitan network; queries share nothing but the read-only hierarchy and run on several threads,
-each in its own :class:`Lanes`.
+Built once per graph (``hierarchy``; the construction is ``services.network.shortcuts``), in 15-20 seconds
+on a metropolitan network, and kept on disk for the next process (``services.network.stored``); queries
+share nothing but the read-only hierarchy and run on several threads, each in its own :class:`Lanes`.
 """
 
 from __future__ import annotations
 
 import threading
 import weakref
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from services.kernel.jit import compiled, compiled_inline
-from services.network import point_to_point, unfolding
+from services.network import point_to_point, stored, unfolding
 from services.network.graph import INF, RoadGraph
 from services.network.heaps import _less
 from services.network.scratch import Scratch
 from services.network.shortcuts import Hierarchy, _pop, _sift_up, build
 
-__all__ = ["Hierarchy", "Lanes", "hierarchy", "lanes", "ch_paths", "fastest_paths"]
+__all__ = ["Hierarchy", "Lanes", "hierarchy", "stored_or_built", "lanes", "ch_paths", "fastest_paths"]
 
 
 class Lanes(NamedTuple):
@@ -81,12 +82,55 @@ _built_lock = threading.Lock()
 
 def hierarchy(graph: RoadGraph) -> Hierarchy | None:
     """The hierarchy of ``graph`` under the travel time (None: the network needs too many shortcuts),
-    built once per graph and kept with it."""
+    built once per graph and kept with it, and on disk (``stored``) for the next process."""
     with _built_lock:
         if graph not in _built:
             ed = graph.edges
-            _built[graph] = build(graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
+            _built[graph] = stored_or_built(graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
         return _built[graph]
+
+
+_WIDE = ("arc_c", "arc_a", "arc_b", "up_ptr", "dn_ptr")  # int64; every other array of a Hierarchy is int32
+
+
+def _as_hierarchy(arrays: dict[str, NDArray[np.generic]], n: int) -> Hierarchy | None:
+    """The stored arrays as a ``Hierarchy`` of an ``n``-node network, or None when they are not one."""
+    if set(arrays) != set(Hierarchy._fields):
+        return None
+    for name, a in arrays.items():
+        if a.ndim != 1 or a.dtype != (np.int64 if name in _WIDE else np.int32):
+            return None
+    if (
+        arrays["rank"].shape[0] != n
+        or arrays["up_ptr"].shape[0] != n + 1
+        or arrays["dn_ptr"].shape[0] != n + 1
+    ):
+        return None
+    return Hierarchy(**arrays)  # type: ignore[arg-type]
+
+
+def stored_or_built(
+    n: int,
+    tail: NDArray[np.int64],
+    head: NDArray[np.int64],
+    cost: NDArray[np.int64],
+    tie1: NDArray[np.int64],
+    tie2: NDArray[np.int64],
+    root: Path | None = None,
+) -> Hierarchy | None:
+    """``shortcuts.build``'s hierarchy of these edges, read from ``stored`` (under ``root``, else its
+    directory) when it was built before, else built and stored."""
+    key = stored.digest(n, tail, head, cost, tie1, tie2)
+    got = stored.load("hierarchy", key, root)
+    if got is not None:
+        if set(got) == {"none"}:
+            return None
+        h = _as_hierarchy(got, n)
+        if h is not None:
+            return h
+    h = build(n, tail, head, cost, tie1, tie2)
+    stored.save("hierarchy", key, {"none": np.zeros(0)} if h is None else dict(h._asdict()), root)
+    return h
 
 
 # ---------------------------------------------------------------------------------------------------------

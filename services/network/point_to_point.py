@@ -13,6 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from numpy.typing import NDArray
 
+from services.network import stored
 from services.network.dijkstra import run
 from services.network.graph import (
     INF,
@@ -126,8 +127,24 @@ def _picked(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np
     with _landmarks_lock:
         got = _landmarks.get(graph)
         if got is None or got[1].shape[0] != count:
-            got = _landmarks[graph] = _landmark_table(graph, count)
+            got = _landmarks[graph] = _stored_landmarks(graph, count)
         return got
+
+
+def _stored_landmarks(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """``_landmark_table`` read from ``stored`` when it was built before for the same network, else built
+    and stored."""
+    ed = graph.edges
+    key = stored.digest(graph.n_nodes, count, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
+    got = stored.load("landmarks", key)
+    n = graph.n_nodes
+    if got is not None and set(got) == {"table", "picked"}:
+        table, picked = got["table"], got["picked"]
+        if table.dtype == np.int64 and table.shape == (n, 2 * count) and picked.shape == (count,):
+            return np.asarray(table, dtype=np.int64), picked.astype(np.int64)
+    table, picked = _landmark_table(graph, count)
+    stored.save("landmarks", key, {"table": table, "picked": picked})
+    return table, picked
 
 
 def _costs_to_or_from(graph: RoadGraph, costs: Costs, v: int, back: bool, ws: Workspace) -> NDArray[np.int64]:
@@ -169,9 +186,15 @@ def landmark_table(
     graph: RoadGraph, at: NDArray[np.int64], forward: Costs, reverse: Costs, workers: int
 ) -> NDArray[np.int64]:
     """``landmarks``' table for the landmarks ``at`` under the metric prepared as ``forward`` and
-    ``reverse`` (its ``_bound`` is then a lower bound on that metric, and on any metric no cheaper on any
-    edge), its searches on ``workers`` threads of their own. Not kept: the caller keeps it."""
+        ``reverse`` (its ``_bound`` is then a lower bound on that metric, and on any metric no cheaper on any
+        edge), its searches on ``workers`` threads of their own; read from ``stored`` when it was built before
+    for the same network and metric (the caller keeps it in memory)."""
     n, count = graph.n_nodes, at.shape[0]
+    ed = graph.edges
+    key = stored.digest(n, ed.tail, ed.head, ed.tie1, ed.tie2, at, forward.edge, reverse.edge)
+    got = stored.load("landmark-table", key) or {}
+    if set(got) == {"table"} and got["table"].shape == (n, 2 * count) and got["table"].dtype == np.int64:
+        return np.asarray(got["table"], dtype=np.int64)
     table = np.full((n, 2 * count), INF, dtype=np.int64)
 
     def column(j: int) -> None:
@@ -181,6 +204,7 @@ def landmark_table(
 
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         list(pool.map(column, range(2 * count)))
+    stored.save("landmark-table", key, {"table": table})
     return table
 
 

@@ -129,3 +129,88 @@ def test_every_trip_on_the_metropolis_is_the_searched_path():
         assert a.tolist() == b.tolist()
     cost = [int(graph.edges.time_us[p].sum()) for p in got]
     assert max(cost) < INF and min(cost) >= 0
+
+
+# ---------------------------------------------------------------- kept on disk
+
+
+def test_a_stored_hierarchy_is_read_back_as_built(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    graph = road_graph(grid_city(9, 100.0))
+    ed = graph.edges
+    args = (graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
+    built = hierarchy.stored_or_built(*args, root=tmp_path)
+    assert built is not None and len(list(tmp_path.glob("hierarchy-*.npz"))) == 1
+
+    def no_build(*_: object) -> None:
+        raise AssertionError("built again")
+
+    monkeypatch.setattr(hierarchy, "build", no_build)
+    again = hierarchy.stored_or_built(*args, root=tmp_path)
+    assert again is not None
+    for name in shortcuts.Hierarchy._fields:
+        a, b = getattr(built, name), getattr(again, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+    # other costs: another key, so built (and the stub says so)
+    with pytest.raises(AssertionError, match="built again"):
+        hierarchy.stored_or_built(
+            graph.n_nodes, ed.tail, ed.head, ed.time_us + 1, ed.tie1, ed.tie2, root=tmp_path
+        )
+
+
+@pytest.mark.parametrize("damage", ["truncated", "wrong arrays", "wrong dtype"])
+def test_a_damaged_stored_hierarchy_is_built_again(tmp_path: Path, damage: str) -> None:
+    graph = road_graph(grid_city(7, 100.0))
+    ed = graph.edges
+    args = (graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
+    built = hierarchy.stored_or_built(*args, root=tmp_path)
+    assert built is not None
+    (path,) = tmp_path.glob("hierarchy-*.npz")
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[:100])
+    elif damage == "wrong arrays":
+        np.savez(path, rank=built.rank)
+    else:
+        np.savez(path, **{k: v.astype(np.int64) for k, v in built._asdict().items()})
+    again = hierarchy.stored_or_built(*args, root=tmp_path)
+    assert again is not None and np.array_equal(again.arc_edge, built.arc_edge)
+    assert again.rank.dtype == np.int32
+
+
+def test_nowhere_to_store_builds_every_time(tmp_path: Path) -> None:
+    graph = road_graph(grid_city(5, 100.0))
+    ed = graph.edges
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a directory")
+    h = hierarchy.stored_or_built(graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2, root=blocked)
+    assert h is not None and h.rank.shape == (graph.n_nodes,)
+
+
+def test_a_new_graph_of_the_same_network_reads_the_stored_landmarks(monkeypatch: pytest.MonkeyPatch) -> None:
+    city = grid_city(8, 100.0)
+    first = point_to_point.landmarks(road_graph(city))
+    from services.network.graph import build_road_graph
+
+    def no_table(*_: object) -> None:
+        raise AssertionError("built again")
+
+    monkeypatch.setattr(point_to_point, "_landmark_table", no_table)
+    again = point_to_point.landmarks(build_road_graph(city))  # a new graph object: not in memory
+    assert np.array_equal(first, again)
+
+
+def test_a_landmark_table_under_another_metric_is_read_back(monkeypatch: pytest.MonkeyPatch) -> None:
+    graph = road_graph(grid_city(6, 100.0))
+    at = point_to_point.landmark_nodes(graph)
+    metric = graph.edges.time_us // 2 + 1
+    from services.network.graph import prepare
+
+    fwd, rev = prepare(graph.forward, metric), prepare(graph.reverse, metric)
+    first = point_to_point.landmark_table(graph, at, fwd, rev, 1)
+
+    def no_search(*_: object) -> None:
+        raise AssertionError("searched again")
+
+    monkeypatch.setattr(point_to_point, "_costs_to_or_from", no_search)
+    assert np.array_equal(point_to_point.landmark_table(graph, at, fwd, rev, 1), first)
+    with pytest.raises(AssertionError, match="searched again"):  # another metric: another key
+        point_to_point.landmark_table(graph, at, prepare(graph.forward, metric + 1), rev, 1)
