@@ -314,14 +314,12 @@ def floor_trees(city: City, src: NDArray[np.int64]) -> dict[str, Any]:
 def trips(graph: RoadGraph, scratch: Scratch, n: int, seed: int) -> dict[str, Any]:
     """Item 8: the hierarchy's build (and write) into an empty store and its read back from it, size and
     memory, and ``n`` trips through it and goal-directed (the same paths, checked)."""
-    ed = graph.edges
-    args = (graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
     with tempfile.TemporaryDirectory() as store:
         started = time.perf_counter()
-        hierarchy.stored_or_built(*args, root=Path(store))
+        hierarchy.stored_or_built(graph, root=Path(store))
         build_s = time.perf_counter() - started
         started = time.perf_counter()
-        hierarchy.stored_or_built(*args, root=Path(store))
+        hierarchy.stored_or_built(graph, root=Path(store))
         read_s = time.perf_counter() - started
     h = hierarchy.hierarchy(graph)  # the service's own, as an epoch gets it
     if h is None:

@@ -85,52 +85,33 @@ def hierarchy(graph: RoadGraph) -> Hierarchy | None:
     built once per graph and kept with it, and on disk (``stored``) for the next process."""
     with _built_lock:
         if graph not in _built:
-            ed = graph.edges
-            _built[graph] = stored_or_built(graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
+            _built[graph] = stored_or_built(graph)
         return _built[graph]
 
 
-_WIDE = ("arc_c", "arc_a", "arc_b", "up_ptr", "dn_ptr")  # int64; every other array of a Hierarchy is int32
+def _spec(n: int) -> dict[str, tuple[type, tuple[int | None, ...]]]:
+    """The arrays of a stored ``Hierarchy`` of an ``n``-node network: their dtypes and shapes."""
+    wide = ("arc_c", "arc_a", "arc_b", "up_ptr", "dn_ptr")  # int64; every other array is int32
+    sizes = {"rank": n, "up_ptr": n + 1, "dn_ptr": n + 1}
+    return {f: (np.int64 if f in wide else np.int32, (sizes.get(f),)) for f in Hierarchy._fields}
 
 
-def _as_hierarchy(arrays: dict[str, NDArray[np.generic]], n: int) -> Hierarchy | None:
-    """The stored arrays as a ``Hierarchy`` of an ``n``-node network, or None when they are not one."""
-    if set(arrays) != set(Hierarchy._fields):
-        return None
-    for name, a in arrays.items():
-        if a.ndim != 1 or a.dtype != (np.int64 if name in _WIDE else np.int32):
-            return None
-    if (
-        arrays["rank"].shape[0] != n
-        or arrays["up_ptr"].shape[0] != n + 1
-        or arrays["dn_ptr"].shape[0] != n + 1
-    ):
-        return None
-    return Hierarchy(**arrays)  # type: ignore[arg-type]
+def stored_or_built(graph: RoadGraph, root: Path | None = None) -> Hierarchy | None:
+    """``shortcuts.build``'s hierarchy of ``graph``, read back from ``stored`` (under ``root``, else its
+    directory) when it was built before for the same edges, else built and stored."""
+    ed = graph.edges
+    edges = (graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
+    none: dict[str, tuple[type, tuple[int | None, ...]]] = {"none": (np.float64, (0,))}
 
+    def built() -> stored.Arrays:
+        h = build(*edges)
+        return {"none": np.zeros(0)} if h is None else dict(h._asdict())
 
-def stored_or_built(
-    n: int,
-    tail: NDArray[np.int64],
-    head: NDArray[np.int64],
-    cost: NDArray[np.int64],
-    tie1: NDArray[np.int64],
-    tie2: NDArray[np.int64],
-    root: Path | None = None,
-) -> Hierarchy | None:
-    """``shortcuts.build``'s hierarchy of these edges, read from ``stored`` (under ``root``, else its
-    directory) when it was built before, else built and stored."""
-    key = stored.digest(n, tail, head, cost, tie1, tie2)
-    got = stored.load("hierarchy", key, root)
-    if got is not None:
-        if set(got) == {"none"}:
-            return None
-        h = _as_hierarchy(got, n)
-        if h is not None:
-            return h
-    h = build(n, tail, head, cost, tie1, tie2)
-    stored.save("hierarchy", key, {"none": np.zeros(0)} if h is None else dict(h._asdict()), root)
-    return h
+    def fits(arrays: stored.Arrays) -> bool:
+        return stored.shaped(arrays, none) or stored.shaped(arrays, _spec(graph.n_nodes))
+
+    got = stored.kept("hierarchy", edges, built, fits, root)
+    return None if "none" in got else Hierarchy(**got)  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------------------------------------------------

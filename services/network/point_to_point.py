@@ -132,19 +132,19 @@ def _picked(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np
 
 
 def _stored_landmarks(graph: RoadGraph, count: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """``_landmark_table`` read from ``stored`` when it was built before for the same network, else built
-    and stored."""
-    ed = graph.edges
-    key = stored.digest(graph.n_nodes, count, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
-    got = stored.load("landmarks", key)
-    n = graph.n_nodes
-    if got is not None and set(got) == {"table", "picked"}:
-        table, picked = got["table"], got["picked"]
-        if table.dtype == np.int64 and table.shape == (n, 2 * count) and picked.shape == (count,):
-            return np.asarray(table, dtype=np.int64), picked.astype(np.int64)
-    table, picked = _landmark_table(graph, count)
-    stored.save("landmarks", key, {"table": table, "picked": picked})
-    return table, picked
+    """``_landmark_table`` read back from ``stored`` when it was built before for the same network, else
+    built and stored."""
+    ed, n = graph.edges, graph.n_nodes
+
+    def built() -> stored.Arrays:
+        table, picked = _landmark_table(graph, count)
+        return {"table": table, "picked": picked}
+
+    def fits(arrays: stored.Arrays) -> bool:
+        return stored.shaped(arrays, {"table": (np.int64, (n, 2 * count)), "picked": (np.int64, (count,))})
+
+    got = stored.kept("landmarks", (n, count, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2), built, fits)
+    return np.asarray(got["table"], dtype=np.int64), np.asarray(got["picked"], dtype=np.int64)
 
 
 def _costs_to_or_from(graph: RoadGraph, costs: Costs, v: int, back: bool, ws: Workspace) -> NDArray[np.int64]:
@@ -186,15 +186,26 @@ def landmark_table(
     graph: RoadGraph, at: NDArray[np.int64], forward: Costs, reverse: Costs, workers: int
 ) -> NDArray[np.int64]:
     """``landmarks``' table for the landmarks ``at`` under the metric prepared as ``forward`` and
-        ``reverse`` (its ``_bound`` is then a lower bound on that metric, and on any metric no cheaper on any
-        edge), its searches on ``workers`` threads of their own; read from ``stored`` when it was built before
-    for the same network and metric (the caller keeps it in memory)."""
+    ``reverse`` (its ``_bound`` is then a lower bound on that metric, and on any metric no cheaper on any
+    edge), its searches on ``workers`` threads of their own; read back from ``stored`` when it was built
+    before for the same network and metric (the caller keeps it in memory)."""
+    n, count, ed = graph.n_nodes, at.shape[0], graph.edges
+
+    def fits(arrays: stored.Arrays) -> bool:
+        return stored.shaped(arrays, {"table": (np.int64, (n, 2 * count))})
+
+    parts = (n, ed.tail, ed.head, ed.tie1, ed.tie2, at, forward.edge, reverse.edge)
+    got = stored.kept(
+        "landmark-table", parts, lambda: {"table": _table(graph, at, forward, reverse, workers)}, fits
+    )
+    return np.asarray(got["table"], dtype=np.int64)
+
+
+def _table(
+    graph: RoadGraph, at: NDArray[np.int64], forward: Costs, reverse: Costs, workers: int
+) -> NDArray[np.int64]:
+    """``landmark_table`` searched."""
     n, count = graph.n_nodes, at.shape[0]
-    ed = graph.edges
-    key = stored.digest(n, ed.tail, ed.head, ed.tie1, ed.tie2, at, forward.edge, reverse.edge)
-    got = stored.load("landmark-table", key) or {}
-    if set(got) == {"table"} and got["table"].shape == (n, 2 * count) and got["table"].dtype == np.int64:
-        return np.asarray(got["table"], dtype=np.int64)
     table = np.full((n, 2 * count), INF, dtype=np.int64)
 
     def column(j: int) -> None:
@@ -204,7 +215,6 @@ def landmark_table(
 
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         list(pool.map(column, range(2 * count)))
-    stored.save("landmark-table", key, {"table": table})
     return table
 
 

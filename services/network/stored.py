@@ -1,6 +1,6 @@
 """Structures built once per network (the contraction hierarchy, the landmark table) kept on disk, so that a
 restart reads them instead of building them again (on a metropolitan network the hierarchy takes 15-20 s
-to build and a tenth of a second to read).
+to build and a fraction of a second to read).
 
 A structure is stored under a key made of its kind and a digest of everything it is built from (the
 network's arrays, and its parameters), in a directory beside the compiled kernels (``kernel.jit``'s cache
@@ -18,13 +18,16 @@ import logging
 import os
 import threading
 import zipfile
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["digest", "load", "save", "directory"]
+__all__ = ["kept", "shaped", "directory"]
+
+Arrays = dict[str, NDArray[np.generic]]
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +55,7 @@ def _path(kind: str, key: str, root: Path | None) -> Path:
     return (root or directory()) / f"{kind}-{key}.npz"
 
 
-def load(kind: str, key: str, root: Path | None = None) -> dict[str, NDArray[np.generic]] | None:
+def load(kind: str, key: str, root: Path | None = None) -> Arrays | None:
     """The arrays stored as ``kind`` under ``key`` (None: none stored, or the file cannot be read)."""
     path = _path(kind, key, root)
     try:
@@ -65,7 +68,7 @@ def load(kind: str, key: str, root: Path | None = None) -> dict[str, NDArray[np.
         return None
 
 
-def save(kind: str, key: str, arrays: dict[str, NDArray[np.generic]], root: Path | None = None) -> bool:
+def save(kind: str, key: str, arrays: Arrays, root: Path | None = None) -> bool:
     """Store ``arrays`` as ``kind`` under ``key``; False when it cannot be written (nothing changes)."""
     path = _path(kind, key, root)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
@@ -80,3 +83,36 @@ def save(kind: str, key: str, arrays: dict[str, NDArray[np.generic]], root: Path
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         return False
+
+
+def shaped(arrays: Arrays, spec: Mapping[str, tuple[type, tuple[int | None, ...]]]) -> bool:
+    """Whether ``arrays`` holds exactly the arrays ``spec`` names, each of its dtype and shape (a None
+    dimension: any length)."""
+    if set(arrays) != set(spec):
+        return False
+    for name, (dtype, shape) in spec.items():
+        a = arrays[name]
+        if a.dtype != dtype or len(a.shape) != len(shape):
+            return False
+        if any(want is not None and got != want for got, want in zip(a.shape, shape, strict=True)):
+            return False
+    return True
+
+
+def kept(
+    kind: str,
+    parts: tuple[NDArray[np.generic] | int | str, ...],
+    build: Callable[[], Arrays],
+    fits: Callable[[Arrays], bool],
+    root: Path | None = None,
+) -> Arrays:
+    """The arrays of ``kind`` built from ``parts`` (everything they depend on): read back when they were
+    stored before (under ``root``, else ``directory()``) and ``fits`` them, else ``build()``, stored, and
+    returned."""
+    key = digest(*parts)
+    got = load(kind, key, root)
+    if got is not None and fits(got):
+        return got
+    arrays = build()
+    save(kind, key, arrays, root)
+    return arrays

@@ -136,33 +136,27 @@ def test_every_trip_on_the_metropolis_is_the_searched_path():
 
 def test_a_stored_hierarchy_is_read_back_as_built(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     graph = road_graph(grid_city(9, 100.0))
-    ed = graph.edges
-    args = (graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
-    built = hierarchy.stored_or_built(*args, root=tmp_path)
+    built = hierarchy.stored_or_built(graph, root=tmp_path)
     assert built is not None and len(list(tmp_path.glob("hierarchy-*.npz"))) == 1
 
     def no_build(*_: object) -> None:
         raise AssertionError("built again")
 
     monkeypatch.setattr(hierarchy, "build", no_build)
-    again = hierarchy.stored_or_built(*args, root=tmp_path)
+    again = hierarchy.stored_or_built(graph, root=tmp_path)
     assert again is not None
     for name in shortcuts.Hierarchy._fields:
         a, b = getattr(built, name), getattr(again, name)
         assert a.dtype == b.dtype and np.array_equal(a, b), name
-    # other costs: another key, so built (and the stub says so)
+    # the same streets with other travel times: another key, so built (and the stub says so)
     with pytest.raises(AssertionError, match="built again"):
-        hierarchy.stored_or_built(
-            graph.n_nodes, ed.tail, ed.head, ed.time_us + 1, ed.tie1, ed.tie2, root=tmp_path
-        )
+        hierarchy.stored_or_built(road_graph(grid_city(9, 120.0)), root=tmp_path)
 
 
 @pytest.mark.parametrize("damage", ["truncated", "wrong arrays", "wrong dtype"])
 def test_a_damaged_stored_hierarchy_is_built_again(tmp_path: Path, damage: str) -> None:
     graph = road_graph(grid_city(7, 100.0))
-    ed = graph.edges
-    args = (graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
-    built = hierarchy.stored_or_built(*args, root=tmp_path)
+    built = hierarchy.stored_or_built(graph, root=tmp_path)
     assert built is not None
     (path,) = tmp_path.glob("hierarchy-*.npz")
     if damage == "truncated":
@@ -171,17 +165,16 @@ def test_a_damaged_stored_hierarchy_is_built_again(tmp_path: Path, damage: str) 
         np.savez(path, rank=built.rank)
     else:
         np.savez(path, **{k: v.astype(np.int64) for k, v in built._asdict().items()})
-    again = hierarchy.stored_or_built(*args, root=tmp_path)
+    again = hierarchy.stored_or_built(graph, root=tmp_path)
     assert again is not None and np.array_equal(again.arc_edge, built.arc_edge)
     assert again.rank.dtype == np.int32
 
 
 def test_nowhere_to_store_builds_every_time(tmp_path: Path) -> None:
     graph = road_graph(grid_city(5, 100.0))
-    ed = graph.edges
     blocked = tmp_path / "a-file"
     blocked.write_text("not a directory")
-    h = hierarchy.stored_or_built(graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2, root=blocked)
+    h = hierarchy.stored_or_built(graph, root=blocked)
     assert h is not None and h.rank.shape == (graph.n_nodes,)
 
 
