@@ -64,15 +64,8 @@ def post_epoch(
     limits: LimitsDep,
 ) -> Response:
     """Match riders (Steps 1-2), route idle instrumented taxis to POIs (Step 3), commit exactly once."""
-    # the epoch's whole CPU path (parsing, resolving its nodes, the solve, the commit, the response document)
-    # holds the foreground: the embedded worker's runs stay stopped throughout (docs/FLEET.md)
-    with epochs.foreground():
-        return _post_epoch(city, raw, catalog, epochs, metrics, limits)
-
-
-def _post_epoch(
-    city: str, raw: RawBody, catalog: CitiesDep, epochs: EpochsDep, metrics: MetricsDep, limits: LimitsDep
-) -> Response:
+    # the whole exchange, body to response, holds the foreground (app.api.foreground): the embedded
+    # worker's runs stay stopped throughout (docs/FLEET.md)
     epoch = epoch_post(raw, limits)  # on this threadpool thread, before anything is counted
     started = time.perf_counter()
     try:

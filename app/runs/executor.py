@@ -304,8 +304,9 @@ class ProcessExecutor:
 class Foreground:
     """Epochs come first: while any epoch is being solved, the background runs of the processes added here
     are paused (the first epoch to start pauses them, the last to end resumes them; holds nest). The service
-    that embeds the fleet worker holds it around every epoch's whole request (parsing to response), so the
-    worker's simulations use the CPU only between epochs (docs/FLEET.md, "When the worker solves")."""
+    that embeds the fleet worker holds it around every epoch post's whole exchange (headers to response,
+    ``app.api.foreground``), so the worker's simulations use the CPU only between epochs (docs/FLEET.md,
+    "When the worker solves")."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()

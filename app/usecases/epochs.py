@@ -174,8 +174,9 @@ class EpochService:
         clock: Callable[[], float] = time.time,
         foreground: Callable[[], AbstractContextManager[None]] = nullcontext,
     ) -> None:
-        """``foreground``: what an epoch's request holds from its parsing to its response (the embedded fleet
-        worker's runs stay stopped meanwhile); the API enters it, around ``submit_epoch`` and the rest."""
+        """``foreground``: what an epoch's request holds from its headers to its response (the embedded fleet
+        worker's runs stay stopped meanwhile); the API enters it for the whole exchange
+        (``app.api.foreground``)."""
         self.cities = cities
         self.store = store
         self.decide = decide
