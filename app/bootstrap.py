@@ -29,6 +29,7 @@ from app.adapters.bounded import BoundedStore
 from app.adapters.city_registry import CityRegistry
 from app.api import admin, cities, dashboard, dro, epochs, fleet, ops, writes
 from app.api.bodies import openapi_components
+from app.api.deps import token_scopes
 from app.api.foreground import EpochForeground
 from app.api.handlers import error_response, install_error_handlers
 from app.api.inputs import Limits
@@ -187,8 +188,12 @@ def create_app(
         timeout_s=settings.server.body_timeout_s,
         render=render,
     )
-    # outermost: an epoch post holds the foreground from its headers on, its body's arrival included
-    app.add_middleware(EpochForeground, hold=lambda: use_cases.epochs.foreground())
+    # outermost: an epoch post that may dispatch holds the foreground from its headers on, body included
+    app.add_middleware(
+        EpochForeground,
+        hold=lambda: use_cases.epochs.foreground(),
+        dispatches=lambda token: "dispatch" in (token_scopes(settings, token) or ()),
+    )
     for router in (ops, cities, writes, dro, fleet, epochs, admin, dashboard):
         app.include_router(router.router)
     dashboard.mount_assets(app)

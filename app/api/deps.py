@@ -26,6 +26,7 @@ from app.usecases import (
 )
 
 __all__ = [
+    "token_scopes",
     "Principal",
     "CitiesDep",
     "EpochsDep",
@@ -135,14 +136,21 @@ async def _principal(
 ) -> Principal:
     if credentials is None or not credentials.credentials:
         raise Unauthorized("missing bearer token (Authorization: Bearer <token>)")
-    given = credentials.credentials.encode()
-    match: list[Scope] | None = None
-    for token, scopes in settings.auth.tokens.items():
-        if hmac.compare_digest(token.encode(), given):
-            match = scopes
+    match = token_scopes(settings, credentials.credentials)
     if match is None:
         raise Unauthorized("unknown bearer token")
     return Principal(name=credentials.credentials[:4] + "…", scopes=frozenset(match))
+
+
+def token_scopes(settings: Settings, token: str) -> list[Scope] | None:
+    """The scopes of bearer token ``token`` in ``SD_TOKENS`` (None: unknown), compared with every token in
+    constant time."""
+    given = token.encode()
+    match: list[Scope] | None = None
+    for known, scopes in settings.auth.tokens.items():
+        if hmac.compare_digest(known.encode(), given):
+            match = scopes
+    return match
 
 
 def _require(scope: Scope) -> Callable[[Principal], Awaitable[Principal]]:

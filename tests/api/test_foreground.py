@@ -1,5 +1,6 @@
 """The epoch post's foreground hold (``app.api.foreground.EpochForeground``) covers its whole exchange:
-the body's arrival, the app's work and the response handed to the server; no other request holds it."""
+the body's arrival, the app's work and the response handed to the server; no other request holds it, nor
+an epoch post whose token may not dispatch."""
 
 from __future__ import annotations
 
@@ -29,7 +30,12 @@ class _Depth:
             self.depth -= 1
 
 
-def _exchange(fg: _Depth, method: str, path: str, fail: bool = False) -> list[tuple[str, int]]:
+DISPATCH = b"Bearer dispatch-token"
+
+
+def _exchange(
+    fg: _Depth, method: str, path: str, fail: bool = False, authorization: bytes | None = DISPATCH
+) -> list[tuple[str, int]]:
     """One request through the middleware to an app that reads the body and answers: the hold's depth as
     the body is received and as each response message is sent."""
     seen: list[tuple[str, int]] = []
@@ -48,16 +54,29 @@ def _exchange(fg: _Depth, method: str, path: str, fail: bool = False) -> list[tu
     async def send(message: Message) -> None:
         seen.append((message["type"], fg.depth))
 
-    scope: dict[str, Any] = {"type": "http", "method": method, "path": path, "headers": []}
-    asyncio.run(EpochForeground(app, fg.hold)(scope, receive, send))
+    headers = [] if authorization is None else [(b"authorization", authorization)]
+    scope: dict[str, Any] = {"type": "http", "method": method, "path": path, "headers": headers}
+    asyncio.run(EpochForeground(app, fg.hold, lambda token: token == "dispatch-token")(scope, receive, send))
     return seen
 
 
-def test_an_epoch_post_holds_the_foreground_from_its_body_to_its_response() -> None:
+@pytest.mark.parametrize("authorization", [DISPATCH, b"bearer  dispatch-token ", b"BEARER dispatch-token"])
+def test_an_epoch_post_holds_the_foreground_from_its_body_to_its_response(authorization: bytes) -> None:
     fg = _Depth()
-    seen = _exchange(fg, "POST", "/v1/cities/chengdu/epochs")
+    seen = _exchange(fg, "POST", "/v1/cities/chengdu/epochs", authorization=authorization)
     assert seen == [("receive", 1), ("http.response.start", 1), ("http.response.body", 1)]
     assert fg.depth == 0
+
+
+@pytest.mark.parametrize(
+    "authorization", [None, b"Bearer read-token", b"Basic dispatch-token", b"Bearer", b"Bearer   "]
+)
+def test_an_epoch_post_that_may_not_dispatch_holds_nothing(authorization: bytes | None) -> None:
+    """A client without a dispatch token cannot keep the worker stopped by sending its body slowly."""
+    fg = _Depth()
+    assert {
+        depth for _, depth in _exchange(fg, "POST", "/v1/cities/chengdu/epochs", authorization=authorization)
+    } == {0}
 
 
 @pytest.mark.parametrize(
