@@ -14,6 +14,8 @@ import re
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 
+from fastapi.security.utils import get_authorization_scheme_param
+from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 __all__ = ["EpochForeground", "EPOCH_POST", "bearer_token"]
@@ -23,14 +25,10 @@ EPOCH_POST = re.compile(r"/v1/cities/[^/]+/epochs")
 
 
 def bearer_token(scope: Scope) -> str | None:
-    """The request's bearer token (``Authorization: Bearer <token>``, the scheme in any case, as FastAPI's
-    ``HTTPBearer`` reads it), or None."""
-    for name, value in scope.get("headers", []):
-        if name == b"authorization":
-            scheme, _, param = bytes(value).decode("latin-1").partition(" ")
-            token = param.strip()
-            return token if scheme.lower() == "bearer" and token else None
-    return None
+    """The request's bearer token (``Authorization: Bearer <token>``), read as FastAPI's ``HTTPBearer`` reads
+    it, or None."""
+    scheme, token = get_authorization_scheme_param(Headers(scope=scope).get("authorization"))
+    return token if scheme.lower() == "bearer" and token else None
 
 
 class EpochForeground:
