@@ -98,20 +98,20 @@ def _spec(n: int) -> dict[str, tuple[type, tuple[int | None, ...]]]:
 
 def stored_or_built(graph: RoadGraph, root: Path | None = None) -> Hierarchy | None:
     """``shortcuts.build``'s hierarchy of ``graph``, read back from ``stored`` (under ``root``, else its
-    directory) when it was built before for the same edges, else built and stored."""
+    directory) when it was built before for the same edges, else built and stored. A network that gets no
+    hierarchy is stored as no arrays at all."""
     ed = graph.edges
     edges = (graph.n_nodes, ed.tail, ed.head, ed.time_us, ed.tie1, ed.tie2)
-    none: dict[str, tuple[type, tuple[int | None, ...]]] = {"none": (np.float64, (0,))}
 
     def built() -> stored.Arrays:
         h = build(*edges)
-        return {"none": np.zeros(0)} if h is None else dict(h._asdict())
+        return {} if h is None else dict(h._asdict())
 
     def fits(arrays: stored.Arrays) -> bool:
-        return stored.shaped(arrays, none) or stored.shaped(arrays, _spec(graph.n_nodes))
+        return not arrays or stored.shaped(arrays, _spec(graph.n_nodes))
 
     got = stored.kept("hierarchy", edges, built, fits, root)
-    return None if "none" in got else Hierarchy(**got)  # type: ignore[arg-type]
+    return Hierarchy(**got) if got else None  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------------------------------------------------

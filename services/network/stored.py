@@ -25,9 +25,10 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["kept", "shaped", "directory"]
+__all__ = ["Arrays", "kept", "shaped", "directory"]
 
 Arrays = dict[str, NDArray[np.generic]]
+"""A stored structure: its arrays by name."""
 
 log = logging.getLogger(__name__)
 

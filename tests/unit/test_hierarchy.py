@@ -153,6 +153,21 @@ def test_a_stored_hierarchy_is_read_back_as_built(tmp_path: Path, monkeypatch: p
         hierarchy.stored_or_built(road_graph(grid_city(9, 120.0)), root=tmp_path)
 
 
+def test_a_network_without_a_hierarchy_is_stored_so(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A network that gets no hierarchy (``build`` says None) is stored as such and read back as None
+    without building again."""
+    graph = road_graph(grid_city(6, 100.0))
+    monkeypatch.setattr(hierarchy, "build", lambda *_: None)
+    assert hierarchy.stored_or_built(graph, root=tmp_path) is None
+    assert len(list(tmp_path.glob("hierarchy-*.npz"))) == 1
+
+    def no_build(*_: object) -> None:
+        raise AssertionError("built again")
+
+    monkeypatch.setattr(hierarchy, "build", no_build)
+    assert hierarchy.stored_or_built(graph, root=tmp_path) is None
+
+
 @pytest.mark.parametrize("damage", ["truncated", "wrong arrays", "wrong dtype"])
 def test_a_damaged_stored_hierarchy_is_built_again(tmp_path: Path, damage: str) -> None:
     graph = road_graph(grid_city(7, 100.0))
