@@ -116,7 +116,8 @@ def counted_csr(
     """The pairs each of ``taxis`` is counted in from interval ``k0`` on."""
     rows = [visited.get(taxi, ()) for taxi in taxis]
     sizes = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
-    pairs = np.array(list(chain.from_iterable(rows)), dtype=np.int64).reshape(-1, 2)  # (interval, cell)
+    flat = chain.from_iterable(chain.from_iterable(rows))  # interval, cell, interval, cell, ...
+    pairs = np.fromiter(flat, dtype=np.int64, count=2 * int(sizes.sum())).reshape(-1, 2)
     keep = pairs[:, 0] >= k0
     ptr = np.zeros(len(taxis) + 1, dtype=np.int64)
     ptr[1:] = np.cumsum(np.bincount(np.repeat(np.arange(len(rows)), sizes)[keep], minlength=len(rows)))

@@ -74,3 +74,28 @@ def test_the_gains_by_leg_and_slot_are_the_gains_crossing_by_crossing(manhattan,
         t = float(np.sum(ed.time_s[legs[leg]]))
         crossing += depart < end < depart + t
     assert crossing > 100  # the slow path (a leg in two slots) was taken too
+
+
+def test_the_counted_pairs_are_each_taxis_pairs_from_the_first_slot_on() -> None:
+    """``counted_csr``: row ``i`` holds taxi ``i``'s pairs of interval ``k0`` or later as (slot, cell), none
+    of an earlier interval; a taxi with no visits (or only earlier ones) has an empty row; taxis may repeat."""
+    rng = np.random.default_rng(5)
+    k0 = 100
+    taxis = [TaxiId(f"t{i}") for i in range(30)] + [TaxiId("t3")]
+    visited = {
+        t: frozenset(
+            (IntervalKey(int(k)), int(c)) for k, c in zip(rng.integers(97, 103, 12), rng.integers(0, 50, 12))
+        )
+        for t in taxis[:25:2]
+    }
+    visited[TaxiId("t24")] = frozenset({(IntervalKey(k0 - 1), 7)})
+    counted = counted_csr(visited, taxis, k0)
+    assert counted.ptr[0] == 0 and counted.ptr[-1] == counted.slot.size == counted.cell.size
+    for i, t in enumerate(taxis):
+        lo, hi = counted.ptr[i], counted.ptr[i + 1]
+        got = sorted(zip(counted.slot[lo:hi].tolist(), counted.cell[lo:hi].tolist(), strict=True))
+        want = sorted((k - k0, c) for k, c in visited.get(t, ()) if k >= k0)
+        assert got == want, t
+    assert counted.ptr[25] == counted.ptr[24]  # t24: an earlier interval only
+    empty = counted_csr({}, taxis[:3], k0)
+    assert empty.ptr.tolist() == [0, 0, 0, 0] and empty.slot.size == 0
