@@ -38,7 +38,8 @@ __all__ = [
 # guided's loop calls, not inlined ones: numba's inlining counts a reference to each array an inlined call
 # takes, every time it runs, where a call lends them (800 landmark-guided searches on a 22,500-node grid:
 # 1.3 times as long with these steps inlined; the landmarks' bound, called the same way, timed the same
-# either way). The steps write entries in place.
+# either way). The steps write entries in place; none returns early, since a compiled function that does
+# counts a reference to each array it takes on every call (numba's reference pruning leaves them).
 
 
 @compiled
@@ -89,11 +90,12 @@ def _enqueue(
 
 
 @compiled
-def _guided_pop(heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray[np.int64], size: int) -> int:
-    """Remove the root of the binary heap (``heap[0]`` before the call); new size."""
-    size -= 1
-    if size == 0:
-        return 0
+def _guided_down(
+    heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray[np.int64], size: int
+) -> None:
+    """The root of the binary heap just taken out and the queue's size down to ``size`` (at least 1): put its
+    last entry (position ``size``) at the root and sift it down. (No early return: numba counts a reference
+    to each array a compiled function with one takes, on every call.)"""
     k, c0, c1, c2 = heap[size], hkey[size, 0], hkey[size, 1], hkey[size, 2]
     i = 0
     while True:
@@ -114,7 +116,6 @@ def _guided_pop(heap: NDArray[np.int64], hkey: NDArray[np.int64], state: NDArray
     heap[i] = k
     hkey[i, 0], hkey[i, 1], hkey[i, 2] = c0, c1, c2
     state[k] = i
-    return size
 
 
 @compiled
@@ -521,9 +522,9 @@ def guided(
     use_lm, lm, kept = tl.shape[0] > 0, guide.lm, graph.kept
     complete, meet = 1, -1
     while size > 0:
-        k = heap[0]
-        kc, ka, kb = hkey[0, 0], hkey[0, 1], hkey[0, 2]
-        size = _guided_pop(heap, hkey, state, size)
+        k, kc, ka, kb, size = heap[0], hkey[0, 0], hkey[0, 1], hkey[0, 2], size - 1
+        if size > 0:
+            _guided_down(heap, hkey, state, size)
         state[k] = -2
         if need[k]:
             remaining -= 1

@@ -129,7 +129,7 @@ def _lazy_ends(
                 lazy_fill(graph, edges, costs, lazy, graph.pos_se[t, j])
 
 
-@compiled_inline
+@compiled
 def _crossing_cost(
     se_ptr: NDArray[np.int64],
     se_edges: NDArray[np.int64],
@@ -143,8 +143,9 @@ def _crossing_cost(
     s: int,
 ) -> int:
     """A lazy metric's cost of super-edge ``s``, one of whose edges enters a cell (``graph.lazy_edge``
-    summed over its edges); the searches pass it plain arrays, since a call that takes records counts a
-    reference to each of their arrays."""
+    summed over its edges). A call, not inlined: inlined, it counted a reference to six of its arrays
+    each time it ran (twelve atomic operations per crossing super-edge); the searches pass it plain
+    arrays, since a call that takes records counts a reference to each of their arrays."""
     c = 0
     for p in range(se_ptr[s], se_ptr[s + 1]):
         e = se_edges[p]
@@ -223,33 +224,24 @@ def _grow_leave(workspace: Workspace, costs: Costs, n_touched: int, complete: in
     """Leave the workspace as the next search expects it: a node reached from one that stopped the search
     is not known to be final; the ring is left empty. Records whether the search was ``complete`` and the
     number of nodes it touched."""
-    use_ring = costs.span <= workspace.ring.shape[0]
+    touched, state, cost, ring, bits = (  # out of the record once: a read in the loop counts a reference
+        workspace.touched,
+        workspace.state,
+        workspace.cost,
+        workspace.ring,
+        workspace.bits,
+    )
+    use_ring = costs.span <= ring.shape[0]
     for i in range(n_touched):
-        k = workspace.touched[i]
-        if workspace.state[k] == -3:  # reached from a node that stopped the search: not known to be final
-            workspace.state[k] = -1
-        elif workspace.state[k] >= 0 and use_ring:  # still queued: leave the ring empty for the next search
-            b = (workspace.cost[k] // costs.width) % costs.span
-            workspace.ring[b] = -1
-            workspace.bits[b >> 6] = 0
+        k = touched[i]
+        if state[k] == -3:  # reached from a node that stopped the search: not known to be final
+            state[k] = -1
+        elif state[k] >= 0 and use_ring:  # still queued: leave the ring empty for the next search
+            b = (cost[k] // costs.width) % costs.span
+            ring[b] = -1
+            bits[b >> 6] = 0
     workspace.info[1] = complete
     workspace.info[2] = n_touched
-
-
-@compiled_inline
-def _rebucket(
-    ring: NDArray[np.int64],
-    bits: NDArray[np.int64],
-    nxt: NDArray[np.int64],
-    prv: NDArray[np.int64],
-    b: int,
-    to: int,
-    h: int,
-) -> None:
-    """Move kept node ``h`` from bucket ``b`` to bucket ``to``."""
-    if b != to:
-        _unlink(ring, bits, nxt, prv, b, h)
-        _link(ring, bits, nxt, prv, to, h)
 
 
 @compiled_inline
@@ -298,13 +290,15 @@ def _settle_dead_ends(
     return remaining, stop
 
 
-# Every search of an epoch runs grow's loop. Its arrays are taken from the records once per search, at the
-# top, and the loop's helpers take plain arrays: numba counts a reference for every array it takes from a
-# record, so a helper taking the records would take them again for every settled node. Even with plain
-# arrays, a helper that spans both the ring's and the heap's branch (taking the next node, queueing one), or
-# that writes an array after an inlined call, leaves reference counting in the loop (measured: up to 1.75
-# times the time); the loop keeps those steps in its own body, and its helpers time within 2 % of the loop
-# written out (Chengdu and the generated metropolis, plain and lazy metrics).
+# Every search of an epoch runs grow's loop (``_grow_loop``). Its arrays are taken from the records once per
+# search, at the top, and the loop's helpers take plain arrays: numba counts a reference for every array it
+# takes from a record, so a helper taking the records would take them again for every settled node. Even
+# with plain arrays, an inlined helper may leave its arguments' reference counting in the loop (an atomic
+# increment and decrement per array and call, which numba's reference pruning does not remove): taking a
+# node from the ring, linking one into it and moving one between buckets are therefore written out in the
+# loop (with them as inlined helpers, reference counting was about half the time of a tree on the generated
+# metropolis: 40 in-trees of its heaviest load took 91-97 ms, written out 54-57 ms, the same labels), and
+# the super-edges' lazy costs are a call (``_crossing_cost``), which lends its arrays.
 #
 # Nodes are taken from a bucket queue of width ``costs.width`` (the cheapest super-edge): every label in the
 # lowest non-empty bucket is final, because anything that could still improve it would come along a
@@ -345,24 +339,6 @@ def _grow_start(
     return size, pos, n_touched, remaining
 
 
-@compiled_inline
-def _ring_take(
-    ring: NDArray[np.int64],
-    bits: NDArray[np.int64],
-    nxt: NDArray[np.int64],
-    prv: NDArray[np.int64],
-    span: int,
-    pos: int,
-) -> tuple[int, int]:
-    """Take a node from the lowest non-empty bucket at or after ``pos``; returns it and its bucket."""
-    k = ring[pos]
-    if k < 0:
-        pos = _next_bucket(bits, span, pos)
-        k = ring[pos]
-    _unlink(ring, bits, nxt, prv, pos, k)
-    return k, pos
-
-
 @compiled
 def grow(
     graph: SearchGraph,
@@ -377,70 +353,89 @@ def grow(
     """Grow the canonical shortest-path tree from ``source`` (all kept nodes with cost <= ``limit``), or until
     every one of ``targets`` can be resolved; the queue, the lazy metric and the stop are described above.
     ``workspace`` is reset here; read the result with ``resolve`` and ``unfold``."""
-    cost, tie1, tie2, pse = workspace.cost, workspace.tie1, workspace.tie2, workspace.pse
-    pstart, state, nxt, prv = workspace.pstart, workspace.state, workspace.nxt, workspace.prv
-    ring, bits, need, touched = workspace.ring, workspace.bits, workspace.need, workspace.touched
-    indptr, se_head, se_tie1, se_tie2 = graph.indptr, graph.se_head, graph.se_tie1, graph.se_tie2
-    dead_end, se_ptr, se_edges = graph.dead_end, graph.se_ptr, graph.se_edges
+    start = _grow_start(graph, edges, costs, source, limit, targets, workspace, lazy)
+    n_touched, complete = _grow_loop(graph, edges, costs, workspace, lazy, limit, start)
+    _grow_leave(workspace, costs, n_touched, complete)
+
+
+@compiled
+def _grow_loop(
+    g: SearchGraph,
+    ed: Edges,
+    costs: Costs,
+    ws: Workspace,
+    lazy: Lazy,
+    limit: int,
+    start: tuple[int, int, int, int],
+) -> tuple[int, int]:
+    """``grow``'s loop on ``g``, ``ed``, ``ws`` from ``_grow_start``'s queue: (touched nodes, complete)."""
+    cost, tie1, tie2, pse, pstart, state = ws.cost, ws.tie1, ws.tie2, ws.pse, ws.pstart, ws.state
+    nxt, prv, ring, bits, need, touched = ws.nxt, ws.prv, ws.ring, ws.bits, ws.need, ws.touched
+    indptr, se_head, se_tie1, se_tie2, dead_end = g.indptr, g.se_head, g.se_tie1, g.se_tie2, g.dead_end
+    se_ptr, se_edges, ec_ptr, ec_cell, time_s = g.se_ptr, g.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s
     lazy_on, fixed, zmask, term = lazy.on, lazy.fixed, lazy.zmask, lazy.term
-    ec_ptr, ec_cell, time_s = edges.ec_ptr, edges.ec_cell, edges.time_s
-    umax, kappa, width, span, se_cost = lazy.umax, lazy.kappa, costs.width, costs.span, costs.se
-    use_ring, early, complete = span <= ring.shape[0], targets.shape[0] > 0, 1
-    size, pos, n_touched, remaining = _grow_start(
-        graph, edges, costs, source, limit, targets, workspace, lazy
-    )
+    umax, kappa, width, span, se_cost, complete = lazy.umax, lazy.kappa, costs.width, costs.span, costs.se, 1
+    size, pos, n_touched, remaining = start
+    use_ring, early = span <= ring.shape[0], remaining > 0  # remaining > 0: targets left to settle
     while size > 0:
-        if use_ring:
-            k, pos = _ring_take(ring, bits, nxt, prv, span, pos)
-            size -= 1
-            d = cost[k]
+        if use_ring:  # the first node of the lowest non-empty bucket, taken out (heaps._unlink)
+            if ring[pos] < 0:
+                pos = _next_bucket(bits, span, pos)
+            k = ring[pos]
+            z, ring[pos] = nxt[k], nxt[k]
+            if z >= 0:
+                prv[z] = -1
+            else:
+                bits[pos >> 6] &= ~(np.int64(1) << (pos & 63))
+            size, d = size - 1, cost[k]
         else:
-            k, d = prv[0], nxt[0]
-            size = _pop(nxt, prv, state, size)
+            k, d, size = prv[0], nxt[0], _pop(nxt, prv, state, size)
         state[k] = -2
-        if need[k]:
-            remaining -= 1
-            if remaining == 0 and early:
-                complete = 0
-                break
-        a0, b0 = tie1[k], tie2[k]
+        remaining -= 1 if need[k] else 0
+        if need[k] and remaining == 0 and early:
+            complete = 0
+            break
         for s in range(indptr[k], indptr[k + 1]):
             h = se_head[s]
             st = state[h]
             if st == -2:
                 continue
-            if not lazy_on:
-                c = d + se_cost[s]
-            elif fixed[s] >= 0:
-                c = d + fixed[s]
-            else:
+            c = d + (fixed[s] if lazy_on else se_cost[s])
+            if lazy_on and fixed[s] < 0:
                 c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
-            if c > limit:
+            a, b, ch = tie1[k] + se_tie1[s], tie2[k] + se_tie2[s], cost[h]
+            if c > limit or not (c < ch or (c == ch and (a < tie1[h] or (a == tie1[h] and b < tie2[h])))):
                 continue
-            a, b = a0 + se_tie1[s], b0 + se_tie2[s]
-            ch = cost[h]
-            if c < ch or (c == ch and (a < tie1[h] or (a == tie1[h] and b < tie2[h]))):
-                _label(cost, tie1, tie2, pse, pstart, h, c, a, b, s)
-                if st == -1:
-                    if ch == INF and not need[h]:
-                        touched[n_touched] = h
-                        n_touched += 1
-                    if dead_end[h]:
-                        state[h] = -3  # its only way in is from k: settled once k's edges are done
-                    elif use_ring:
-                        _link(ring, bits, nxt, prv, (c // width) % span, h)
-                        state[h] = 0
-                        size += 1
+            _label(cost, tie1, tie2, pse, pstart, h, c, a, b, s)
+            if st == -1 and ch == INF and not need[h]:
+                touched[n_touched] = h
+                n_touched += 1
+            if st == -1 and dead_end[h]:
+                state[h] = -3  # its only way in is from k: settled once k's edges are done
+            elif not use_ring and (st == -1 or (st >= 0 and c < ch)):
+                _sift_up(nxt, prv, state, size if st == -1 else st, c, h)
+                size += 1 if st == -1 else 0
+            elif use_ring and (st == -1 or (st >= 0 and (ch // width) % span != (c // width) % span)):
+                if st >= 0:  # out of its bucket (heaps._unlink)
+                    bo, pv, z = (ch // width) % span, prv[h], nxt[h]
+                    if pv >= 0:
+                        nxt[pv] = z
                     else:
-                        _sift_up(nxt, prv, state, size, c, h)
-                        size += 1
-                elif st >= 0 and c < ch:
-                    if use_ring:
-                        _rebucket(ring, bits, nxt, prv, (ch // width) % span, (c // width) % span, h)
-                    else:
-                        _sift_up(nxt, prv, state, st, c, h)
+                        ring[bo] = z
+                        if z < 0:
+                            bits[bo >> 6] &= ~(np.int64(1) << (bo & 63))
+                    if z >= 0:
+                        prv[z] = pv
+                else:
+                    state[h], size = 0, size + 1
+                bk = (c // width) % span  # first in its new bucket (heaps._link)
+                first, nxt[h], prv[h], ring[bk] = ring[bk], ring[bk], -1, h
+                if first >= 0:
+                    prv[first] = h
+                else:
+                    bits[bk >> 6] |= np.int64(1) << (bk & 63)
         remaining, stop = _settle_dead_ends(indptr, se_head, state, need, k, remaining, early)
         if stop:
             complete = 0
             break
-    _grow_leave(workspace, costs, n_touched, complete)
+    return n_touched, complete

@@ -230,9 +230,11 @@ def _offset_on(pos_se: NDArray[np.int64], pos_off: NDArray[np.int64], v: int, s:
 @compiled_inline
 def _reset(workspace: Workspace) -> None:
     """Forget what the last search touched (the ring is left empty by every search)."""
+    touched, cost, state = workspace.touched, workspace.cost, workspace.state  # a read in the loop counts a
+    need, unfolded = workspace.need, workspace.unfolded  # reference to the array each time
     for i in range(workspace.info[2]):
-        k = workspace.touched[i]
-        workspace.cost[k] = INF
-        workspace.state[k] = -1
-        workspace.need[k] = False
-        workspace.unfolded[k] = False
+        k = touched[i]
+        cost[k] = INF
+        state[k] = -1
+        need[k] = False
+        unfolded[k] = False
