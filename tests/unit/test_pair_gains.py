@@ -78,13 +78,15 @@ def test_the_gains_by_leg_and_slot_are_the_gains_crossing_by_crossing(manhattan,
 
 def test_the_counted_pairs_are_each_taxis_pairs_from_the_first_slot_on() -> None:
     """``counted_csr``: row ``i`` holds taxi ``i``'s pairs of interval ``k0`` or later as (slot, cell), none
-    of an earlier interval; a taxi with no visits (or only earlier ones) has an empty row; taxis may repeat."""
+    of an earlier interval; a taxi with no visits (or only earlier ones) has an empty row; a taxi may
+    repeat."""
     rng = np.random.default_rng(5)
     k0 = 100
     taxis = [TaxiId(f"t{i}") for i in range(30)] + [TaxiId("t3")]
     visited = {
         t: frozenset(
-            (IntervalKey(int(k)), int(c)) for k, c in zip(rng.integers(97, 103, 12), rng.integers(0, 50, 12))
+            (IntervalKey(int(k)), int(c))
+            for k, c in zip(rng.integers(97, 103, 12), rng.integers(0, 50, 12), strict=True)
         )
         for t in taxis[:25:2]
     }
