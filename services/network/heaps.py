@@ -230,8 +230,9 @@ def _offset_on(pos_se: NDArray[np.int64], pos_off: NDArray[np.int64], v: int, s:
 @compiled_inline
 def _reset(workspace: Workspace) -> None:
     """Forget what the last search touched (the ring is left empty by every search)."""
-    touched, cost, state = workspace.touched, workspace.cost, workspace.state  # a read in the loop counts a
-    need, unfolded = workspace.need, workspace.unfolded  # reference to the array each time
+    # the arrays taken out of the record first: read through it in the loop, each counts a reference per node
+    touched, cost, state = workspace.touched, workspace.cost, workspace.state
+    need, unfolded = workspace.need, workspace.unfolded
     for i in range(workspace.info[2]):
         k = touched[i]
         cost[k] = INF
