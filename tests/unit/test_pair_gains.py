@@ -82,7 +82,7 @@ def test_the_counted_pairs_are_each_taxis_pairs_from_the_first_slot_on() -> None
     repeat."""
     rng = np.random.default_rng(5)
     k0 = 100
-    taxis = [TaxiId(f"t{i}") for i in range(30)] + [TaxiId("t3")]
+    taxis = [TaxiId(f"t{i}") for i in range(30)] + [TaxiId("t4")]  # t4 twice: its pairs in both rows
     visited = {
         t: frozenset(
             (IntervalKey(int(k)), int(c))
