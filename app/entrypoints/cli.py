@@ -26,8 +26,9 @@ _LOOPBACK = {"127.0.0.1", "localhost", "::1"}
 
 
 def new_token() -> str:
-    """A fresh random bearer token."""
-    return secrets.token_urlsafe(32)
+    """A fresh random bearer token, ``sd_`` and 43 URL-safe characters: never starting with ``-``, so that it
+    can follow an option on a command line (``replay --token $TOKEN``)."""
+    return "sd_" + secrets.token_urlsafe(32)
 
 
 def dev_settings(settings: Settings) -> tuple[Settings, str | None]:

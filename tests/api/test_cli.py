@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 from pathlib import Path
@@ -19,6 +20,17 @@ def test_token(capsys: pytest.CaptureFixture[str]) -> None:
     cli.main(["token"])
     b = capsys.readouterr().out.strip()
     assert len(a) >= 40 and a != b
+
+
+def test_a_token_can_follow_an_option_on_a_command_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A token whose random part starts with ``-`` (one in 64 of them) still does not: ``replay --token
+    $TOKEN`` would read it as an option."""
+    monkeypatch.setattr(cli.secrets, "token_urlsafe", lambda n: "-" + "A" * (4 * n // 3))
+    token = cli.new_token()
+    assert not token.startswith("-") and token.endswith("-" + "A" * 42)
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--token")
+    assert ap.parse_args(["--token", token]).token == token
 
 
 def test_openapi_writes_the_document(tmp_path: Path) -> None:
