@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import secrets
 from pathlib import Path
 
 import pytest
@@ -25,7 +26,7 @@ def test_token(capsys: pytest.CaptureFixture[str]) -> None:
 def test_a_token_can_follow_an_option_on_a_command_line(monkeypatch: pytest.MonkeyPatch) -> None:
     """A token whose random part starts with ``-`` (one in 64 of them) still does not: ``replay --token
     $TOKEN`` would read it as an option."""
-    monkeypatch.setattr(cli.secrets, "token_urlsafe", lambda n: "-" + "A" * (4 * n // 3))
+    monkeypatch.setattr(secrets, "token_urlsafe", lambda n: "-" + "A" * (4 * n // 3))
     token = cli.new_token()
     assert not token.startswith("-") and token.endswith("-" + "A" * 42)
     ap = argparse.ArgumentParser()
