@@ -17,8 +17,14 @@ import gc
 import logging
 import threading
 import time
-from collections.abc import AsyncIterator, Callable, Sequence
-from contextlib import AbstractAsyncContextManager, asynccontextmanager, nullcontext
+from collections.abc import AsyncIterator, Callable, Iterator, Sequence
+from contextlib import (
+    AbstractAsyncContextManager,
+    AbstractContextManager,
+    asynccontextmanager,
+    contextmanager,
+    nullcontext,
+)
 from typing import Any
 
 from fastapi import FastAPI
@@ -29,6 +35,7 @@ from app.adapters.bounded import BoundedStore
 from app.adapters.city_registry import CityRegistry
 from app.api import admin, cities, dashboard, dro, epochs, fleet, ops, writes
 from app.api.bodies import openapi_components
+from app.api.collector import CollectorDeferral
 from app.api.deps import token_scopes
 from app.api.foreground import EpochForeground
 from app.api.handlers import error_response, install_error_handlers
@@ -125,6 +132,20 @@ def _use_cases(
     )
 
 
+def _epoch_exchange(
+    use_cases: UseCases, deferral: CollectorDeferral | None
+) -> Callable[[], AbstractContextManager[None]]:
+    """What an epoch post holds for its whole exchange: the use cases' current foreground, and the
+    collector kept off (``deferral``) when there is one."""
+
+    @contextmanager
+    def exchange() -> Iterator[None]:
+        with use_cases.epochs.foreground(), deferral.held() if deferral is not None else nullcontext():
+            yield
+
+    return exchange
+
+
 def create_app(
     settings: Settings | None = None,
     registry: CityCatalog | None = None,
@@ -140,10 +161,10 @@ def create_app(
     ``clock`` (POSIX seconds, default ``time.time``) is the service clock of the epoch time window and of
     the fleet worker's heartbeats. ``tune_gc`` (the ``run`` command's: the process is the service's alone)
     sets the garbage collector for a long-lived heap (``GC_THRESHOLD``, and start-up's objects frozen once
-    the cities are warm). ``embed_worker`` runs the fleet worker in this process for the app's lifetime,
-    on the same store (``embedded_worker``; its first pass waits for the warm-up). ``compile_apart`` (the
-    ``run`` command's too) compiles the kernels in a child process before the warm-up
-    (``app.api.warmup.compile_apart``)."""
+    the cities are warm) and keeps it off during epoch exchanges (``app.api.collector``). ``embed_worker``
+    runs the fleet worker in this process for the app's lifetime, on the same store (``embedded_worker``;
+    its first pass waits for the warm-up). ``compile_apart`` (the ``run`` command's too) compiles the
+    kernels in a child process before the warm-up (``app.api.warmup.compile_apart``)."""
     settings = settings or Settings()
     raw_store = store if store is not None else make_store(settings)
     the_store = BoundedStore(raw_store, settings.store.concurrency, settings.store.queue_s)
@@ -188,10 +209,11 @@ def create_app(
         timeout_s=settings.server.body_timeout_s,
         render=render,
     )
-    # outermost: an epoch post that may dispatch holds the foreground from its headers on, body included
+    # outermost: an epoch post that may dispatch holds the foreground from its headers on, body included,
+    # and (in the service's own process) keeps the collector's passes for after its response
     app.add_middleware(
         EpochForeground,
-        hold=lambda: use_cases.epochs.foreground(),
+        hold=_epoch_exchange(use_cases, CollectorDeferral() if tune_gc else None),
         dispatches=lambda token: "dispatch" in (token_scopes(settings, token) or ()),
     )
     for router in (ops, cities, writes, dro, fleet, epochs, admin, dashboard):

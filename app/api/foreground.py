@@ -2,7 +2,9 @@
 headers arrive, through receiving its body, parsing, solving and committing, to its response handed to the
 server. The embedded fleet worker's runs stay stopped throughout (``app.runs.executor.Foreground``,
 docs/FLEET.md), so none of the request's work on this service's CPU competes with them: a 230 KB body of
-2,000 taxis is read and the response written while they would otherwise hold both cores.
+2,000 taxis is read and the response written while they would otherwise hold both cores. In the service's
+own process the hold also keeps the garbage collector off until the exchange ends
+(``app.api.collector``).
 
 Only a post whose bearer token may dispatch is held: the body's arrival is held too, so a client without
 that token, sending its body slowly, would otherwise keep the worker stopped for as long as the body's

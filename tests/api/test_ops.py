@@ -6,6 +6,7 @@ import gc
 import socket
 import threading
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -14,6 +15,7 @@ from app.adapters.city_registry import CityRegistry
 from app.api.warmup import GC_THRESHOLD
 from app.bootstrap import create_app
 from services.city import City
+from services.model import Decision
 from tests.api import payloads
 from tests.api.conftest import CITY, MakeClient, auth, settings
 from tests.api.fakes import FakeDecide
@@ -43,13 +45,22 @@ def test_the_run_commands_app_tunes_the_collector_once_its_cities_are_warm(regis
             _join_warm_up()
             assert client.get("/readyz").status_code == 200
             assert gc.get_threshold() == before and gc.get_freeze_count() == frozen  # tests' apps leave it be
-        tuned = create_app(settings(), registry=registry, decide=FakeDecide(), tune_gc=True)
+        collector_on: list[bool] = []
+        fake = FakeDecide()
+
+        def decide(*args: Any) -> Decision:
+            collector_on.append(gc.isenabled())
+            return fake(*args)
+
+        tuned = create_app(settings(), registry=registry, decide=decide, tune_gc=True)
         with TestClient(tuned) as client:
             assert gc.get_threshold() == GC_THRESHOLD
             _join_warm_up()
             assert gc.get_freeze_count() > frozen  # start-up's objects are out of the collector's reach
             r = client.post(f"/v1/cities/{CITY}/epochs", json=payloads.epoch(), headers=auth())
             assert r.status_code == 200, r.text
+            # off while the epoch was solved, on again once its exchange was over
+            assert collector_on == [False] and gc.isenabled()
     finally:
         gc.set_threshold(*before)
         gc.unfreeze()
