@@ -17,6 +17,7 @@ import email.message
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 
+import msgspec
 import pydantic_core
 from fastapi import Depends, Request
 from pydantic import BaseModel, TypeAdapter, ValidationError
@@ -55,9 +56,8 @@ async def _raw(request: Request) -> tuple[str | None, bytes]:
 RawBody = Annotated[tuple[str | None, bytes], Depends(_raw)]
 
 
-def _json(raw: tuple[str | None, bytes]) -> Any:
-    """The parsed JSON of a body (FastAPI's rules: no Content-Type or a JSON one; 415 otherwise)."""
-    content_type, data = raw
+def _content_type(content_type: str | None) -> None:
+    """FastAPI's rules: no Content-Type or a JSON one; 415 otherwise."""
     if content_type:
         message = email.message.Message()
         message["content-type"] = content_type
@@ -69,6 +69,12 @@ def _json(raw: tuple[str | None, bytes]) -> Any:
                 "send the body as JSON with Content-Type: application/json",
                 [FieldIssue("body", "not application/json")],
             )
+
+
+def _json(raw: tuple[str | None, bytes]) -> Any:
+    """The parsed JSON of a body (FastAPI's rules: no Content-Type or a JSON one; 415 otherwise)."""
+    content_type, data = raw
+    _content_type(content_type)
     if not data:
         raise InvalidInput.at("body", "Field required")
     try:
@@ -77,9 +83,25 @@ def _json(raw: tuple[str | None, bytes]) -> Any:
         raise BadRequest(f"the body is not valid JSON: {exc}", [FieldIssue("body", "invalid JSON")]) from None
 
 
+_MEMBERS = msgspec.json.Decoder(dict[str, msgspec.Raw])
+
+
+def _members(raw: tuple[str | None, bytes]) -> dict[str, msgspec.Raw] | None:
+    """The members of a body that is one JSON object, each as its JSON text (not decoded), else ``None``
+    (not an object, not JSON, or JSON that only pydantic-core reads, such as NaN: ``_json`` then says
+    what is wrong or parses it)."""
+    content_type, data = raw
+    _content_type(content_type)
+    try:
+        return _MEMBERS.decode(data)
+    except (msgspec.MsgspecError, RecursionError):  # msgspec's nesting limit is Python's
+        return None
+
+
 def _at_most(value: object, limit: int, where: str) -> None:
-    """422 before validation when ``value`` is an array of more than ``limit`` items."""
-    if isinstance(value, list) and len(value) > limit:
+    """422 before validation when ``value`` is an array (or the ids of a plain one) of more than ``limit``
+    items."""
+    if isinstance(value, list | tuple) and len(value) > limit:
         raise InvalidInput.at(where, f"at most {limit} items per request, got {len(value)}")
 
 
@@ -103,21 +125,28 @@ class EpochPost:
 
 
 def epoch_post(raw: tuple[str | None, bytes], limits: Limits) -> EpochPost:
-    """An epoch body parsed and validated (the route calls it on its threadpool thread: one hop, not two)."""
-    obj = _json(raw)
-    if isinstance(obj, dict):
-        _at_most(obj.get("riders"), limits.max_riders, "riders")
-        _at_most(obj.get("taxis"), limits.max_taxis, "taxis")
-        taxis, riders = plain_taxis(obj.get("taxis")), plain_riders(obj.get("riders"))
-        if taxis is not None or riders is not None:
-            # valid as they are: the model validates the rest, with the same errors
-            rest = {
-                **obj,
-                **({} if taxis is None else {"taxis": []}),
-                **({} if riders is None else {"riders": []}),
-            }
-            return EpochPost(_validate(EpochIn, rest), taxis, riders)
-    return EpochPost(_validate(EpochIn, obj))
+    """An epoch body parsed and validated (the route calls it on its threadpool thread: one hop, not two).
+    Its ``riders`` and ``taxis`` are read by ``plain_riders`` and ``plain_taxis`` straight from their JSON
+    text when they have the common form; every other member, and those two otherwise, is parsed as
+    ``_json`` parses a body and validated by the model."""
+    members = _members(raw)
+    if members is None:
+        obj = _json(raw)
+        if isinstance(obj, dict):
+            _at_most(obj.get("riders"), limits.max_riders, "riders")
+            _at_most(obj.get("taxis"), limits.max_taxis, "taxis")
+        return EpochPost(_validate(EpochIn, obj))
+    riders = plain_riders(members["riders"]) if "riders" in members else None
+    taxis = plain_taxis(members["taxis"]) if "taxis" in members else None
+    plain = {"riders": riders, "taxis": taxis}
+    # valid as they are: the model validates the rest, with the same errors
+    obj = {
+        key: [] if plain.get(key) is not None else pydantic_core.from_json(bytes(text), allow_inf_nan=True)
+        for key, text in members.items()
+    }
+    _at_most(obj.get("riders") if riders is None else riders.ids, limits.max_riders, "riders")
+    _at_most(obj.get("taxis") if taxis is None else taxis.ids, limits.max_taxis, "taxis")
+    return EpochPost(_validate(EpochIn, obj), taxis, riders)
 
 
 def _tasks(raw: RawBody, limits: LimitsDep) -> list[TaskIn]:

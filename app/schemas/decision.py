@@ -10,10 +10,9 @@ import json
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from json.encoder import encode_basestring_ascii
-from operator import itemgetter
 from typing import Any, Literal, cast
 
+import msgspec
 from pydantic import Field, StrictBool
 
 from app.schemas.common import (
@@ -72,18 +71,44 @@ class EpochIn(TimedRequest):
     taxis: list[TaxiIn]
 
 
-_TAXI_FIELDS = ("id", "location", "instrumented", "status")
-_RIDER_FIELDS = ("id", "origin", "destination", "requested_at")
-_TAXI_KEYS = frozenset(_TAXI_FIELDS)
-_RIDER_KEYS = frozenset(_RIDER_FIELDS)
-_NODE = itemgetter("node")
+class _Node(msgspec.Struct, forbid_unknown_fields=True, gc=False):
+    """A location of the plain form: ``{"node": a JSON integer}`` and nothing else."""
+
+    node: int
+
+
+# The plain forms' fields are in the order of their keys, as the canonical JSON sorts them: msgspec encodes
+# a decoded array back as the text ``body_hash`` writes for the model's dump of it but for the locations'
+# ``"lat":null,"lon":null`` (``_canonical_text``).
+
+
+class _PlainTaxi(msgspec.Struct, forbid_unknown_fields=True, gc=False):
+    """A taxi of the plain form (``plain_taxis``): these four keys and no other, JSON types as written."""
+
+    id: str
+    instrumented: bool
+    location: _Node
+    status: Literal["vacant", "busy"]
+
+
+class _PlainRider(msgspec.Struct, forbid_unknown_fields=True, gc=False):
+    """A rider of the plain form (``plain_riders``)."""
+
+    destination: _Node
+    id: str
+    origin: _Node
+    requested_at: str
+
+
+_TAXIS = msgspec.json.Decoder(list[_PlainTaxi])
+_RIDERS = msgspec.json.Decoder(list[_PlainRider])
+_ENCODER = msgspec.json.Encoder()
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 _INT64 = (-(2**63), 2**63 - 1)
-_LOCATION_KEYS = frozenset({"node", "lon", "lat"})
-if (frozenset(TaxiIn.model_fields), frozenset(LocationIn.model_fields), frozenset(RiderIn.model_fields)) != (
-    _TAXI_KEYS,
-    _LOCATION_KEYS,
-    _RIDER_KEYS,
+if (
+    set(TaxiIn.model_fields) != set(_PlainTaxi.__struct_fields__)
+    or set(RiderIn.model_fields) != set(_PlainRider.__struct_fields__)
+    or set(LocationIn.model_fields) != {"node", "lon", "lat"}
 ):
     # plain_taxis and plain_riders write exactly these fields' canonical JSON
     raise RuntimeError(
@@ -97,37 +122,16 @@ _PLAIN_TIME = re.compile(
 )
 
 
-def _columns(value: object, fields: tuple[str, ...]) -> tuple[tuple[Any, ...], ...] | None:
-    """The values of ``fields`` of every item of ``value``, field by field, when ``value`` is a list of
-    objects that each have exactly these keys, else ``None`` (a list with no items: one empty column per
-    field)."""
-    if type(value) is not list:
-        return None
-    if not value:
-        return tuple(() for _ in fields)
-    if set(map(type, value)) != {dict} or set(map(len, value)) != {len(fields)}:
-        return None
-    try:  # as many keys as fields, and every field there: exactly these keys
-        return tuple(zip(*map(itemgetter(*fields), value), strict=True))
-    except KeyError:
-        return None
+def _canonical_text(items: list[_PlainTaxi] | list[_PlainRider]) -> str:
+    """The canonical JSON of plain taxis or riders: msgspec's encoding of their structs (fields in key
+    order, compact, the ids' ``"`` and ``\\`` escaped as ``json.dumps`` escapes them, printable ASCII
+    otherwise) with each location written as the model dumps it, ``{"lat":null,"lon":null,"node":...}``.
+    ``{"node":`` opens a location and nothing else: inside a string its quotes would be escaped."""
+    return _ENCODER.encode(items).decode().replace('{"node":', '{"lat":null,"lon":null,"node":')
 
 
-def _plain_nodes(locations: tuple[Any, ...]) -> tuple[int, ...] | None:
-    """The node ids of locations that all have the form ``{"node": a JSON integer in int64}``, else
-    ``None``."""
-    if not locations:
-        return ()
-    if set(map(type, locations)) != {dict} or set(map(len, locations)) != {1}:
-        return None
-    try:
-        nodes = tuple(map(_NODE, locations))
-    except KeyError:
-        return None
-    lo, hi = _INT64
-    if set(map(type, nodes)) != {int} or min(nodes) < lo or max(nodes) > hi:
-        return None
-    return nodes
+def _in_int64(nodes: Sequence[int]) -> bool:
+    return not nodes or (min(nodes) >= _INT64[0] and max(nodes) <= _INT64[1])
 
 
 def _plain_ids(ids: Sequence[object]) -> bool:
@@ -154,36 +158,26 @@ class PlainTaxis:
     canonical: str  # the JSON array ``body_hash`` writes for these taxis
 
 
-def plain_taxis(value: object) -> PlainTaxis | None:
-    """The parsed JSON ``taxis`` of an epoch body read without a model per taxi, when every item has the
-    common form ``{"id": printable ASCII text of 1..128 characters, "location": {"node": a JSON integer in
-    int64}, "instrumented": true or false, "status": "vacant" or "busy"}``: exactly what ``TaxiIn`` accepts
-    and keeps unchanged in that form. ``None`` for anything else, including every item ``TaxiIn`` would
-    refuse: the model then validates the taxis and says what is wrong (``app.api.bodies``). Each check
-    looks at one field of every taxi at once (``_columns``)."""
-    columns = _columns(value, _TAXI_FIELDS)
-    if columns is None:
+def plain_taxis(raw: bytes | msgspec.Raw) -> PlainTaxis | None:
+    """The JSON array ``taxis`` of an epoch body (its text, ``raw``) read without a model per taxi, when
+    every item has the common form ``{"id": printable ASCII text of 1..128 characters, "location": {"node":
+    a JSON integer in int64}, "instrumented": true or false, "status": "vacant" or "busy"}``: exactly what
+    ``TaxiIn`` accepts and keeps unchanged in that form. ``None`` for anything else, including every item
+    ``TaxiIn`` would refuse: the model then validates the taxis and says what is wrong
+    (``app.api.bodies``). msgspec decodes the array into the form's structs (``_PlainTaxi``: the JSON types
+    as written, no other key) in one pass; the checks of the values look at one field of every taxi at
+    once."""
+    try:
+        items = _TAXIS.decode(raw)
+    except (msgspec.MsgspecError, RecursionError):  # msgspec's nesting limit is Python's
         return None
-    ids, locations, instrumented, status = columns
-    nodes = _plain_nodes(locations)
-    if (
-        nodes is None
-        or not set(map(type, instrumented)) <= {bool}
-        or not set(map(type, status)) <= {str}
-        or not set(status) <= {"vacant", "busy"}
-        or not _plain_ids(ids)
-    ):
+    ids = tuple([t.id for t in items])
+    nodes = tuple([t.location.node for t in items])
+    if not _in_int64(nodes) or not _plain_ids(ids):
         return None
-    canonical = ",".join(
-        [
-            f'{{"id":{ident},"instrumented":{"true" if instr else "false"},'
-            f'"location":{{"lat":null,"lon":null,"node":{node}}},"status":"{state}"}}'
-            for ident, instr, node, state in zip(
-                map(encode_basestring_ascii, ids), instrumented, nodes, status, strict=True
-            )
-        ]
-    )
-    return PlainTaxis(ids, nodes, instrumented, tuple(map("vacant".__eq__, status)), f"[{canonical}]")
+    instrumented = tuple([t.instrumented for t in items])
+    vacant = tuple([t.status == "vacant" for t in items])
+    return PlainTaxis(ids, nodes, instrumented, vacant, _canonical_text(items))
 
 
 @dataclass(frozen=True, slots=True)
@@ -219,34 +213,28 @@ def _plain_text_s(text: str) -> float | None:
     return when.timestamp()
 
 
-def plain_riders(value: object) -> PlainRiders | None:
-    """The parsed JSON ``riders`` of an epoch body read without a model per rider, when every item has the
-    common form ``{"id": printable ASCII text of 1..128 characters, "origin": {"node": a JSON integer in
-    int64}, "destination": the same, "requested_at": "YYYY-MM-DDTHH:MM:SS+HH:MM"}`` (an offset other than
-    +00:00 or -00:00, a real date whose UTC instant lies in the API's years): exactly what ``RiderIn``
-    accepts and keeps unchanged in that form. ``None`` for anything else, including every item ``RiderIn``
-    would refuse: the model then validates the riders and says what is wrong (``app.api.bodies``). Each
-    check looks at one field of every rider at once (``_columns``)."""
-    columns = _columns(value, _RIDER_FIELDS)
-    if columns is None:
+def plain_riders(raw: bytes | msgspec.Raw) -> PlainRiders | None:
+    """The JSON array ``riders`` of an epoch body (its text, ``raw``) read without a model per rider, when
+    every item has the common form ``{"id": printable ASCII text of 1..128 characters, "origin": {"node": a
+    JSON integer in int64}, "destination": the same, "requested_at": "YYYY-MM-DDTHH:MM:SS+HH:MM"}`` (an
+    offset other than +00:00 or -00:00, a real date whose UTC instant lies in the API's years): exactly
+    what ``RiderIn`` accepts and keeps unchanged in that form. ``None`` for anything else, including every
+    item ``RiderIn`` would refuse: the model then validates the riders and says what is wrong
+    (``app.api.bodies``). Decoded as ``plain_taxis`` decodes the taxis (``_PlainRider``)."""
+    try:
+        items = _RIDERS.decode(raw)
+    except (msgspec.MsgspecError, RecursionError):  # msgspec's nesting limit is Python's
         return None
-    ids, origin_locs, destination_locs, texts = columns
-    origins, destinations = _plain_nodes(origin_locs), _plain_nodes(destination_locs)
-    if origins is None or destinations is None or not _plain_ids(ids):
+    ids = tuple([r.id for r in items])
+    origins = tuple([r.origin.node for r in items])
+    destinations = tuple([r.destination.node for r in items])
+    if not _in_int64(origins) or not _in_int64(destinations) or not _plain_ids(ids):
         return None
+    texts = [r.requested_at for r in items]
     times = tuple(map(_plain_time_s, texts))
     if None in times:
         return None
-    canonical = ",".join(
-        [
-            f'{{"destination":{{"lat":null,"lon":null,"node":{destination}}},"id":{ident},'
-            f'"origin":{{"lat":null,"lon":null,"node":{origin}}},"requested_at":"{text}"}}'
-            for ident, origin, destination, text in zip(
-                map(encode_basestring_ascii, ids), origins, destinations, texts, strict=True
-            )
-        ]
-    )
-    return PlainRiders(ids, origins, destinations, cast(tuple[float, ...], times), f"[{canonical}]")
+    return PlainRiders(ids, origins, destinations, cast(tuple[float, ...], times), _canonical_text(items))
 
 
 def _canonical(value: Any) -> str:

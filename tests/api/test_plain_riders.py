@@ -17,7 +17,7 @@ from services.city import City
 from tests.api.fakes import lonlat, node_id
 from tests.api.payloads import epoch
 from tests.api.test_plain_taxis import FORMS as TAXI_FORMS
-from tests.api.test_plain_taxis import _instance, city, draw, same
+from tests.api.test_plain_taxis import _instance, _text, city, draw, same
 
 __all__ = ["city"]  # the module's fixture, shared
 
@@ -58,6 +58,9 @@ FORMS: list[Any] = [  # right and wrong riders; ``{i}`` in an id is replaced by 
     rider(destination={"lon": 0.0, "lat": 0.0}),
     rider(origin={"node": 1000, "lon": LON}),
     rider(origin={"node": None}),
+    rider(origin={"lat": None, "node": node_id(1, 2), "lon": None}),
+    rider(destination={"node": node_id(3, 3), "lon": None}),
+    rider(origin={"node": node_id(1, 2), "lat": 0}),
     rider(destination={}),
     rider(origin=[1000]),
     rider(requested_at="2026-11-23T07:59:30Z"),
@@ -87,7 +90,7 @@ FORMS: list[Any] = [  # right and wrong riders; ``{i}`` in an id is replaced by 
 
 def test_common_riders_take_the_plain_path_and_come_out_as_before(city: City) -> None:
     obj = epoch(riders=[_instance(FORMS[k], i) for i, k in enumerate([0, 1, 2, 3, 4])])
-    assert plain_riders(obj["riders"]) is not None and plain_taxis(obj["taxis"]) is not None
+    assert plain_riders(_text(obj["riders"])) is not None and plain_taxis(_text(obj["taxis"])) is not None
     command = same(city, obj)
     assert isinstance(command, EpochCommand) and len(command.snapshot.riders) == 5
     assert [r.requested_at_s for r in command.snapshot.riders][:2] == [1795391970.0, 1795391400.0]
@@ -120,7 +123,7 @@ def test_random_bodies(city: City) -> None:
         obj = epoch(riders=riders, taxis=taxis)
         if rng.random() < 0.05:
             obj["time"] = "2026-11-23T08:00:00"  # another error beside the riders
-        plain += plain_riders(riders) is not None
+        plain += plain_riders(_text(riders)) is not None
         same(city, obj)
     assert plain > 100  # the plain path was exercised, not only the model's
 
@@ -134,10 +137,10 @@ def test_the_canonical_riders_are_the_models_dump() -> None:
         rider("n", requested_at="1970-01-01T08:00:00+08:00"),
     ]
     obj = epoch(riders=riders)
-    plain = plain_riders(riders)
+    plain = plain_riders(_text(riders))
     assert plain is not None and plain.requested_at_s[2] == 0.0
     whole = body_hash(EpochIn.model_validate(obj))
     assert body_hash(EpochIn.model_validate({**obj, "riders": []}), riders=plain) == whole
-    taxis = plain_taxis(obj["taxis"])
+    taxis = plain_taxis(_text(obj["taxis"]))
     assert taxis is not None
     assert body_hash(EpochIn.model_validate({**obj, "riders": [], "taxis": []}), taxis, plain) == whole

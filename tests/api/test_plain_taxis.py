@@ -106,6 +106,19 @@ FORMS: list[Any] = [  # right and wrong taxis; ``{i}`` in an id is replaced by t
     {"id": "t{i}", "location": {"lon": 0.0, "lat": 0.0}, "instrumented": True, "status": "vacant"},
     {"id": "t{i}", "location": {"node": 1000, "lon": LON}, "instrumented": True, "status": "vacant"},
     {"id": "t{i}", "location": {"node": None}, "instrumented": True, "status": "vacant"},
+    {
+        "id": "t{i}",
+        "location": {"lat": None, "node": node_id(2, 2), "lon": None},
+        "instrumented": True,
+        "status": "busy",
+    },
+    {
+        "id": "t{i}",
+        "location": {"node": node_id(2, 2), "lon": None},
+        "instrumented": False,
+        "status": "vacant",
+    },
+    {"id": "t{i}", "location": {"node": node_id(2, 2), "lon": "x"}, "instrumented": True, "status": "vacant"},
     {"id": "t{i}", "location": {}, "instrumented": True, "status": "vacant"},
     {"id": "t{i}", "location": [1000], "instrumented": True, "status": "vacant"},
     {"id": "t{i}", "location": {"node": 1000}, "instrumented": True},
@@ -114,6 +127,11 @@ FORMS: list[Any] = [  # right and wrong taxis; ``{i}`` in an id is replaced by t
     ["t{i}"],
     None,
 ]
+
+
+def _text(value: Any) -> bytes:
+    """A body member as its JSON text (what ``plain_taxis`` and ``plain_riders`` read)."""
+    return json.dumps(value).encode()
 
 
 def _instance(form: Any, i: int) -> Any:
@@ -127,7 +145,7 @@ def city(registry: CityRegistry) -> City:
 
 def test_common_taxis_take_the_plain_path_and_come_out_as_before(city: City) -> None:
     obj = epoch(taxis=[_instance(FORMS[k], i) for i, k in enumerate([0, 1, 2, 3, 4])])
-    assert plain_taxis(obj["taxis"]) is not None
+    assert plain_taxis(_text(obj["taxis"])) is not None
     command = same(city, obj)
     assert isinstance(command, EpochCommand) and len(command.snapshot.taxis) == 5
     assert [t.vacant for t in command.snapshot.taxis] == [True, False, True, True, True]
@@ -170,7 +188,7 @@ def test_other_errors_with_common_taxis_are_the_models(city: City) -> None:
     late = epoch()
     late["riders"][0]["requested_at"] = "2099-01-01T00:00:00Z"
     for obj in (bad_rider, bad_time, extra, no_id, late):
-        assert plain_taxis(obj["taxis"]) is not None
+        assert plain_taxis(_text(obj["taxis"])) is not None
         result = same(city, obj)
         assert isinstance(result, tuple) and result[0] == 422
 
@@ -192,7 +210,7 @@ def test_random_bodies(city: City) -> None:
     for _ in range(400):
         taxis = draw(rng, FORMS, 5)
         obj = epoch(taxis=taxis)
-        plain += plain_taxis(taxis) is not None
+        plain += plain_taxis(_text(taxis)) is not None
         same(city, obj)
     assert plain > 100  # the plain path was exercised, not only the model's
 
@@ -204,9 +222,10 @@ def test_the_canonical_taxis_are_the_models_dump() -> None:
         taxi('a"b\\c/d'),
         taxi("x" * 128, 2**63 - 1, instrumented=False, status="busy"),
         taxi("n", -(2**63)),
+        taxi('{"node":1}'),  # the text that opens a location, inside an id
     ]
     obj = epoch(taxis=taxis)
-    plain = plain_taxis(taxis)
+    plain = plain_taxis(_text(taxis))
     assert plain is not None
     rest = EpochIn.model_validate({**obj, "taxis": []})
     assert body_hash(rest, plain) == body_hash(EpochIn.model_validate(obj))
@@ -237,3 +256,50 @@ def test_lon_lat_positions_snapped_together_are_the_nodes_one_at_a_time() -> Non
     assert node_of(city, locs[-1], "x", snapped) == 7
     with pytest.raises(InvalidInput, match="farther than"):
         node_of(city, far, "taxis[3].location", snapped)
+
+
+def _former_text(city: City, data: bytes) -> EpochCommand:
+    """``former`` on a body's text as it is (JSON that ``json.dumps`` would not write)."""
+    body = _json(("application/json", data))
+    model = _validate(EpochIn, body)
+    return EpochCommand(snapshot_of(city, model), body_hash(model), model.time.isoformat())
+
+
+def _current_text(city: City, data: bytes) -> EpochCommand:
+    post = epoch_post(("application/json", data), LIMITS)
+    return epoch_command(city, post.body, post.taxis, post.riders)
+
+
+def test_bodies_only_their_text_can_show_come_out_as_the_models(city: City) -> None:
+    """Duplicate members (the last one counts), NaN (only pydantic-core reads it), nesting deeper than
+    msgspec's limit, bodies that are not one object, spacing, and taxis or riders the plain path cannot
+    read beside those it can."""
+    body = json.dumps(epoch(taxis=[taxi("t0"), taxi("t1", node_id(4, 4))]))
+    head, tail = body[:-1], body[-1]
+    first_taxi = json.dumps([taxi("x0")])
+    nan_rider = json.dumps(epoch()).replace('"requested_at": "', '"requested_at": NaN, "r": "', 1)
+    texts = [
+        body,
+        f"  \n{body}\t ",
+        f'{head}, "taxis": {first_taxi}{tail}',  # a second taxis member: the last one counts
+        f'{{"taxis": {first_taxi}, {body[1:]}',  # the first of two taxis members
+        f'{head}, "epoch_id": "again"{tail}',
+        nan_rider,
+        body.replace('"taxis": [', '"taxis": [NaN, ', 1),
+        f'{head}, "deep": {"[" * 5_000}{"]" * 5_000}{tail}',
+        "[]",
+        '"epoch"',
+        "5",
+        "null",
+        body + " {}",
+        body[:-2],
+        "",
+    ]
+    solved = []
+    for text in texts:
+        data = text.encode()
+        expected, got = outcome(_former_text, city, data), outcome(_current_text, city, data)
+        assert got == expected, text[:200]
+        solved.append(isinstance(got, EpochCommand))
+    assert solved[:5] == [True] * 5 and not any(solved[5:])
+    assert [t.id for t in outcome(_current_text, city, texts[2].encode()).snapshot.taxis] == ["x0"]
