@@ -4,10 +4,13 @@ demand days."""
 from __future__ import annotations
 
 import json
+import math
 import secrets
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+import orjson
 
 from app.ports import FleetRecord, PutTasksResult, SolveProgress, SolveRequest, Waiting, WorkerBeat
 from services.model import Task, TaskId, TaxiId
@@ -36,7 +39,8 @@ def format_time(time_s: float) -> str:
 
 
 def task_to_json(task: Task) -> str:
-    """Compact, key-sorted JSON of a task."""
+    """Compact, key-sorted JSON of a task (orjson: an epoch on Redis writes and reads dozens of them; a
+    time or position that is not finite is refused, as JSON has no such number)."""
     doc: dict[str, Any] = {
         "id": str(task.id),
         "node": int(task.node),
@@ -47,12 +51,22 @@ def task_to_json(task: Task) -> str:
         "mode": task.mode,
         "location": None if task.location is None else [float(task.location[0]), float(task.location[1])],
     }
-    return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    if not all(map(math.isfinite, _times(task))):
+        raise ValueError(f"task {task.id!r}: a time or position that is not a finite number")
+    return orjson.dumps(doc, option=orjson.OPT_SORT_KEYS).decode()
+
+
+def _times(task: Task) -> tuple[float, ...]:
+    return (
+        float(task.scheduled_at_s),
+        0.0 if task.completed_at_s is None else float(task.completed_at_s),
+        *(() if task.location is None else (float(task.location[0]), float(task.location[1]))),
+    )
 
 
 def task_from_json(text: str) -> Task:
-    """Inverse of ``task_to_json``."""
-    doc = json.loads(text)
+    """Inverse of ``task_to_json`` (it reads ``json.dumps``'s text of the same document too)."""
+    doc = orjson.loads(text)
     location = doc.get("location")
     completed = doc.get("completed_at_s")
     taxi = doc.get("taxi_id")
