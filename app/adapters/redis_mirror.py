@@ -6,7 +6,9 @@ every commit writing tasks and every task registration replaces. A mirror holds 
 it read or wrote at revision ``rev`` and the open tasks at ``tasks_rev``; the load script is asked only for
 the keys the mirror lacks and answers ``stale`` (then everything is read) unless the city's revision and
 version are still the mirror's, and the commit script reports whether the revisions it replaced were the
-ones the mirror held: only then is the commit applied to the mirror (it then equals what Redis holds). An
+ones the mirror held: only then is the commit applied to the mirror (it then equals what Redis holds).
+Likewise a task registration of this process, a transaction that watches the tasks' revision, adds the
+tasks it wrote to the mirror when the mirror held the revision it replaced. An
 empty revision (a city no commit has touched since its meta expired or was deleted) is never trusted.
 
 Counts and visit sets expire in Redis (the retention): each entry keeps the monotonic time before which its
@@ -116,7 +118,8 @@ class CityMirror:
                 counts[v.interval] = (deadline, cells)
 
     def apply_tasks(self, updates: Iterable[Task]) -> None:
-        """The commit script's task updates: a finished task leaves the open tasks, others are upserted."""
+        """A commit's task updates (a finished task leaves the open tasks, others are upserted) or a
+        registration's new tasks."""
         if self.tasks is None:
             return
         tasks = dict(self.tasks)  # a load may be reading the one it was handed

@@ -477,28 +477,46 @@ class RedisStore:
         (WATCH/MULTI, retried)."""
         key = self._key(city, "tasks")
         done = self._key(city, "tasks", "done")
+        rev_key = self._key(city, "tasks", "rev")
         ids = list(dict.fromkeys(str(t.id) for t in tasks))
         if not ids:
             return PutTasksResult()
         with self._guard("registering tasks"), self._client.pipeline(transaction=True) as pipe:
             while True:
                 try:
-                    pipe.watch(key, done)
+                    pipe.watch(key, done, rev_key)
                     raw = cast(list[str | None], pipe.hmget(key, ids))
                     old = cast(list[str | None], pipe.hmget(done, ids))
+                    base_rev = cast(str | None, pipe.get(rev_key)) or ""
                     raw = [r if r is not None else o for r, o in zip(raw, old, strict=True)]
                     existing = {TaskId(i): task_from_json(r) for i, r in zip(ids, raw, strict=True) if r}
                     outcome = classify_tasks(existing.get, tasks)
                     if not outcome.to_write:
                         pipe.unwatch()
                         return outcome.result
+                    new_rev = uuid.uuid4().hex  # other stores' mirrors read the open tasks again
                     pipe.multi()
                     pipe.hset(key, mapping={str(i): task_to_json(t) for i, t in outcome.to_write.items()})
-                    pipe.set(self._key(city, "tasks", "rev"), uuid.uuid4().hex)  # mirrors read them again
+                    pipe.set(rev_key, new_rev)
                     pipe.execute()
+                    self._registered(city, base_rev, new_rev, list(outcome.to_write.values()))
                     return outcome.result
                 except WatchError:
                     continue  # a commit or another registration changed the tasks: compare again
+
+    def _registered(self, city: str, base_rev: str, new_rev: str, written: list[Task]) -> None:
+        """Add the tasks a registration wrote to the city's mirror when it held the open tasks at the
+        revision the registration replaced (the transaction watched it: nothing else changed the tasks in
+        between); else the mirror's tasks are read again at the next load."""
+        with self._mirror_lock:
+            m = self._mirrors.get(city)
+            if m is None or m.tasks is None:
+                return
+            if base_rev and m.tasks_rev == base_rev:
+                m.apply_tasks(written)
+                m.tasks_rev = new_rev
+            else:
+                m.tasks_rev, m.tasks = "", None
 
     def list_tasks(self, city: str) -> list[Task]:
         """The city's open tasks and its finished ones still within the retention, by id."""

@@ -153,6 +153,47 @@ def test_the_mirror_is_read_instead_of_redis(make_redis_store: Any) -> None:
         other.close()
 
 
+def test_a_registration_adds_its_tasks_to_the_mirror(make_redis_store: Any) -> None:
+    """A store's own registration leaves its mirror's open tasks current (the next load reads no task);
+    another store's registration makes it read them again; either way the load holds every registered
+    task."""
+    store: RedisStore = make_redis_store()
+    other = RedisStore(store._url, prefix=store.prefix)
+    read_tasks: list[bool] = []  # per load script: whether it sent the open tasks
+    real = store._eval
+
+    def spy(script: str, keys: Any, args: Any) -> Any:
+        reply = real(script, keys, args)
+        if script == "load_state" and reply[2] != "stale":
+            read_tasks.append(reply[2] is not None)
+        return reply
+
+    store._eval = spy  # type: ignore[method-assign]
+    try:
+        store.put_tasks(CITY, [task("p0")])
+        state = store.load_state(CITY, KS, TAXIS)
+        assert read_tasks[-1]
+        c = commit("e1", version=state.version, tasks=[dataclasses.replace(task("p0"), status="assigned")])
+        assert store.commit_epoch(CITY, c).status == "committed"
+        store.load_state(CITY, KS, TAXIS)  # the city has a revision now: this load starts the mirror
+        store.put_tasks(CITY, [task("p1"), task("p2")])
+        mine = store.load_state(CITY, KS, TAXIS)
+        assert read_tasks[-1] is False
+        assert [(t.id, t.status) for t in mine.tasks] == [
+            ("p0", "assigned"),
+            ("p1", "pending"),
+            ("p2", "pending"),
+        ]
+        other.put_tasks(CITY, [task("p3")])
+        theirs = store.load_state(CITY, KS, TAXIS)
+        assert read_tasks[-1] is True and [t.id for t in theirs.tasks] == ["p0", "p1", "p2", "p3"]
+        assert _sorted(theirs) == _sorted(
+            RedisStore(store._url, prefix=store.prefix).load_state(CITY, KS, TAXIS)
+        )
+    finally:
+        other.close()
+
+
 def test_a_commit_whose_reply_was_lost_drops_the_mirror(make_redis_store: Any) -> None:
     """The same commit sent again (its nonce found) is answered without the revisions: the store cannot
     know what its mirror should hold, so it reads everything again."""
