@@ -378,14 +378,17 @@ class RedisStore:
                 index[key] = len(keys)  # Lua arrays are 1-based
             return index[key]
 
+        sets: dict[tuple[IntervalKey, TaxiId], dict[str, None]] = {}  # each visit set's distinct new cells
+        for v in commit.visits:
+            sets.setdefault((v.interval, v.taxi_id), {})[str(int(v.cell))] = None
         visits = [
             [
-                key_index(_count_key(tag, v.interval)),
-                key_index(_visit_key(tag, v.interval, v.taxi_id)),
-                str(int(v.cell)),
-                str(int(v.interval)),
+                key_index(_count_key(tag, k)),
+                key_index(_visit_key(tag, k, taxi)),
+                str(int(k)),
+                list(cells),
             ]
-            for v in commit.visits
+            for (k, taxi), cells in sets.items()
         ]
         with self._mirror_lock:
             base = self._mirrors.get(city)

@@ -4,7 +4,8 @@
 -- epoch time (zset), KEYS[8] the open tasks' revision, KEYS[9..] count and visit keys named by index in visits.
 -- ARGV[1] JSON {epoch_id, hash, time, expected_version, ttl, done_before, nonce, base_rev, base_tasks_rev,
 --               new_rev,
---               visits: [[count_key_index, visit_key_index, cell, interval], ...],
+--               visits: [[count_key_index, visit_key_index, interval, [cell, ...]], ...] (one entry per
+--                       visit set, its cells distinct),
 --               tasks: [[task_id, task_json, '1' if it finishes the task else '0'], ...]};
 -- ARGV[2] the response document, ARGV[3] the demand record ('' when nothing is recorded): as they are,
 -- not inside ARGV[1] (no 0.5 MB string escaped into JSON and decoded again).
@@ -42,15 +43,33 @@ local tasks_held = c.base_tasks_rev ~= '' and redis.call('GET', tasks_rev) == c.
 
 local touched = {}
 local seen_intervals = {}
+local grown = {}  -- count key index -> {cell -> how many visit sets gained it}
 for _, v in ipairs(c.visits) do
-  local count_key, visit_key, cell = KEYS[v[1]], KEYS[v[2]], v[3]
+  local count_key, visit_key, cells = KEYS[v[1]], KEYS[v[2]], v[4]
   -- a (taxi, interval, cell) is counted at most once ever: Lambda grows only for a new set member
-  if redis.call('SADD', visit_key, cell) == 1 then
-    redis.call('HINCRBY', count_key, cell, 1)
+  for i = 1, #cells, 1000 do
+    local part = {unpack(cells, i, math.min(i + 999, #cells))}
+    local member = redis.call('SMISMEMBER', visit_key, unpack(part))
+    redis.call('SADD', visit_key, unpack(part))
+    local add = grown[v[1]]
+    if not add then
+      add = {}
+      grown[v[1]] = add
+    end
+    for j, cell in ipairs(part) do
+      if member[j] == 0 then
+        add[cell] = (add[cell] or 0) + 1
+      end
+    end
   end
-  seen_intervals[v[4]] = true
+  seen_intervals[v[3]] = true
   touched[count_key] = true
   touched[visit_key] = true
+end
+for k, add in pairs(grown) do
+  for cell, n in pairs(add) do
+    redis.call('HINCRBY', KEYS[k], cell, n)
+  end
 end
 for k, _ in pairs(seen_intervals) do
   redis.call('ZADD', intervals, k, k)
