@@ -95,27 +95,43 @@ class CityMirror:
     def apply_visits(self, visits: Sequence[Visit], now: float, deadline: float) -> None:
         """The commit script's visits, sent at ``now``: a cell new to a (taxi, interval) set counts once
         more, and every key written lives until ``deadline``. A set the mirror does not hold makes its
-        interval's counts unknown (whether a visit was new is unknown)."""
+        interval's counts unknown (whether a visit was new is unknown). Each entry a commit changes is
+        copied once, whatever the number of its visits."""
         counts, sets = self.counts, self.visits
+        new: dict[VisitKey, set[tuple[IntervalKey, int]]] = {}  # per held set: the pairs it gains
+        grown: dict[IntervalKey, dict[int, int]] = {}  # per interval: cell -> sets that gained it
+        unknown: set[IntervalKey] = set()
         for v in visits:
             key = (v.interval, v.taxi_id)
             have = sets.get(key)
             if have is None or not have[0] > now:
                 sets.pop(key, None)
-                counts.pop(v.interval, None)
+                new.pop(key, None)
+                unknown.add(v.interval)
                 continue
             pair = (v.interval, int(v.cell))
-            if pair in have[1]:
-                sets[key] = (deadline, have[1])
+            gained = new.setdefault(key, set())
+            if pair in have[1] or pair in gained:
                 continue
-            sets[key] = (deadline, have[1] | {pair})
-            hit = counts.get(v.interval)
-            if hit is not None and not hit[0] > now:
-                counts.pop(v.interval)
-            elif hit is not None:
-                cells = dict(hit[1])
-                cells[int(v.cell)] = cells.get(int(v.cell), 0) + 1
-                counts[v.interval] = (deadline, cells)
+            gained.add(pair)
+            cells = grown.setdefault(v.interval, {})
+            cells[pair[1]] = cells.get(pair[1], 0) + 1
+        for key, gained in new.items():
+            have = sets[key]
+            sets[key] = (deadline, have[1] | gained if gained else have[1])
+        for k, add in grown.items():
+            hit = counts.get(k)
+            if k in unknown or hit is None:
+                continue
+            if not hit[0] > now:
+                counts.pop(k)
+                continue
+            cells = dict(hit[1])
+            for cell, n in add.items():
+                cells[cell] = cells.get(cell, 0) + n
+            counts[k] = (deadline, cells)
+        for k in unknown:
+            counts.pop(k, None)
 
     def apply_tasks(self, updates: Iterable[Task]) -> None:
         """A commit's task updates (a finished task leaves the open tasks, others are upserted) or a
