@@ -10,6 +10,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Set as AbstractSet
 from contextlib import contextmanager
 from importlib import resources
 from typing import Any, Literal, TypeVar, cast
@@ -45,6 +46,7 @@ from app.adapters.redis_mirror import (
     CityMirror,
     CountEntry,
     Held,
+    Pairs,
     VisitEntry,
     VisitKey,
     deadline_of,
@@ -250,10 +252,14 @@ class RedisStore:
         tasks = held.tasks if replies[2] is None else self._decode_open(city, replies[2])
         assert tasks is not None  # the script leaves them out only when the mirror's are current
         self._remember(city, held, read, (ks, counts), (pairs, sets), tasks)
-        visited: dict[TaxiId, set[tuple[IntervalKey, int]]] = {taxi: set() for taxi in taxis}
+        found: dict[TaxiId, list[Pairs]] = {taxi: [] for taxi in taxis}
         for (_, taxi), (_, cells) in zip(pairs, sets, strict=True):
             if cells:
-                visited[taxi].update(cells)
+                found[taxi].append(cells)
+        # the one frozen set of a taxi counted in one interval only (the common case) is handed out as it is
+        visited: dict[TaxiId, AbstractSet[tuple[IntervalKey, int]]] = {
+            taxi: sets_[0] if len(sets_) == 1 else frozenset().union(*sets_) for taxi, sets_ in found.items()
+        }
         return CityState(
             version=read.version,
             last_epoch_id=last_epoch,
