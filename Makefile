@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.sensedispatch-installed
 
-.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service bench-fleet-own-city openapi dashboard
+.PHONY: install test check lint format run demo replay experiment fleet-experiment bench bench-epoch bench-epoch-redis bench-http-path bench-search bench-sim bench-dro bench-cluster bench-fleet-metro bench-hardening bench-fleet-service bench-fleet-own-city openapi dashboard
 
 install: $(STAMP)
 
@@ -65,6 +65,11 @@ bench-epoch: $(STAMP)
 # The HTTP path with the service on Redis (REDIS_URL, default the local server): its own section.
 bench-epoch-redis: $(STAMP)
 	$(PY) -m bench.bench_epoch --redis-url $${REDIS_URL:-redis://127.0.0.1:6379/0}
+
+# Where an epoch post's time goes besides the solve, stage by stage, in this process (prints; a minute):
+# ARGS="--scenario paper --redis-url redis://127.0.0.1:6379/9" for another scenario or the Redis store.
+bench-http-path: $(STAMP)
+	$(PY) -m bench.bench_http_path $(ARGS)
 
 # One search of an epoch, and the search structures' memory, on the generated metropolitan city (a few minutes).
 bench-search: $(STAMP)
