@@ -5,8 +5,9 @@ threadpool, and collects every error: a 1 MiB body of 350,000 empty riders kept 
 rendered a 75 MiB error. Here the raw bytes (already buffered and size-capped by ``BodyLimit``) go to a
 plain ``def`` dependency, which FastAPI runs in the threadpool (the epoch route, whose every millisecond
 counts, calls ``epoch_post`` itself on its own threadpool thread instead: one hop to the threadpool, not
-two): it parses the JSON (pydantic-core's parser: bounded nesting), refuses arrays longer than the
-configured limits *before* any item is validated, then validates the model. Errors are capped when
+two): it parses the JSON (pydantic-core's parser: bounded nesting; an epoch's taxis and riders in their
+common form are decoded by msgspec instead, ``epoch_post``), refuses arrays longer than the configured
+limits *before* the model validates any item, then validates the model. Errors are capped when
 rendered (``app.api.handlers``). The routes declare their body schema with ``request_body`` so the OpenAPI
 document keeps describing it (``openapi_components``).
 """

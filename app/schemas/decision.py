@@ -134,16 +134,13 @@ def _in_int64(nodes: Sequence[int]) -> bool:
     return not nodes or (min(nodes) >= _INT64[0] and max(nodes) <= _INT64[1])
 
 
-def _plain_ids(ids: Sequence[object]) -> bool:
+def _plain_ids(ids: Sequence[str]) -> bool:
     """Whether every id is printable ASCII text of 1..``ID_MAX_LEN`` characters (what ``Identifier``
     keeps)."""
-    if not set(map(type, ids)) <= {str}:
-        return False
-    texts = cast(Sequence[str], ids)
-    lengths = set(map(len, texts))
+    lengths = set(map(len, ids))
     if lengths and (min(lengths) < 1 or max(lengths) > ID_MAX_LEN):
         return False
-    every_id = "".join(texts)  # no id is empty, so one look at them all
+    every_id = "".join(ids)  # no id is empty, so one look at them all
     return every_id.isascii() and not _CONTROL.search(every_id)
 
 
@@ -192,14 +189,10 @@ class PlainRiders:
     canonical: str  # the JSON array ``body_hash`` writes for these riders
 
 
-def _plain_time_s(text: object) -> float | None:
+@functools.lru_cache(maxsize=8192)  # a waiting rider is posted again, with the same text, every epoch
+def _plain_time_s(text: str) -> float | None:
     """POSIX seconds of a request time the model keeps as written (``_PLAIN_TIME``) and accepts (a real
     date whose UTC instant lies in the API's years), else ``None``."""
-    return _plain_text_s(text) if type(text) is str else None
-
-
-@functools.lru_cache(maxsize=8192)  # a waiting rider is posted again, with the same text, every epoch
-def _plain_text_s(text: str) -> float | None:
     if not _PLAIN_TIME.fullmatch(text):
         return None
     try:
@@ -230,8 +223,7 @@ def plain_riders(raw: bytes | msgspec.Raw) -> PlainRiders | None:
     destinations = tuple([r.destination.node for r in items])
     if not _in_int64(origins) or not _in_int64(destinations) or not _plain_ids(ids):
         return None
-    texts = [r.requested_at for r in items]
-    times = tuple(map(_plain_time_s, texts))
+    times = tuple([_plain_time_s(r.requested_at) for r in items])
     if None in times:
         return None
     return PlainRiders(ids, origins, destinations, cast(tuple[float, ...], times), _canonical_text(items))
