@@ -106,7 +106,6 @@ class CityMirror:
             have = sets.get(key)
             if have is None or not have[0] > now:
                 sets.pop(key, None)
-                new.pop(key, None)
                 unknown.add(v.interval)
                 continue
             pair = (v.interval, int(v.cell))
