@@ -328,6 +328,15 @@ def _iso(city: City, t: float) -> str:
     return dt.datetime.fromtimestamp(t, tz=ZoneInfo(city.horizon.timezone)).isoformat()
 
 
+def task_docs(city: City, tasks: list[Task]) -> list[dict[str, Any]]:
+    """New tasks as the platform registers them (``POST .../tasks``): external node ids, local times."""
+    ids = city.network.node_ids
+    return [
+        {"id": t.id, "location": {"node": int(ids[t.node])}, "scheduled_at": _iso(city, t.scheduled_at_s)}
+        for t in tasks
+    ]
+
+
 def _epoch_body(city: City, snap: Snapshot) -> str:
     ids = city.network.node_ids
     return json.dumps(
@@ -448,19 +457,8 @@ def _service(
 
 def _post_epoch(svc: _Service, city: City, snap: Snapshot, tasks: list[Task]) -> tuple[float, dict[str, Any]]:
     """Register the epoch's new tasks, post the epoch; the round trip's seconds and the response."""
-    ids = city.network.node_ids
     if tasks:
-        svc.client.post(
-            f"/v1/cities/{svc.name}/tasks",
-            json=[
-                {
-                    "id": t.id,
-                    "location": {"node": int(ids[t.node])},
-                    "scheduled_at": _iso(city, t.scheduled_at_s),
-                }
-                for t in tasks
-            ],
-        ).raise_for_status()
+        svc.client.post(f"/v1/cities/{svc.name}/tasks", json=task_docs(city, tasks)).raise_for_status()
     body = _epoch_body(city, snap)
     t0 = time.perf_counter()
     r = svc.client.post(

@@ -30,6 +30,7 @@ from contextlib import contextmanager
 from typing import Any, cast
 
 import numpy as np
+from pydantic import TypeAdapter
 
 from app.adapters.bounded import BoundedStore
 from app.adapters.city_registry import CityRegistry
@@ -41,13 +42,14 @@ from app.api.warmup import GC_THRESHOLD
 from app.ports import Store
 from app.schemas.tasks import TaskIn
 from app.settings import Settings
-from app.usecases import EpochLimits, EpochResult, TaskService
+from app.usecases import EpochLimits, TaskService
 from app.usecases.epoch_record import render_epoch
 from app.usecases.epochs import EpochService
-from bench.bench_epoch import SCENARIOS, Epochs, _epoch_body, _iso, load_city
+from bench.bench_epoch import SCENARIOS, Epochs, _epoch_body, load_city, task_docs
 from services.dispatch import decide, warm_up
 from services.model import Decision
 
+_TASKS = TypeAdapter(list[TaskIn])
 STAGES = ("parse", "command", "load", "decide", "render", "commit", "other")
 
 
@@ -129,17 +131,16 @@ def run(scenario: str, epochs: int, redis_url: str | None = None, profile: bool 
             prof.enable()
         return decided[-1]
 
-    def render_timed(result: EpochResult) -> str:
-        with clock.stage("render"):
-            return render_epoch(result)
-
     service = EpochService(
-        registry, cast(Store, store), decide_timed, render_epoch=render_timed, limits=EpochLimits()
+        registry,
+        cast(Store, store),
+        decide_timed,
+        render_epoch=clock.timed("render", render_epoch),
+        limits=EpochLimits(),
     )
     tasks = TaskService(registry, cast(Store, store))
     platform = Epochs(sc, city)
     limits = Limits()
-    ids = city.network.node_ids
     rows: list[dict[str, float]] = []
     gc.set_threshold(*GC_THRESHOLD)
     gc.collect()
@@ -149,17 +150,7 @@ def run(scenario: str, epochs: int, redis_url: str | None = None, profile: bool 
         for e in range(epochs + 1):
             snap, new = platform.next()
             if new:
-                posted = [
-                    TaskIn.model_validate(
-                        {
-                            "id": t.id,
-                            "location": {"node": int(ids[t.node])},
-                            "scheduled_at": _iso(city, t.scheduled_at_s),
-                        }
-                    )
-                    for t in new
-                ]
-                tasks.put_tasks(served, tasks_of(served, posted))
+                tasks.put_tasks(served, tasks_of(served, _TASKS.validate_python(task_docs(city, new))))
             body = ("application/json", _epoch_body(city, snap).encode())
             clock.spent.clear()
             if profile and e > 0:

@@ -16,7 +16,8 @@ def _check(res: dict[str, object], store: str) -> None:
     med = res["median_ms"]
     assert isinstance(med, dict) and set(med) == {*bench_http_path.STAGES, "total"}
     assert res["store"] == store and res["epochs"] == 2
-    assert med["decide"] > 0 and all(med[k] >= 0 for k in bench_http_path.STAGES if k != "other")
+    # every stage was timed inside the epoch's whole, and the rest of the use case is what is left of it
+    assert all(med[k] > 0 for k in bench_http_path.STAGES if k != "other") and med["other"] >= 0
     besides = res["besides_decide_ms"]
     assert isinstance(besides, float) and 0 < besides < med["total"]
 
