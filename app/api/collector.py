@@ -1,9 +1,9 @@
 """The cyclic garbage collector kept out of epoch exchanges: collected after the response, not during it.
 
 An epoch allocates hundreds of thousands of objects (the parsed body, the snapshot, the decision, the
-response's documents), so even with the service's thresholds (``app.api.warmup.GC_THRESHOLD``) the
-collector ran a few times inside each exchange, each pass walking every young object. Almost all of them
-are freed by reference counting as the exchange ends; what the collector finds is rarely garbage. So while
+response's documents), enough to pass the service's thresholds (``app.api.warmup.GC_THRESHOLD``) a few
+times an exchange, each pass walking every young object. Almost all of them are freed by reference
+counting as the exchange ends; what the collector finds is rarely garbage. So while
 an epoch post is in flight (``EpochForeground`` holds ``CollectorDeferral.held`` from its headers to its
 response handed to the server) the collector is off; when the last exchange in flight ends it is on again,
 and the first allocation after that runs the collection its counts are due, by its own rules, on the

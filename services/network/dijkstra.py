@@ -143,9 +143,9 @@ def _crossing_cost(
     s: int,
 ) -> int:
     """A lazy metric's cost of super-edge ``s``, one of whose edges enters a cell (``graph.lazy_edge``
-    summed over its edges). A call, not inlined: inlined, it counted a reference to six of its arrays
-    each time it ran (twelve atomic operations per crossing super-edge); the searches pass it plain
-    arrays, since a call that takes records counts a reference to each of their arrays."""
+    summed over its edges). A call, not inlined: inlined, numba would count a reference to six of its
+    arrays each time it runs (twelve atomic operations per crossing super-edge); the searches pass it
+    plain arrays, since a call that takes records counts a reference to each of their arrays."""
     c = 0
     for p in range(se_ptr[s], se_ptr[s + 1]):
         e = se_edges[p]

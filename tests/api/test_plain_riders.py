@@ -1,7 +1,7 @@
 """An epoch body's riders in their common form are read without a model per rider (``plain_riders``); every
 other body goes through the model as before. Either way a post must come out exactly as the model alone
 made it: the same resolved snapshot, the same canonical hash, or the same error (status, kind, detail and
-fields). Checked against the whole model (``tests.api.test_plain_taxis.former``) on hand-picked and on
+fields). Checked against the whole model (``tests.api.test_plain_taxis.model_only``) on hand-picked and on
 random bodies that mix every form a rider can take, right or wrong, beside common and other taxis."""
 
 from __future__ import annotations

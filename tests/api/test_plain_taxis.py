@@ -1,7 +1,7 @@
 """An epoch body's taxis in their common form are read without a model per taxi (``plain_taxis``); every
 other body goes through the model as before. Either way a post must come out exactly as the model alone
 made it: the same resolved snapshot, the same canonical hash, or the same error (status, kind, detail and
-fields). Checked here against the former path (validate the whole body, resolve, hash) on hand-picked and
+fields). Checked here against the model-only path (validate the whole body, resolve, hash) on hand-picked and
 on random bodies that mix every form a taxi can take, right or wrong."""
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from tests.api.payloads import epoch
 LIMITS = Limits(max_riders=20, max_taxis=6, max_tasks=10)
 
 
-def former(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
+def model_only(city: City, obj: Any, limits: Limits = LIMITS) -> EpochCommand:
     """The epoch path without ``plain_taxis`` and ``plain_riders``: the model validates the whole body."""
     body = _json(("application/json", json.dumps(obj).encode()))
     if isinstance(body, dict):
@@ -60,7 +60,7 @@ def outcome(run: Any, city: City, obj: Any) -> Any:
 def same(city: City, obj: Any) -> Any:
     """Both paths' outcome (asserted equal); a body of more items than the limits is refused by both."""
     try:
-        before = outcome(former, city, obj)
+        before = outcome(model_only, city, obj)
     except _Skip:
         return None
     after = outcome(current, city, obj)
@@ -258,8 +258,8 @@ def test_lon_lat_positions_snapped_together_are_the_nodes_one_at_a_time() -> Non
         node_of(city, far, "taxis[3].location", snapped)
 
 
-def _former_text(city: City, data: bytes) -> EpochCommand:
-    """``former`` on a body's text as it is (JSON that ``json.dumps`` would not write)."""
+def _model_only_text(city: City, data: bytes) -> EpochCommand:
+    """``model_only`` on a body's text as it is (JSON that ``json.dumps`` would not write)."""
     body = _json(("application/json", data))
     model = _validate(EpochIn, body)
     return EpochCommand(snapshot_of(city, model), body_hash(model), model.time.isoformat())
@@ -298,7 +298,7 @@ def test_bodies_only_their_text_can_show_come_out_as_the_models(city: City) -> N
     solved = []
     for text in texts:
         data = text.encode()
-        expected, got = outcome(_former_text, city, data), outcome(_current_text, city, data)
+        expected, got = outcome(_model_only_text, city, data), outcome(_current_text, city, data)
         assert got == expected, text[:200]
         solved.append(isinstance(got, EpochCommand))
     assert solved[:5] == [True] * 5 and not any(solved[5:])
