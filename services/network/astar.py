@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.kernel.jit import compiled, compiled_inline
-from services.network.dijkstra import _crossing_cost, _label, _lazy_ends, _need_targets, _seed
+from services.network.dijkstra import _label, _lazy_ends, _need_targets, _seed, crossing_cost
 from services.network.graph import (
     INF,
     Costs,
@@ -558,7 +558,7 @@ def guided(
             elif fixed[s] >= 0:
                 c = d + fixed[s]
             else:
-                c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
+                c = d + crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
             a, b = a0 + se_tie1[s], b0 + se_tie2[s]
             if _less(c, a, b, cost[h], tie1[h], tie2[h]):
                 if cost[h] == INF and not need[h]:

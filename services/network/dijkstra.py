@@ -130,7 +130,7 @@ def _lazy_ends(
 
 
 @compiled
-def _crossing_cost(
+def crossing_cost(
     se_ptr: NDArray[np.int64],
     se_edges: NDArray[np.int64],
     ec_ptr: NDArray[np.int64],
@@ -298,7 +298,7 @@ def _settle_dead_ends(
 # node from the ring, linking one into it and moving one between buckets are therefore written out in the
 # loop (as inlined helpers, a tree bounded by the reach on the generated metropolis took 3.15 ms against
 # 1.75 ms written out: ``bench.bench_search`` in both versions), and the super-edges' lazy costs are a call
-# (``_crossing_cost``), which lends its arrays.
+# (``crossing_cost``), which lends its arrays.
 #
 # Nodes are taken from a bucket queue of width ``costs.width`` (the cheapest super-edge): every label in the
 # lowest non-empty bucket is final, because anything that could still improve it would come along a
@@ -402,7 +402,7 @@ def _grow_loop(
                 continue
             c = d + (fixed[s] if lazy_on else se_cost[s])
             if lazy_on and fixed[s] < 0:
-                c = d + _crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
+                c = d + crossing_cost(se_ptr, se_edges, ec_ptr, ec_cell, time_s, zmask, term, umax, kappa, s)
             a, b, ch = tie1[k] + se_tie1[s], tie2[k] + se_tie2[s], cost[h]
             if c > limit or not (c < ch or (c == ch and (a < tie1[h] or (a == tie1[h] and b < tie2[h])))):
                 continue

@@ -21,11 +21,14 @@ and kappa instead of one tree per taxi and kappa, and a taxi searches again only
 enters one of its counted cells: the canonical path (``services.network.graph``) under the base costs avoids
 every edge where the taxi's costs differ, and those are nowhere lower, so it is the taxi's canonical path too.
 Both ways give the same routes, and the tests check it. A taxi's own costs are computed as its searches
-reach each edge (``graph.Lazy``), never for the whole network.
+reach each edge (``graph.Lazy``), never for the whole network; when many taxis grow their own trees, the
+base costs of the super-edges that enter a cell are computed once for the epoch (``Overlay``) and a taxi's
+trees compute only those entering its counted cells, the same integers either way.
 """
 
 from __future__ import annotations
 
+import itertools
 import threading
 import weakref
 from collections.abc import Sequence
@@ -89,6 +92,13 @@ metro250k about 160 (a search settles about 90 nodes); no taxi there has more th
 fastest routes enter its counted cells."""
 
 
+OVERLAY_TAXIS = 8
+"""From how many taxis growing their own kappa trees on the base normalization on, an epoch computes every
+crossing super-edge's base kappa costs beforehand (``Overlay``; a pass over the crossing super-edges per
+kappa), so that their trees compute only the super-edges entering their counted cells as they go; only
+speed depends on it."""
+
+
 class KappaGraph(NamedTuple):
     """The network as Algorithm 1's kernels take it: the edges, both search graphs with the travel time
     prepared for each, the edges that enter a cell (the only ones whose utility can be positive), the
@@ -103,6 +113,8 @@ class KappaGraph(NamedTuple):
     time_rev: Costs
     crossing: NDArray[np.int64]
     fixed: NDArray[np.int64]  # (S,) forward: the cost of a super-edge that enters no cell, else -1
+    cell_se_ptr: NDArray[np.int64]  # (C + 1,) CSR: per cell, the forward super-edges with an edge entering it
+    cell_se: NDArray[np.int64]
     floor_width: NDArray[np.int64]
     floor_span: NDArray[np.int64]
     time_lm: NDArray[np.int64]  # (n, 2 L) the landmarks' table (``point_to_point.landmarks``)
@@ -181,6 +193,24 @@ class BaseKappa(NamedTuple):
     span: NDArray[np.int64]
 
 
+class Overlay(NamedTuple):
+    """The super-edges' kappa costs of a taxi counted in no cell, with the base normalization (``base``, row
+    q: kappa ``kappas[q]``; a super-edge that enters no cell: its travel time, as ``KappaGraph.fixed``),
+    and one thread's copy of it (``own``) where a taxi's tree marks the super-edges entering its counted
+    cells -1 (computed as the search reaches them) and restores them after. Shape (0, 0): none."""
+
+    base: NDArray[np.int64]
+    own: NDArray[np.int64]
+    width: NDArray[np.int64]  # (kappas,) the bucket queue's: the cheapest super-edge in ``base``
+    span: NDArray[np.int64]
+
+
+def no_overlay() -> Overlay:
+    """The ``Overlay`` of trees that compute every crossing super-edge's cost as they reach it."""
+    empty = np.zeros((0, 0), dtype=np.int64)
+    return Overlay(empty, empty, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
+
 @compiled
 def _base_kappa(net: KappaGraph, gains: Gains, kappas: NDArray[np.float64], in_trees: bool) -> BaseKappa:
     """The epoch's ``BaseKappa`` (its reverse metrics only when ``in_trees``). Only the edges that enter a
@@ -253,8 +283,26 @@ def _own_metric(
     net: KappaGraph, scratch: RouteScratch, gains: Gains, kappa_row: int, kappa: float, umax: float
 ) -> tuple[Costs, Lazy]:
     """The kappa metric of the taxi whose zero mask ``scratch`` holds, computed as a search reaches it."""
-    costs = Costs(scratch.edge_cost, scratch.se_cost, net.floor_width[kappa_row], net.floor_span[kappa_row])
-    return costs, Lazy(True, kappa, umax, gains.term[0], scratch.zmask[0], net.fixed)
+    fixed, width, span = net.fixed, net.floor_width[kappa_row], net.floor_span[kappa_row]
+    return _own_metric_over(net, scratch, gains, kappa_row, kappa, umax, fixed, width, span)
+
+
+@compiled_inline
+def _own_metric_over(
+    net: KappaGraph,
+    scratch: RouteScratch,
+    gains: Gains,
+    kappa_row: int,
+    kappa: float,
+    umax: float,
+    fixed: NDArray[np.int64],
+    width: int,
+    span: int,
+) -> tuple[Costs, Lazy]:
+    """``_own_metric`` with the super-edges' costs known beforehand in ``fixed`` (-1: computed as the search
+    reaches it) and the bucket queue's geometry: ``net.fixed`` and the floor's, or an ``Overlay``'s."""
+    costs = Costs(scratch.edge_cost, scratch.se_cost, width, span)
+    return costs, Lazy(True, kappa, umax, gains.term[0], scratch.zmask[0], fixed)
 
 
 @compiled_inline
@@ -468,11 +516,14 @@ def _from_taxi(
     best: Best,
     taxi: int,
     fastest: bool,
+    overlay: Overlay,
 ) -> tuple[int, int]:
     """Taxi ``taxi``'s trees: under the travel time (when ``fastest``: bounded by the reach, every POI a
     target) and under each of its kappa metrics, bounded by its farthest fastest route to a POI in reach
-    with those POIs as targets; evaluated along the tree and folded in kappa order. Returns the largest
-    slot reached and the number of trees grown."""
+    with those POIs as targets; evaluated along the tree and folded in kappa order. Where the taxi's
+    normalization is the base's, its kappa metrics are read from ``overlay`` (when it holds one) but on the
+    super-edges entering a cell it is counted in. Returns the largest slot reached and the number of trees
+    grown."""
     ed = net.ed
     src = problem.sources[taxi]
     scratch = scratch
@@ -509,17 +560,50 @@ def _from_taxi(
             j = near[r]
             best.d0_us[taxi, j] = label[0, j]
             _fold(best, taxi, j, 0, g[r], t[r], length[r])
+    ms, n = _taxi_kappa_trees(net, problem, base, scratch, best, taxi, overlay, out)
+    mark(scratch.zmask, problem.counted, taxi, False)
+    return max(max_slot, ms), grown + n
+
+
+@compiled
+def _taxi_kappa_trees(
+    net: KappaGraph,
+    problem: Problem,
+    base: BaseKappa,
+    scratch: RouteScratch,
+    best: Best,
+    taxi: int,
+    overlay: Overlay,
+    out: TreeOut,
+) -> tuple[int, int]:
+    """``_from_taxi``'s kappa > 0 trees (the taxi's zero mask set in ``scratch``, its fastest routes in
+    ``best``; ``out``: room for one route per POI): the largest slot reached and the number grown."""
+    ed = net.ed
+    src = problem.sources[taxi]
+    ws = scratch.forward
+    g, t, length = out.gain, out.time_s, out.length_m
+    max_slot = 0
+    grown = 0
     near = np.flatnonzero(best.d0_us[taxi] < INF)
     if near.shape[0] > 0 and base.umax > 0.0:
         limit = best.d0_us[taxi][near].max()
         umax = _umax_of(net, problem.gn, scratch.zmask, base)
         nodes = problem.targets[near]
         reached = np.empty(near.shape[0], dtype=np.bool_)
+        over = overlay.own.shape[0] > 0 and umax == base.umax
+        if over:
+            _overlay_taxi(net, problem.counted, taxi, overlay, True)
         for q in range(problem.kappas.shape[0]):
             kappa = problem.kappas[q]
             if kappa == 0.0 or umax <= 0.0:
                 continue
-            costs, lazy = _own_metric(net, scratch, problem.gn, q, kappa, umax)
+            if over:
+                w, span = overlay.width[q], overlay.span[q]
+                costs, lazy = _own_metric_over(
+                    net, scratch, problem.gn, q, kappa, umax, overlay.own[q], w, span
+                )
+            else:
+                costs, lazy = _own_metric(net, scratch, problem.gn, q, kappa, umax)
             dijkstra.grow(net.fg, ed, costs, src, limit, nodes, ws, lazy)
             grown += 1
             if not unfolding.unfold_many(net.fg, ed, costs, limit, nodes, ws, reached):
@@ -530,8 +614,77 @@ def _from_taxi(
             max_slot = max(max_slot, ms)
             for r in range(near.shape[0]):
                 _fold(best, taxi, near[r], q, g[r], t[r], length[r])
-    mark(scratch.zmask, problem.counted, taxi, False)
+        if over:
+            _overlay_taxi(net, problem.counted, taxi, overlay, False)
     return max_slot, grown
+
+
+@compiled
+def _overlay_base(net: KappaGraph, gains: Gains, kappas: NDArray[np.float64], umax: float) -> Overlay:
+    """The ``Overlay`` (``own`` its ``base``) of a taxi counted in no cell whose largest entered utility is
+    ``umax``: every crossing super-edge's cost under each kappa metric (``dijkstra.crossing_cost``, the
+    same operations as a lazy search makes: the same integers), every other super-edge's travel time. A
+    taxi counted in cells costs as much or more on every super-edge (it sums fewer non-negative terms into
+    an edge's utility), so the cheapest super-edge bounds its metric's from below, and its travel time any
+    super-edge's cost from above."""
+    nk, n_se = kappas.shape[0], net.fixed.shape[0]
+    out = np.empty((nk, n_se), dtype=np.int64)
+    width = np.ones(nk, dtype=np.int64)
+    span = np.ones(nk, dtype=np.int64)
+    hi = max(1, net.time_fwd.se.max()) if n_se > 0 else 1
+    clear = np.zeros(gains.term.shape[1], dtype=np.bool_)
+    fg, ed, term = net.fg, net.ed, gains.term[0]
+    for q in range(nk):
+        out[q] = net.fixed
+        if kappas[q] == 0.0 or umax <= 0.0:
+            continue
+        for s in range(n_se):
+            if net.fixed[s] < 0:
+                out[q, s] = dijkstra.crossing_cost(
+                    fg.se_ptr, fg.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s, clear, term, umax, kappas[q], s
+                )
+        width[q] = max(1, out[q].min()) if n_se > 0 else 1
+        span[q] = hi // width[q] + 2
+    return Overlay(out, out, width, span)
+
+
+@compiled
+def _overlay_taxi(net: KappaGraph, counted: Counted, taxi: int, overlay: Overlay, on: bool) -> None:
+    """Mark (``on``) in ``overlay.own`` the super-edges with an edge entering a cell ``taxi`` is counted in
+    during the first slot -1, or restore them from ``overlay.base``."""
+    for p in range(counted.ptr[taxi], counted.ptr[taxi + 1]):
+        if counted.slot[p] != 0:
+            continue
+        c = counted.cell[p]
+        for r in range(net.cell_se_ptr[c], net.cell_se_ptr[c + 1]):
+            se = net.cell_se[r]
+            for q in range(overlay.own.shape[0]):
+                overlay.own[q, se] = -1 if on else overlay.base[q, se]
+
+
+@compiled
+def _cell_super_edges(
+    graph: SearchGraph, edges: Edges, n_cells: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """``KappaGraph.cell_se_ptr`` and ``cell_se``: per cell, the super-edges of ``graph`` with an edge that
+    enters it (a cell of the edge's but its first)."""
+    counts = np.zeros(n_cells + 1, dtype=np.int64)
+    for s in range(graph.se_ptr.shape[0] - 1):
+        for p in range(graph.se_ptr[s], graph.se_ptr[s + 1]):
+            e = graph.se_edges[p]
+            for j in range(edges.ec_ptr[e] + 1, edges.ec_ptr[e + 1]):
+                counts[edges.ec_cell[j] + 1] += 1
+    ptr = np.cumsum(counts)
+    out = np.empty(ptr[-1], dtype=np.int64)
+    fill = ptr[:-1].copy()
+    for s in range(graph.se_ptr.shape[0] - 1):
+        for p in range(graph.se_ptr[s], graph.se_ptr[s + 1]):
+            e = graph.se_edges[p]
+            for j in range(edges.ec_ptr[e] + 1, edges.ec_ptr[e + 1]):
+                c = edges.ec_cell[j]
+                out[fill[c]] = s
+                fill[c] += 1
+    return ptr, out
 
 
 @compiled
@@ -638,12 +791,18 @@ def plan_routes(
     if from_roots:
         slots, own, in_trees, guided = _in_trees(kt, problem, base, best, workers, pool)
 
+    rows = np.flatnonzero(own).tolist() if from_roots else list(range(f))
+    over_base = (
+        _overlay_base(kt, gn, kap, base.umax) if len(rows) >= OVERLAY_TAXIS and base.umax > 0.0 else None
+    )
+    token = next(_overlay_tokens)
+
     def taxis(rows: Sequence[int]) -> list[tuple[int, int]]:
         with pool.take() as thread_scratch:
             scratch = route_scratch(thread_scratch, gn)
-            return [_from_taxi(kt, problem, base, scratch, best, i, not from_roots) for i in rows]
+            overlay = no_overlay() if over_base is None else _thread_overlay(thread_scratch, over_base, token)
+            return [_from_taxi(kt, problem, base, scratch, best, i, not from_roots, overlay) for i in rows]
 
-    rows = np.flatnonzero(own).tolist() if from_roots else list(range(f))
     done = parallel_map(taxis, rows, workers)
     slots += [ms for ms, _ in done]
     if problem.reach_us >= INF and f and p and (best.d0_us >= INF).any():
@@ -704,6 +863,19 @@ def _in_trees(
         # as for kappa = 0 (speed only: both give the canonical routes).
         own[:] = True
     return slots, own, in_trees, guided
+
+
+def _thread_overlay(thread_scratch: Scratch, base: Overlay, token: int) -> Overlay:
+    """The thread's copy of ``base`` (an ``Overlay`` whose ``own`` is its ``base``), made once per ``token``
+    (one per ``plan_routes``: a taxi's tree restores what it marks)."""
+    got = thread_scratch.extra.get("overlay")
+    if not (isinstance(got, tuple) and got[0] == token):
+        own = (
+            got[1] if isinstance(got, tuple) and got[1].shape == base.base.shape else np.empty_like(base.base)
+        )
+        np.copyto(own, base.base)
+        got = thread_scratch.extra["overlay"] = (token, own)
+    return base._replace(own=got[1])
 
 
 def route_scratch(thread_scratch: Scratch, gains: Gains) -> RouteScratch:
@@ -784,6 +956,8 @@ def _floor_landmarks(graph: RoadGraph, kappa: float) -> NDArray[np.int64]:
     )
 
 
+_overlay_tokens = itertools.count()
+
 _kits: weakref.WeakKeyDictionary[RoadGraph, dict[tuple[float, ...], KappaGraph]] = weakref.WeakKeyDictionary()
 _kits_lock = threading.Lock()
 
@@ -804,6 +978,7 @@ def kappa_graph(graph: RoadGraph, kappas: tuple[float, ...]) -> KappaGraph:
                 graph.time_reverse,
                 graph.crossing,
                 fixed_super_edges(graph.forward, ed, graph.time_forward),
+                *_cell_super_edges(graph.forward, ed, int(graph.n_cells)),
                 width,
                 span,
                 point_to_point.landmarks(graph),

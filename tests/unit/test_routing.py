@@ -82,9 +82,14 @@ def zeroed(counted, i: int) -> set[tuple[int, int]]:
 
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("jitter", [60.0, 0.0])
-def test_algorithm1_against_the_book(seed: int, jitter: float) -> None:
-    """plan_routes (compiled trees, tree-wide evaluation, fastest paths from the POIs or from the taxis)
-    equals one canonical Dijkstra per taxi and kappa with every path evaluated by the book."""
+@pytest.mark.parametrize("overlay_taxis", [1, 10**9])
+def test_algorithm1_against_the_book(
+    seed: int, jitter: float, overlay_taxis: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """plan_routes (compiled trees, tree-wide evaluation, fastest paths from the POIs or from the taxis, the
+    taxis' trees reading the base kappa costs or computing every cost as they go) equals one canonical
+    Dijkstra per taxi and kappa with every path evaluated by the book."""
+    monkeypatch.setattr(algorithm1, "OVERLAY_TAXIS", overlay_taxis)
     rng, city, now, k0, counts, taxis = instance(seed, jitter)
     graph = road_graph(city)
     gn = gain_table(city, counts.counts, k0, 2, now)  # 2 slots: some crossings overflow the table

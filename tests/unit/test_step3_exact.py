@@ -1,8 +1,9 @@
 """Step 3 without a reach against the straightforward per-taxi computation.
 
 Without a reach (a network under ``step3_reach_above_s``) every free instrumented taxi is a candidate for
-every POI. The straightforward computation grows one full tree per taxi and kappa from the taxi
-(``plan_routes(..., fastest_from_targets=False)``, itself checked against the book in ``test_routing.py``);
+every POI. The straightforward computation grows one full tree per taxi and kappa from the taxi, computing
+every crossing super-edge's cost as it reaches it (``plan_routes(..., fastest_from_targets=False)`` with no
+``Overlay``, itself checked against the book in ``test_routing.py``);
 ``plan_routes`` as Step 3 calls it takes whatever shortcuts it takes. Here the instances are the hard case of
 those shortcuts: many taxis, few POIs, and every taxi counted in many cells of the first slot (as on a
 platform's heavy load late in an interval, where most in-tree routes enter a cell their taxi is counted
@@ -116,10 +117,14 @@ def _heavy_counts(
 
 
 def _plans_both(graph, gn, counted, sources: NDArray[np.int64], targets: NDArray[np.int64], now: float):
+    """Step 3's plans and the straightforward computation's: one tree per taxi and kappa from the taxi,
+    every crossing super-edge's cost computed as the search reaches it (no ``algorithm1.Overlay``)."""
     pb = problem(gn, counted, sources, targets, KAPPAS, now)
-    return plan_routes(graph, pb, 2, ScratchPool(graph)), plan_routes(
-        graph, pb, 1, ScratchPool(graph), fastest_from_targets=False
-    )
+    got = plan_routes(graph, pb, 2, ScratchPool(graph))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(algorithm1, "OVERLAY_TAXIS", 10**9)
+        straight = plan_routes(graph, pb, 1, ScratchPool(graph), fastest_from_targets=False)
+    return got, straight
 
 
 @pytest.mark.parametrize("seed", range(10))
@@ -154,6 +159,53 @@ def test_step3_without_reach_equals_one_tree_per_taxi_and_kappa(
             assert KAPPAS[got.kappa_index[i, j]] == kappa
             assert got.gain[i, j] == pytest.approx(g, rel=1e-12, abs=1e-300)
             assert got.time_s[i, j] == pytest.approx(t, rel=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize(("jitter", "split"), [(40.0, 0.0), (0.0, 0.0), (40.0, 0.5), (0.0, 0.5)])
+def test_taxis_trees_over_the_base_costs_equal_trees_computing_every_cost(
+    seed: int, jitter: float, split: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As many POIs as taxis, so every taxi grows its own trees: read off the epoch's base kappa costs
+    (``algorithm1.Overlay``) but on the super-edges entering a cell the taxi is counted in, they are the
+    straightforward computation's bit for bit, with taxis counted in up to two thirds of the cells
+    (some where the utility peaks: their normalization is their own) and sharing nodes."""
+    made = []
+    overlay_base = algorithm1._overlay_base
+
+    def spy(*args):
+        made.append(1)
+        return overlay_base(*args)
+
+    monkeypatch.setattr(algorithm1, "_overlay_base", spy)
+    rng = np.random.default_rng(100 + seed)
+    city = _lattice(rng, 10, jitter, split)
+    graph = road_graph(city)
+    now = T0 + 3600 - 300.0 * (seed % 4)
+    k0 = city.horizon.interval_of(now)
+    taxis = [TaxiId(f"t{i}") for i in range(24)]
+    cells = city.grid.n_cells
+    view = _heavy_counts(rng, cells, k0, taxis, 0.1 * (seed + 1))
+    visited = dict(view.visited)
+    for t in taxis[:4]:  # counted in every cell but one: most likely where the utility peaks
+        skip = int(rng.integers(cells))
+        visited[t] = frozenset((IntervalKey(k0), c) for c in range(cells) if c != skip)
+    gn = gain_table(city, view.counts, k0, 2, now)
+    counted = counted_csr(visited, taxis, k0)
+    sources = rng.choice(graph.n_nodes, len(taxis), replace=True).astype(np.int64)
+    targets = rng.choice(graph.n_nodes, 24, replace=False).astype(np.int64)
+    if split > 0:
+        _on_chains(rng, graph, targets, sources)
+    got, straight = _plans_both(graph, gn, counted, sources, targets, now)
+    assert made and got.in_trees == 0 and got.taxi_searches > 0
+    pb = problem(gn, counted, sources, targets, KAPPAS, now)
+    net = algorithm1.kappa_graph(graph, KAPPAS)
+    base = algorithm1._base_kappa(net, gn, pb.kappas, False)
+    with ScratchPool(graph).take() as scratch:
+        own = algorithm1._own_normalized(net, pb, base, algorithm1.route_scratch(scratch, gn))
+    assert 0 < own.sum() < len(taxis)  # both kinds of taxi are there
+    _same(got, straight)
+    assert (got.kappa_index > 0).any()
 
 
 def test_tied_taxis_are_planned_as_the_straightforward_computation_plans_them() -> None:
