@@ -632,17 +632,27 @@ def _overlay_base(net: KappaGraph, gains: Gains, kappas: NDArray[np.float64], um
     width = np.ones(nk, dtype=np.int64)
     span = np.ones(nk, dtype=np.int64)
     hi = max(1, net.time_fwd.se.max()) if n_se > 0 else 1
-    clear = np.zeros(gains.term.shape[1], dtype=np.bool_)
-    fg, ed, term = net.fg, net.ed, gains.term[0]
+    term, fixed = gains.term[0], net.fixed
+    se_ptr, se_edges = net.fg.se_ptr, net.fg.se_edges  # out of the records once, as the searches take them
+    ec_ptr, ec_cell, time_s = net.ed.ec_ptr, net.ed.ec_cell, net.ed.time_s
+    live = np.array([kappas[q] != 0.0 and umax > 0.0 for q in range(nk)])
     for q in range(nk):
-        out[q] = net.fixed
-        if kappas[q] == 0.0 or umax <= 0.0:
+        out[q] = fixed
+    for s in range(n_se):
+        if fixed[s] >= 0:
             continue
-        for s in range(n_se):
-            if net.fixed[s] < 0:
-                out[q, s] = dijkstra.crossing_cost(
-                    fg.se_ptr, fg.se_edges, ed.ec_ptr, ed.ec_cell, ed.time_s, clear, term, umax, kappas[q], s
-                )
+        for q in range(nk):
+            if live[q]:
+                out[q, s] = 0
+        for p in range(se_ptr[s], se_ptr[s + 1]):  # dijkstra.crossing_cost's sums, no cell zeroed
+            e = se_edges[p]
+            u = 0.0
+            for j in range(ec_ptr[e] + 1, ec_ptr[e + 1]):
+                u += term[ec_cell[j]]
+            for q in range(nk):
+                if live[q]:
+                    out[q, s] += kappa_cost(time_s[e], u, umax, kappas[q])
+    for q in range(nk):
         width[q] = max(1, out[q].min()) if n_se > 0 else 1
         span[q] = hi // width[q] + 2
     return Overlay(out, out, width, span)
