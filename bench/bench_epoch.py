@@ -738,7 +738,8 @@ def main(argv: list[str] | None = None) -> int:
             for label, h in zip(("this code", "previous code"), pair, strict=True):
                 extra, pct = over_solve(h)
                 print(
-                    f"  {name} ({label}), memory: round trip - solve {extra['p50_ms']:.1f} ms, {pct:+.1f} %"
+                    f"  {name} ({label}), memory: round trip - solve {extra['p50_ms']:.1f} ms, {pct:+.1f} %, "
+                    f"API process peak RSS {h['server_peak_rss_mb']:.0f} MB"
                 )
         return 0
     if args.report_only:

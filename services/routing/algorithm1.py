@@ -28,7 +28,6 @@ trees compute only those entering its counted cells, the same integers either wa
 
 from __future__ import annotations
 
-import itertools
 import threading
 import weakref
 from collections.abc import Sequence
@@ -805,12 +804,20 @@ def plan_routes(
     over_base = (
         _overlay_base(kt, gn, kap, base.umax) if len(rows) >= OVERLAY_TAXIS and base.umax > 0.0 else None
     )
-    token = next(_overlay_tokens)
+    copies: dict[int, Overlay] = {}  # per thread, for this call only
+
+    def thread_overlay() -> Overlay:
+        if over_base is None:
+            return no_overlay()
+        got = copies.get(threading.get_ident())
+        if got is None:  # each thread's taxis restore what they mark, so one copy serves them all
+            got = copies[threading.get_ident()] = over_base._replace(own=over_base.base.copy())
+        return got
 
     def taxis(rows: Sequence[int]) -> list[tuple[int, int]]:
         with pool.take() as thread_scratch:
             scratch = route_scratch(thread_scratch, gn)
-            overlay = no_overlay() if over_base is None else _thread_overlay(thread_scratch, over_base, token)
+            overlay = thread_overlay()
             return [_from_taxi(kt, problem, base, scratch, best, i, not from_roots, overlay) for i in rows]
 
     done = parallel_map(taxis, rows, workers)
@@ -873,19 +880,6 @@ def _in_trees(
         # as for kappa = 0 (speed only: both give the canonical routes).
         own[:] = True
     return slots, own, in_trees, guided
-
-
-def _thread_overlay(thread_scratch: Scratch, base: Overlay, token: int) -> Overlay:
-    """The thread's copy of ``base`` (an ``Overlay`` whose ``own`` is its ``base``), made once per ``token``
-    (one per ``plan_routes``: a taxi's tree restores what it marks)."""
-    got = thread_scratch.extra.get("overlay")
-    if not (isinstance(got, tuple) and got[0] == token):
-        own = (
-            got[1] if isinstance(got, tuple) and got[1].shape == base.base.shape else np.empty_like(base.base)
-        )
-        np.copyto(own, base.base)
-        got = thread_scratch.extra["overlay"] = (token, own)
-    return base._replace(own=got[1])
 
 
 def route_scratch(thread_scratch: Scratch, gains: Gains) -> RouteScratch:
@@ -965,8 +959,6 @@ def _floor_landmarks(graph: RoadGraph, kappa: float) -> NDArray[np.int64]:
         default_workers(),
     )
 
-
-_overlay_tokens = itertools.count()
 
 _kits: weakref.WeakKeyDictionary[RoadGraph, dict[tuple[float, ...], KappaGraph]] = weakref.WeakKeyDictionary()
 _kits_lock = threading.Lock()
