@@ -93,8 +93,8 @@ fastest routes enter its counted cells."""
 
 OVERLAY_TAXIS = 8
 """From how many taxis growing their own kappa trees on the base normalization on, an epoch computes every
-crossing super-edge's base kappa costs beforehand (``Overlay``; a pass over the crossing super-edges per
-kappa), so that their trees compute only the super-edges entering their counted cells as they go; only
+crossing super-edge's base kappa costs beforehand (``Overlay``; one pass over the crossing super-edges),
+so that their trees compute only the super-edges entering their counted cells as they go; only
 speed depends on it."""
 
 
@@ -659,8 +659,8 @@ def _overlay_base(net: KappaGraph, gains: Gains, kappas: NDArray[np.float64], um
 
 @compiled
 def _overlay_taxi(net: KappaGraph, counted: Counted, taxi: int, overlay: Overlay, on: bool) -> None:
-    """Mark (``on``) in ``overlay.own`` the super-edges with an edge entering a cell ``taxi`` is counted in
-    during the first slot -1, or restore them from ``overlay.base``."""
+    """In ``overlay.own``, set the super-edges with an edge entering a cell ``taxi`` is counted in during the
+    first slot to -1 (``on``), or restore them from ``overlay.base``."""
     for p in range(counted.ptr[taxi], counted.ptr[taxi + 1]):
         if counted.slot[p] != 0:
             continue
