@@ -459,13 +459,14 @@ def warm_up(city: City) -> None:
     the first real request: a kernel first met in a real epoch would otherwise be compiled inside it (seconds
     on a fresh install). The epochs cover riders matched in Steps 1 and 2, Step 3 from the POIs' side (fewer
     than half as many POIs as taxis) with taxis counted in cells (their own costs, goal-directed searches) and
-    from the taxis' side, and Algorithm 2's re-plans, on one thread and on two (``tests/unit/test_warm_up.py``
+    from the taxis' side (enough of them to read the epoch's base costs, ``algorithm1.OVERLAY_TAXIS``), and
+    Algorithm 2's re-plans, on one thread and on two (``tests/unit/test_warm_up.py``
     checks that later epochs compile nothing new)."""
     rng = np.random.default_rng(7)
     n = city.network.n_nodes
     hz = city.horizon  # a minute into a day's first interval of the horizon, where cells have a gain
     t0 = hz.interval_start_s(IntervalKey(19_877 * hz.per_day)) + 60.0  # 2024-06-03
-    instrumented = [int(x) for x in rng.integers(n, size=10)]
+    instrumented = [int(x) for x in rng.integers(n, size=16)]  # the last epoch: Step 3's Overlay too
     ordinary = [int(x) for x in rng.integers(n, size=3)]
     taxis = tuple(Taxi(TaxiId(f"i{j}"), v, True, True) for j, v in enumerate(instrumented)) + tuple(
         Taxi(TaxiId(f"o{j}"), v, False, True) for j, v in enumerate(ordinary)

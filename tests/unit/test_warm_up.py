@@ -75,6 +75,34 @@ def test_after_the_warm_up_real_epochs_compile_nothing(scenario: str) -> None:
     assert grown == {}, f"compiled inside a real epoch, not by the warm-up: {grown}"
 
 
+def overlay_signatures_after_warm_up(scenario: str) -> int:
+    """Warm the scenario's city up; the signatures of the kernel that computes Step 3's base costs
+    (``algorithm1._overlay_base``), which only epochs with at least ``OVERLAY_TAXIS`` taxis growing their
+    own trees call (the kernels it hands the costs to are the same either way)."""
+    from bench.bench_epoch import SCENARIOS, load_city
+    from services.dispatch import warm_up
+    from services.routing import algorithm1
+
+    warm_up(load_city(SCENARIOS[scenario]))
+    return len(algorithm1._overlay_base.signatures)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["paper", "city"])
+def test_the_warm_up_compiles_the_base_cost_overlay(scenario: str) -> None:
+    """The real epochs above may not reach an epoch that reads the base costs; the warm-up compiles those
+    kernels anyway."""
+    code = (
+        "import json; from tests.unit.test_warm_up import overlay_signatures_after_warm_up as f; "
+        f"print(json.dumps(f({scenario!r})))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=900, check=False
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) > 0
+
+
 def test_the_compiled_functions_are_found() -> None:
     found = compiled_functions()
     assert "services.routing.algorithm1._from_taxi" in found and "services.network.dijkstra.run" in found
