@@ -84,7 +84,7 @@ def overlay_signatures_after_warm_up(scenario: str) -> int:
     from services.routing import algorithm1
 
     warm_up(load_city(SCENARIOS[scenario]))
-    return len(algorithm1._overlay_base.signatures)
+    return len(algorithm1._overlay_base.signatures)  # type: ignore[attr-defined]
 
 
 @pytest.mark.slow
