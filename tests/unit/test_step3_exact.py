@@ -168,8 +168,9 @@ def test_taxis_trees_over_the_base_costs_equal_trees_computing_every_cost(
 ) -> None:
     """As many POIs as taxis, so every taxi grows its own trees: read off the epoch's base kappa costs
     (``algorithm1.Overlay``) but on the super-edges entering a cell the taxi is counted in, they are the
-    straightforward computation's bit for bit, with taxis counted in up to two thirds of the cells
-    (some where the utility peaks: their normalization is their own) and sharing nodes."""
+    straightforward computation's bit for bit, with taxis counted in 10-60 % of the cells, four of them in
+    every cell but one (most likely where the utility peaks: their normalization is their own), and taxis
+    sharing nodes."""
     made = []
     overlay_base = algorithm1._overlay_base
 
