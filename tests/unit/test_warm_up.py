@@ -14,6 +14,7 @@ import pkgutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -60,18 +61,23 @@ def new_signatures_after_warm_up(scenario: str, epochs: int) -> dict[str, list[i
     return {k: [before[k], after[k]] for k in functions if after[k] != before[k]}
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("scenario", ["paper", "city"])
-def test_after_the_warm_up_real_epochs_compile_nothing(scenario: str) -> None:
+def in_a_fresh_process(function: str, *args: object) -> Any:
+    """``function`` of this module called with ``args`` in a new interpreter (no kernel compiled or loaded
+    yet); its JSON result."""
     code = (
-        "import json, sys; from tests.unit.test_warm_up import new_signatures_after_warm_up as f; "
-        f"print(json.dumps(f({scenario!r}, 4)))"
+        f"import json; from tests.unit.test_warm_up import {function} as f; print(json.dumps(f(*{args!r})))"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=900, check=False
     )
     assert out.returncode == 0, out.stderr[-3000:]
-    grown = json.loads(out.stdout.strip().splitlines()[-1])
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["paper", "city"])
+def test_after_the_warm_up_real_epochs_compile_nothing(scenario: str) -> None:
+    grown = in_a_fresh_process("new_signatures_after_warm_up", scenario, 4)
     assert grown == {}, f"compiled inside a real epoch, not by the warm-up: {grown}"
 
 
@@ -92,15 +98,7 @@ def overlay_signatures_after_warm_up(scenario: str) -> int:
 def test_the_warm_up_compiles_the_base_cost_overlay(scenario: str) -> None:
     """The real epochs above may not reach an epoch that reads the base costs; the warm-up compiles those
     kernels anyway."""
-    code = (
-        "import json; from tests.unit.test_warm_up import overlay_signatures_after_warm_up as f; "
-        f"print(json.dumps(f({scenario!r})))"
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=900, check=False
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert json.loads(out.stdout.strip().splitlines()[-1]) > 0
+    assert in_a_fresh_process("overlay_signatures_after_warm_up", scenario) > 0
 
 
 def test_the_compiled_functions_are_found() -> None:
