@@ -671,29 +671,20 @@ def _overlay_taxi(net: KappaGraph, counted: Counted, taxi: int, overlay: Overlay
                 overlay.own[q, se] = -1 if on else overlay.base[q, se]
 
 
-@compiled
 def _cell_super_edges(
     graph: SearchGraph, edges: Edges, n_cells: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """``KappaGraph.cell_se_ptr`` and ``cell_se``: per cell, the super-edges of ``graph`` with an edge that
-    enters it (a cell of the edge's but its first)."""
-    counts = np.zeros(n_cells + 1, dtype=np.int64)
-    for s in range(graph.se_ptr.shape[0] - 1):
-        for p in range(graph.se_ptr[s], graph.se_ptr[s + 1]):
-            e = graph.se_edges[p]
-            for j in range(edges.ec_ptr[e] + 1, edges.ec_ptr[e + 1]):
-                counts[edges.ec_cell[j] + 1] += 1
-    ptr = np.cumsum(counts)
-    out = np.empty(ptr[-1], dtype=np.int64)
-    fill = ptr[:-1].copy()
-    for s in range(graph.se_ptr.shape[0] - 1):
-        for p in range(graph.se_ptr[s], graph.se_ptr[s + 1]):
-            e = graph.se_edges[p]
-            for j in range(edges.ec_ptr[e] + 1, edges.ec_ptr[e + 1]):
-                c = edges.ec_cell[j]
-                out[fill[c]] = s
-                fill[c] += 1
-    return ptr, out
+    enters it (a cell of the edge's but its first), in super-edge order."""
+    se = np.repeat(np.arange(graph.se_ptr.shape[0] - 1, dtype=np.int64), np.diff(graph.se_ptr))
+    first = edges.ec_ptr[graph.se_edges] + 1  # per (super-edge, edge): its entered cells' range
+    entered = edges.ec_ptr[graph.se_edges + 1] - first
+    pos = np.repeat(first - np.cumsum(entered) + entered, entered) + np.arange(int(entered.sum()))
+    cells = edges.ec_cell[pos]
+    order = np.argsort(cells, kind="stable")
+    ptr = np.zeros(n_cells + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cells, minlength=n_cells), out=ptr[1:])
+    return ptr, np.repeat(se, entered)[order]
 
 
 @compiled
