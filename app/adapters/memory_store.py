@@ -46,7 +46,8 @@ class _City:
     locks: dict[str, tuple[str, float]] = field(default_factory=dict)  # name -> (token, expires at)
     solve_queue: list[SolveRequest] = field(default_factory=list)
     workers: dict[str, tuple[WorkerBeat, float]] = field(default_factory=dict)  # id -> (beat, expires at)
-    done_at: dict[TaskId, float] = field(default_factory=dict)  # epoch time a task finished at
+    # epoch time a task finished at, in the order of those times (commits come in time order: _record_done)
+    done_at: dict[TaskId, float] = field(default_factory=dict)
     # (interval, taxi) -> (its visited cells' set in the ledger, that set's size, the (interval, cell) pairs):
     # the pairs load_state hands out, built again only when the set grew or was replaced (sets only grow)
     visit_pairs: dict[
@@ -54,9 +55,20 @@ class _City:
     ] = field(default_factory=dict, compare=False, repr=False)  # derived from ledger.visits: not state
 
 
+def _record_done(c: _City, task_id: TaskId, at_s: float) -> None:
+    """Note that ``task_id`` finished at ``at_s``, at the end of ``done_at`` so that it stays in time order
+    (an epoch is committed only at or after the last one's time)."""
+    c.done_at.pop(task_id, None)
+    c.done_at[task_id] = at_s
+
+
 def _prune_done(c: _City, before_s: float) -> None:
-    """Drop the finished tasks that finished before ``before_s`` (epoch time), as the Redis store does."""
-    for task_id in [t for t, at in c.done_at.items() if at < before_s]:
+    """Drop the finished tasks that finished before ``before_s`` (epoch time), as the Redis store does:
+    the oldest first, stopping at the first that stays (``done_at`` is in time order)."""
+    while c.done_at:
+        task_id, at = next(iter(c.done_at.items()))
+        if at >= before_s:
+            return
         del c.done_at[task_id]
         c.ledger.done.pop(task_id, None)
 
@@ -192,7 +204,7 @@ class MemoryStore:
             apply_decision(c.ledger, commit.visits, commit.task_updates)
             for t in commit.task_updates:
                 if t.status in DONE:
-                    c.done_at[t.id] = float(commit.time_s)
+                    _record_done(c, t.id, float(commit.time_s))
             _prune_done(c, float(commit.time_s) - ttl)
             # like Redis: every key a visit names lives on from this commit (each key touched once)
             keys = dict.fromkeys((IntervalKey(int(v.interval)), v.taxi_id) for v in commit.visits)

@@ -338,6 +338,19 @@ def test_finished_tasks_are_history_kept_for_the_retention(store: Store) -> None
     assert store.put_tasks(CITY, [task("p1")]).created == [TaskId("p1")]  # forgotten: a new task
 
 
+def test_finished_tasks_leave_one_retention_after_each_finished(store: Store) -> None:
+    """Tasks finished at different epochs leave at different epochs: each one retention after its own."""
+    store.put_tasks(CITY, [task("p1"), task("p2"), task("p3")])
+    first = task("p1", status="expired")
+    store.commit_epoch(CITY, commit("e1", version=0, time_s=T0, tasks=[first], retention_s=3600))
+    second = task("p2", status="completed", completed_at_s=T0 + 1800, taxi_id=A, mode="passive")
+    store.commit_epoch(CITY, commit("e2", version=1, time_s=T0 + 1800, tasks=[second], retention_s=3600))
+    store.commit_epoch(CITY, commit("e3", version=2, time_s=T0 + 3601, retention_s=3600))
+    assert store.list_tasks(CITY) == [second, task("p3")]  # only the first is past its retention
+    store.commit_epoch(CITY, commit("e4", version=3, time_s=T0 + 5401, retention_s=3600))
+    assert store.list_tasks(CITY) == [task("p3")]
+
+
 # -- intervals and demand ------------------------------------------------------------------------------
 
 

@@ -1,6 +1,7 @@
-"""Slow and silent clients. A connection that never finishes its headers or its body is answered 408 and
-closed after the deadline, not held forever; connections beyond the cap are refused at once with a 503, not
-held until the process runs out of descriptors; a token in a query string never reaches the access log."""
+"""Slow, silent and oversized clients. A connection that never finishes its headers or its body is answered
+408 and closed after the deadline, not held forever; headers past the size cap are answered 431 and closed;
+connections beyond the cap are refused at once with a 503, not held until the process runs out of
+descriptors; a token in a query string never reaches the access log."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import httpx
 import pytest
 
 from app.entrypoints.serve import serve_in_thread
+from app.entrypoints.server import MAX_HEADER_BYTES
 from tests.e2e.service import start_process, stop, wait_ready
 
 CAP = 8
@@ -64,6 +66,35 @@ def test_trickled_headers_do_not_reset_the_deadline(served: tuple[str, int, str]
             time.sleep(0.25)
         got = _read_all(s)
     assert got.startswith(b"HTTP/1.1 408 ")
+
+
+def test_headers_past_the_cap_get_431_and_are_closed(served: tuple[str, int, str]) -> None:
+    _, port, _ = served
+    with _connect(port) as s:
+        s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        for i in range(MAX_HEADER_BYTES // 1000 + 1):  # never finished, and past the cap
+            s.sendall(f"X-Big-{i}: {'a' * 1000}\r\n".encode())
+        reply = _read_all(s)
+    assert reply.startswith(b"HTTP/1.1 431 ") and b'"headers_too_large"' in reply
+
+
+def test_headers_within_the_cap_are_served(served: tuple[str, int, str]) -> None:
+    _, port, _ = served
+    padding = "".join(f"X-Pad-{i}: {'a' * 1000}\r\n" for i in range(MAX_HEADER_BYTES // 1100))
+    with _connect(port) as s:
+        s.sendall(f"GET /healthz HTTP/1.1\r\nHost: x\r\n{padding}Connection: close\r\n\r\n".encode())
+        assert _read_all(s).startswith(b"HTTP/1.1 200 ")
+
+
+def test_pipelined_requests_are_answered_and_the_next_headers_have_the_deadline(
+    served: tuple[str, int, str],
+) -> None:
+    _, port, _ = served
+    with _connect(port) as s:
+        s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n" * 3)  # three requests in one send
+        reply = _read_all(s)  # their answers, then the fourth's headers never come
+    assert reply.count(b"HTTP/1.1 200 ") == 3
+    assert reply.rindex(b"HTTP/1.1 408 ") > reply.rindex(b"HTTP/1.1 200 ")
 
 
 def test_unfinished_body_gets_408(served: tuple[str, int, str]) -> None:
