@@ -3,13 +3,12 @@ that uvicorn's protocol lacks.
 
 Why uvicorn and a small protocol subclass: uvicorn is the stack's server and stays; its ``http=`` setting
 takes a protocol class. httptools (llhttp, the parser of Node.js) and uvloop (libuv) are the C parser and
-event loop uvicorn is built to run on: an epoch of Chengdu's paper scale (12 KB posted, 31 KB answered)
-replayed over a kept-alive connection takes 1.27 ms against 1.83 ms on uvicorn's pure-Python h11 protocol
-and asyncio's loop (docs/PERFORMANCE.md, "The HTTP path's share"). What uvicorn's protocol lacks: a fresh
-connection that never sends (or never finishes) its headers is held forever (its keep-alive timer only runs
-between requests); the parser accepts headers of any size; and ``limit_concurrency`` answers 503 only once
-a request's headers arrived, so silent connections still pile up until the process runs out of file
-descriptors. Hypercorn's ``read_timeout`` is per read (a client trickling a byte every few seconds resets
+event loop uvicorn is built to run on, in place of its pure-Python h11 protocol and asyncio's loop: less of
+each exchange's fixed cost (docs/PERFORMANCE.md, "The HTTP path's share"). What uvicorn's protocol lacks:
+a fresh connection that never sends (or never finishes) its headers is held forever (its keep-alive timer
+only runs between requests); the parser accepts headers of any size; and ``limit_concurrency`` answers 503
+only once a request's headers arrived, so silent connections still pile up until the process runs out of
+file descriptors. Hypercorn's ``read_timeout`` is per read (a client trickling a byte every few seconds resets
 it); granian has a header deadline, but it would replace the server and its process model for one feature.
 So ``GuardedHttpToolsProtocol``:
 
