@@ -60,8 +60,9 @@ def default_max_connections() -> int:
 
 
 MAX_HEADER_BYTES = 16 * 1024
-"""A request's line and headers together, in bytes: larger ones are answered 431 (the size h11, the
-pure-Python parser, allows by default)."""
+"""Bytes of a request's line and headers the server holds while they are incomplete: past them, 431. h11's
+limit on an incomplete event, the same: what a client can make the server hold before its request starts
+(a header block that arrives complete in one read is bounded by the read's size)."""
 
 
 def _raw_response(status: int, reason: str, error: str, detail: str) -> bytes:
