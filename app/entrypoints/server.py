@@ -85,7 +85,9 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     _header_timer: asyncio.TimerHandle | None = None
     _headers_done: int = 0  # requests on this connection whose headers are complete
     _answered: int = 0  # responses this connection has completed
-    _header_bytes: int = 0  # bytes received since the last complete headers (or the connection's start)
+    _headers_pending: bool = False  # a request has begun whose headers are not complete
+    _begun_in_read: int = 0  # requests begun in the read being parsed
+    _header_bytes: int = 0  # bytes counted of the pending request's line and headers
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         """Count the connection; refuse it when over the cap, else start its header deadline."""
@@ -103,21 +105,32 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        """Feed the parser; headers still incomplete past ``max_header_bytes`` are answered 431."""
+        """Feed the parser; headers still incomplete past ``max_header_bytes`` are answered 431. A read
+        counts whole when it holds nothing but the pending request's bytes: when the pending request began
+        in it and every earlier request was answered before it, or when it began in an earlier read (a
+        request pipelined behind one in flight: its headers arrive while the other is served)."""
         awaiting = self._awaiting_headers()
+        self._begun_in_read = 0
         super().data_received(data)
-        if not awaiting or self.transport.is_closing():
+        if self.transport.is_closing() or not self._headers_pending:
             return
-        if self._awaiting_headers():
+        if self._begun_in_read == 0 or (awaiting and self._begun_in_read == 1):
             self._header_bytes += len(data)
             if self._header_bytes > self.max_header_bytes:
                 detail = f"the request headers exceed {self.max_header_bytes} bytes"
                 self._refuse(431, "Request Header Fields Too Large", "headers_too_large", detail)
 
+    def on_message_begin(self) -> None:
+        """A request begins: its headers are pending."""
+        self._headers_pending = True
+        self._begun_in_read += 1
+        self._header_bytes = 0
+        super().on_message_begin()
+
     def on_headers_complete(self) -> None:
         """The request's headers are complete: its deadline is off."""
         self._headers_done += 1
-        self._header_bytes = 0
+        self._headers_pending = False
         self._disarm()
         super().on_headers_complete()
 

@@ -5,16 +5,20 @@ descriptors; a token in a query string never reaches the access log."""
 
 from __future__ import annotations
 
+import asyncio
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
 
-from app.entrypoints.serve import serve_in_thread
+from app.entrypoints.serve import serve_app_in_thread, serve_in_thread
 from app.entrypoints.server import MAX_HEADER_BYTES
+from app.settings import Settings
 from tests.e2e.service import start_process, stop, wait_ready
 
 CAP = 8
@@ -75,6 +79,53 @@ def test_headers_past_the_cap_get_431_and_are_closed(served: tuple[str, int, str
         s.sendall(f"GET /healthz HTTP/1.1\r\nHost: x\r\n{lines}".encode())  # past the cap, never finished
         reply = _read_all(s)
     assert reply.startswith(b"HTTP/1.1 431 ") and b'"headers_too_large"' in reply
+
+
+def _slow_app(release: threading.Event) -> Any:
+    """An ASGI app that answers ``/slow`` once ``release`` is set, anything else at once (its body read)."""
+
+    async def app(scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            return  # no lifespan: uvicorn carries on without it
+        while (await receive()).get("more_body"):
+            pass
+        while scope["path"] == "/slow" and not release.is_set():
+            await asyncio.sleep(0.02)
+        await send({"type": "http.response.start", "status": 200, "headers": [(b"content-length", b"2")]})
+        await send({"type": "http.response.body", "body": b"ok"})
+
+    return app
+
+
+def test_headers_pipelined_behind_a_request_in_flight_count_toward_the_cap() -> None:
+    """A request's headers streamed while the one before it on the connection is still being served (which
+    holds its header deadline off) are capped as well."""
+    release = threading.Event()
+    settings = Settings.model_validate({"store": "memory", "header_timeout_s": 1.0})
+    threading.Timer(3.0, release.set).start()  # the slow request ends after 3 s whatever happens
+    with serve_app_in_thread(_slow_app(release), settings) as url, _connect(int(url.rsplit(":", 1)[1])) as s:
+        s.sendall(b"GET /slow HTTP/1.1\r\nHost: x\r\n\r\nGET /next HTTP/1.1\r\nHost: x\r\n")
+        for i in range(MAX_HEADER_BYTES // 1000 + 1):  # in separate reads, while /slow is served
+            time.sleep(0.02)
+            s.sendall(f"X-Big-{i}: {'a' * 1000}\r\n".encode())
+        reply = _read_all(s)
+        served_before = release.is_set()
+    assert reply.startswith(b"HTTP/1.1 431 ") and not served_before
+
+
+def test_a_large_body_and_the_next_request_in_one_read_are_served() -> None:
+    """The cap counts header bytes only: a body past it, read together with the start of the next
+    request, is not taken for headers."""
+    settings = Settings.model_validate({"store": "memory", "header_timeout_s": 1.0})
+    body = b"x" * (4 * MAX_HEADER_BYTES)
+    post = b"POST /echo HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\n\r\n" % len(body) + body
+    with serve_app_in_thread(_slow_app(threading.Event()), settings) as url:
+        with _connect(int(url.rsplit(":", 1)[1])) as s:
+            s.sendall(post + b"GET /next HTTP/1.1\r\nHost: x\r\n")
+            time.sleep(0.2)
+            s.sendall(b"Connection: close\r\n\r\n")
+            reply = _read_all(s)
+    assert reply.count(b"HTTP/1.1 200 ") == 2 and b" 431 " not in reply
 
 
 def test_headers_within_the_cap_are_served(served: tuple[str, int, str]) -> None:
