@@ -119,12 +119,12 @@ def test_a_large_body_and_the_next_request_in_one_read_are_served() -> None:
     settings = Settings.model_validate({"store": "memory", "header_timeout_s": 1.0})
     body = b"x" * (4 * MAX_HEADER_BYTES)
     post = b"POST /echo HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\n\r\n" % len(body) + body
-    with serve_app_in_thread(_slow_app(threading.Event()), settings) as url:
-        with _connect(int(url.rsplit(":", 1)[1])) as s:
-            s.sendall(post + b"GET /next HTTP/1.1\r\nHost: x\r\n")
-            time.sleep(0.2)
-            s.sendall(b"Connection: close\r\n\r\n")
-            reply = _read_all(s)
+    app = _slow_app(threading.Event())
+    with serve_app_in_thread(app, settings) as url, _connect(int(url.rsplit(":", 1)[1])) as s:
+        s.sendall(post + b"GET /next HTTP/1.1\r\nHost: x\r\n")
+        time.sleep(0.2)
+        s.sendall(b"Connection: close\r\n\r\n")
+        reply = _read_all(s)
     assert reply.count(b"HTTP/1.1 200 ") == 2 and b" 431 " not in reply
 
 
