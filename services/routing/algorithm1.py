@@ -621,8 +621,9 @@ def _taxi_kappa_trees(
 @compiled
 def _overlay_base(net: KappaGraph, gains: Gains, kappas: NDArray[np.float64], umax: float) -> Overlay:
     """The ``Overlay`` (``own`` its ``base``) of a taxi counted in no cell whose largest entered utility is
-    ``umax``: every crossing super-edge's cost under each kappa metric (``dijkstra.crossing_cost``, the
-    same operations as a lazy search makes: the same integers), every other super-edge's travel time. A
+    ``umax``: every crossing super-edge's cost under each kappa metric (``dijkstra.crossing_cost``'s sums,
+    the same operations as a lazy search makes: the same integers; written out here so that each edge's
+    utility is summed once for every kappa, not once per kappa), every other super-edge's travel time. A
     taxi counted in cells costs as much or more on every super-edge (it sums fewer non-negative terms into
     an edge's utility), so the cheapest super-edge bounds its metric's from below, and its travel time any
     super-edge's cost from above."""
