@@ -100,7 +100,8 @@ speed depends on it."""
 
 class KappaGraph(NamedTuple):
     """The network as Algorithm 1's kernels take it: the edges, both search graphs with the travel time
-    prepared for each, the edges that enter a cell (the only ones whose utility can be positive), the
+    prepared for each, the edges that enter a cell (the only ones whose utility can be positive; split into
+    the cells entered by an edge alone and the edges that enter several, for ``_umax_scan``), the
     bucket queue's geometry of any taxi's kappa metric (row q: kappa ``kappas[q]``; width: the cheapest
     super-edge when every edge is discounted fully), and the landmarks' bounds that guide the searches
     between two given nodes (``_guided_path``)."""
@@ -111,6 +112,8 @@ class KappaGraph(NamedTuple):
     time_fwd: Costs
     time_rev: Costs
     crossing: NDArray[np.int64]
+    alone: NDArray[np.int64]  # the cells some edge enters alone (its utility: that cell's term), sorted
+    multi: NDArray[np.int64]  # the edges that enter two cells or more
     fixed: NDArray[np.int64]  # (S,) forward: the cost of a super-edge that enters no cell, else -1
     cell_se_ptr: NDArray[np.int64]  # (C + 1,) CSR: per cell, the forward super-edges with an edge entering it
     cell_se: NDArray[np.int64]
@@ -248,10 +251,15 @@ def _base_kappa(net: KappaGraph, gains: Gains, kappas: NDArray[np.float64], in_t
 def _umax_scan(net: KappaGraph, gains: Gains, zmask: NDArray[np.bool_]) -> float:
     """The largest entered utility of the taxi whose zero mask is ``zmask``: over the edges that enter a
     cell, the first slot's terms of the cells the edge enters that the mask leaves open (``u_e`` of
-    ``graph.Lazy``)."""
+    ``graph.Lazy``). An edge that enters one cell has that cell's term (0 when masked), so those edges
+    are read once per cell (``net.alone``) and only the edges entering several are summed (``net.multi``):
+    the same sums, in the same order, as over every edge."""
     ed = net.ed
     top = 0.0
-    for e in net.crossing:
+    for c in net.alone:
+        if not zmask[0, c]:
+            top = max(top, gains.term[0, c])
+    for e in net.multi:
         s = 0.0
         for j in range(ed.ec_ptr[e] + 1, ed.ec_ptr[e + 1]):
             c = ed.ec_cell[j]
@@ -672,6 +680,16 @@ def _overlay_taxi(net: KappaGraph, counted: Counted, taxi: int, overlay: Overlay
                 overlay.own[q, se] = -1 if on else overlay.base[q, se]
 
 
+def _alone_and_multi(
+    edges: Edges, crossing: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """``KappaGraph.alone`` and ``multi``: the cells entered by some edge of ``crossing`` alone, and the
+    edges of ``crossing`` that enter several cells."""
+    entered = edges.ec_ptr[crossing + 1] - edges.ec_ptr[crossing] - 1
+    alone = np.unique(edges.ec_cell[edges.ec_ptr[crossing[entered == 1]] + 1])
+    return alone.astype(np.int64), crossing[entered > 1].astype(np.int64)
+
+
 def _cell_super_edges(
     graph: SearchGraph, edges: Edges, n_cells: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -971,6 +989,7 @@ def kappa_graph(graph: RoadGraph, kappas: tuple[float, ...]) -> KappaGraph:
                 graph.time_forward,
                 graph.time_reverse,
                 graph.crossing,
+                *_alone_and_multi(ed, graph.crossing),
                 fixed_super_edges(graph.forward, ed, graph.time_forward),
                 *_cell_super_edges(graph.forward, ed, int(graph.n_cells)),
                 width,

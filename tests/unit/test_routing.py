@@ -579,3 +579,48 @@ def test_decide_is_the_same_on_one_thread_and_several(name: str) -> None:
             if (v.interval, v.cell) not in visited.setdefault(v.taxi_id, set()):
                 visited[v.taxi_id].add((v.interval, v.cell))
                 counts.setdefault(v.interval, np.zeros(city.grid.n_cells, dtype=np.int64))[v.cell] += 1
+
+
+@pytest.mark.parametrize("name", ["chengdu", "manhattan"])
+def test_umax_scan_is_the_largest_entered_utility_over_every_edge(name: str) -> None:
+    """``_umax_scan`` reads the cells entered by an edge alone once and sums only the edges entering
+    several cells: it equals the largest unmasked sum over every edge of the network, including masks that
+    zero the largest cells' terms (where an edge entering two cells may be the largest)."""
+    rng = np.random.default_rng(5)
+    city = load_city(BUNDLES / name)
+    graph = road_graph(city)
+    ed = graph.edges
+    kt = algorithm1.kappa_graph(graph, KAPPAS)
+    assert kt.multi.size > 0  # the case that sums
+    n_cells = int(graph.n_cells)
+    multi_cells = np.unique(
+        np.concatenate([ed.ec_cell[ed.ec_ptr[e] + 1 : ed.ec_ptr[e + 1]] for e in kt.multi])
+    )
+    for damped in (1.0, 0.01):  # 0.01: the largest sums are single cells' terms, whose masks then matter
+        term = rng.uniform(0.0, 1.0, (2, n_cells)) * (rng.random((2, n_cells)) < 0.7)
+        term[:, multi_cells] *= damped
+        check_umax_scan(
+            rng, kt, gain_table(city, {}, city.horizon.interval_of(T0), 2, T0)._replace(term=term)
+        )
+
+
+def check_umax_scan(rng: np.random.Generator, kt: algorithm1.KappaGraph, gn) -> None:
+    ed, term = kt.ed, gn.term
+    n_cells = term.shape[1]
+    by_term = np.argsort(-term[0])
+    for trial in range(12):
+        zmask = np.zeros((1, n_cells), dtype=np.bool_)
+        zmask[0, by_term[: 3 * trial]] = True  # the largest terms masked, more each trial
+        zmask[0, rng.choice(n_cells, trial)] = True
+        brute = max(
+            sum(
+                (
+                    float(term[0, c])
+                    for c in ed.ec_cell[ed.ec_ptr[e] + 1 : ed.ec_ptr[e + 1]]
+                    if not zmask[0, c]
+                ),
+                0.0,
+            )
+            for e in range(ed.time_s.shape[0])
+        )
+        assert algorithm1._umax_scan(kt, gn, zmask) == brute
