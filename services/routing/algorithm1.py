@@ -91,6 +91,12 @@ metro250k about 160 (a search settles about 90 nodes); no taxi there has more th
 fastest routes enter its counted cells."""
 
 
+LANDMARK_TARGETS = 3
+"""Up to how many POIs in its reach a taxi growing its own trees searches each POI goal-directed under each
+kappa metric (``_kappa_paths_to``: the landmarks' bounds under the floor metric) instead of growing a
+tree per kappa; only speed depends on it. On metro250k's platform load (processor time, one thread) a
+taxi's searches took less time than its trees up to three POIs in reach, more from four on."""
+
 OVERLAY_TAXIS = 8
 """From how many taxis growing their own kappa trees on the base normalization on, an epoch computes every
 crossing super-edge's base kappa costs beforehand (``Overlay``; one pass over the crossing super-edges),
@@ -524,6 +530,7 @@ def _from_taxi(
     taxi: int,
     fastest: bool,
     overlay: Overlay,
+    few: int,
 ) -> tuple[int, int]:
     """Taxi ``taxi``'s trees: under the travel time (when ``fastest``: bounded by the reach, every POI a
     target) and under each of its kappa metrics, bounded by its farthest fastest route to a POI in reach
@@ -567,7 +574,7 @@ def _from_taxi(
             j = near[r]
             best.d0_us[taxi, j] = label[0, j]
             _fold(best, taxi, j, 0, g[r], t[r], length[r])
-    ms, n = _taxi_kappa_trees(net, problem, base, scratch, best, taxi, overlay, out)
+    ms, n = _taxi_kappa_trees(net, problem, base, scratch, best, taxi, overlay, out, few)
     mark(scratch.zmask, problem.counted, taxi, False)
     return max(max_slot, ms), grown + n
 
@@ -582,9 +589,11 @@ def _taxi_kappa_trees(
     taxi: int,
     overlay: Overlay,
     out: TreeOut,
+    few: int,
 ) -> tuple[int, int]:
     """``_from_taxi``'s kappa > 0 trees (the taxi's zero mask set in ``scratch``, its fastest routes in
-    ``best``; ``out``: room for one route per POI): the largest slot reached and the number grown."""
+    ``best``; ``out``: room for one route per POI): the largest slot reached and the number grown. A taxi
+    with at most ``few`` POIs in reach searches each of them goal-directed instead (``_kappa_paths_to``)."""
     ed = net.ed
     src = problem.sources[taxi]
     ws = scratch.forward
@@ -611,6 +620,14 @@ def _taxi_kappa_trees(
                 )
             else:
                 costs, lazy = _own_metric(net, scratch, problem.gn, q, kappa, umax)
+            if near.shape[0] <= few:
+                ms = _kappa_paths_to(
+                    net, problem, scratch, costs, lazy, Drive(taxi, src, -1, limit), nodes, out
+                )
+                max_slot = max(max_slot, ms)
+                for r in range(near.shape[0]):
+                    _fold(best, taxi, near[r], q, g[r], t[r], length[r])
+                continue
             dijkstra.grow(net.fg, ed, costs, src, limit, nodes, ws, lazy)
             grown += 1
             if not unfolding.unfold_many(net.fg, ed, costs, limit, nodes, ws, reached):
@@ -624,6 +641,36 @@ def _taxi_kappa_trees(
         if over:
             _overlay_taxi(net, problem.counted, taxi, overlay, False)
     return max_slot, grown
+
+
+@compiled
+def _kappa_paths_to(
+    net: KappaGraph,
+    problem: Problem,
+    scratch: RouteScratch,
+    costs: Costs,
+    lazy: Lazy,
+    drive: Drive,
+    nodes: NDArray[np.int64],
+    out: TreeOut,
+) -> int:
+    """The canonical paths from ``drive.source`` to each of ``nodes`` under ``costs`` (``lazy``), one
+    goal-directed search each (``_guided_path``, the landmarks' bounds under the floor metric), evaluated
+    into ``out`` as ``eval_tree`` would; the largest slot reached."""
+    max_slot = 0
+    for r in range(nodes.shape[0]):
+        leg = Drive(drive.i, drive.source, nodes[r], drive.limit)
+        edges = _guided_path(net, scratch.forward, costs, lazy, leg, net.floor_lm)
+        if scratch.forward.info[1] == -1:
+            raise AssertionError("a discounted route costs more than the fastest path's time")
+        sid = scratch.next_stamp[0]
+        scratch.next_stamp[0] = sid + 1
+        g, _gq, t, length, ms = eval_path(
+            net.ed, problem.gn, scratch.zmask, scratch.stamp, sid, edges, problem.depart_s
+        )
+        out.gain[r], out.time_s[r], out.length_m[r] = g, t, length
+        max_slot = max(max_slot, ms)
+    return max_slot
 
 
 @compiled
@@ -828,7 +875,10 @@ def plan_routes(
         with pool.take() as thread_scratch:
             scratch = route_scratch(thread_scratch, gn)
             overlay = thread_overlay()
-            return [_from_taxi(kt, problem, base, scratch, best, i, not from_roots, overlay) for i in rows]
+            return [
+                _from_taxi(kt, problem, base, scratch, best, i, not from_roots, overlay, LANDMARK_TARGETS)
+                for i in rows
+            ]
 
     done = parallel_map(taxis, rows, workers)
     slots += [ms for ms, _ in done]

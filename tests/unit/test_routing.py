@@ -82,14 +82,16 @@ def zeroed(counted, i: int) -> set[tuple[int, int]]:
 
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("jitter", [60.0, 0.0])
-@pytest.mark.parametrize("overlay_taxis", [1, 10**9])
+@pytest.mark.parametrize(("overlay_taxis", "landmark_targets"), [(1, 0), (10**9, 0), (1, 3), (10**9, 3)])
 def test_algorithm1_against_the_book(
-    seed: int, jitter: float, overlay_taxis: int, monkeypatch: pytest.MonkeyPatch
+    seed: int, jitter: float, overlay_taxis: int, landmark_targets: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """plan_routes (compiled trees, tree-wide evaluation, fastest paths from the POIs or from the taxis, the
-    taxis' trees reading the base kappa costs or computing every cost as they go) equals one canonical
-    Dijkstra per taxi and kappa with every path evaluated by the book."""
+    taxis' trees reading the base kappa costs or computing every cost as they go, or a taxi's few POIs
+    searched one by one) equals one canonical Dijkstra per taxi and kappa with every path evaluated by the
+    book."""
     monkeypatch.setattr(algorithm1, "OVERLAY_TAXIS", overlay_taxis)
+    monkeypatch.setattr(algorithm1, "LANDMARK_TARGETS", landmark_targets)
     rng, city, now, k0, counts, taxis = instance(seed, jitter)
     graph = road_graph(city)
     gn = gain_table(city, counts.counts, k0, 2, now)  # 2 slots: some crossings overflow the table
