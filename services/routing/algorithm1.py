@@ -593,7 +593,8 @@ def _taxi_kappa_trees(
 ) -> tuple[int, int]:
     """``_from_taxi``'s kappa > 0 trees (the taxi's zero mask set in ``scratch``, its fastest routes in
     ``best``; ``out``: room for one route per POI): the largest slot reached and the number grown. A taxi
-    with at most ``few`` POIs in reach searches each of them goal-directed instead (``_kappa_paths_to``)."""
+    with at most ``few`` POIs in reach searches each of them goal-directed instead (``_kappa_paths_to``; each
+    search counted as one grown)."""
     ed = net.ed
     src = problem.sources[taxi]
     ws = scratch.forward
@@ -624,6 +625,7 @@ def _taxi_kappa_trees(
                 ms = _kappa_paths_to(
                     net, problem, scratch, costs, lazy, Drive(taxi, src, -1, limit), nodes, out
                 )
+                grown += near.shape[0]
                 max_slot = max(max_slot, ms)
                 for r in range(near.shape[0]):
                     _fold(best, taxi, near[r], q, g[r], t[r], length[r])
@@ -783,7 +785,8 @@ class Plans:
     max_slot: int
     in_trees: int = 0  # searches from the targets (one per kappa and target)
     guided_searches: int = 0  # goal-directed searches of taxis whose in-tree route enters a counted cell
-    taxi_searches: int = 0  # searches from the taxis (one per taxi and kappa not served by the in-trees)
+    taxi_searches: int = 0  # searches from the taxis, per taxi and kappa not served by the in-trees: a tree,
+    # or one goal-directed search per POI in reach (at most LANDMARK_TARGETS)
 
     @property
     def phi(self) -> NDArray[np.float64]:
