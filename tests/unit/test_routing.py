@@ -607,6 +607,8 @@ def test_umax_scan_is_the_largest_entered_utility_over_every_edge(name: str) -> 
 
 
 def check_umax_scan(rng: np.random.Generator, kt: algorithm1.KappaGraph, gn) -> None:
+    """``_umax_scan`` under masks of more and more of the largest terms and a few random cells, against the
+    largest unmasked sum over every edge, summed in the order the edge enters its cells."""
     ed, term = kt.ed, gn.term
     n_cells = term.shape[1]
     by_term = np.argsort(-term[0])
