@@ -421,6 +421,18 @@ def _zbits(counted: Counted, taxi: int, out: NDArray[np.uint64]) -> NDArray[np.u
     return out
 
 
+@compiled_inline
+def _eval_stamped(
+    road_edges: Edges, gains: Gains, scratch: RouteScratch, edges: NDArray[np.int64], depart_s: float
+) -> tuple[float, float, float, int]:
+    """``eval_path`` of ``edges`` under the zero mask ``scratch`` holds, on the scratch's next evaluation
+    stamp: gain, travel time, length, largest slot reached."""
+    sid = scratch.next_stamp[0]
+    scratch.next_stamp[0] = sid + 1
+    g, _gq, t, length, ms = eval_path(road_edges, gains, scratch.zmask, scratch.stamp, sid, edges, depart_s)
+    return g, t, length, ms
+
+
 @compiled
 def _own_route(
     net: KappaGraph,
@@ -448,12 +460,7 @@ def _own_route(
         head = unfolding.path_to(ed, 1, scratch.forward.pred, drive.source, x)
         unfolding.unfold(net.rg, ed, base_q, drive.limit, x, scratch.reverse)
         edges = np.concatenate((head, unfolding.walk(ed, scratch.reverse.pred, x, drive.target)))
-    sid = scratch.next_stamp[0]
-    scratch.next_stamp[0] = sid + 1
-    g, _gq, t, length, ms = eval_path(
-        ed, problem.gn, scratch.zmask, scratch.stamp, sid, edges, problem.depart_s
-    )
-    return g, t, length, ms
+    return _eval_stamped(ed, problem.gn, scratch, edges, problem.depart_s)
 
 
 @compiled
@@ -665,11 +672,7 @@ def _kappa_paths_to(
         edges = _guided_path(net, scratch.forward, costs, lazy, leg, net.floor_lm)
         if scratch.forward.info[1] == -1:
             raise AssertionError("a discounted route costs more than the fastest path's time")
-        sid = scratch.next_stamp[0]
-        scratch.next_stamp[0] = sid + 1
-        g, _gq, t, length, ms = eval_path(
-            net.ed, problem.gn, scratch.zmask, scratch.stamp, sid, edges, problem.depart_s
-        )
+        g, t, length, ms = _eval_stamped(net.ed, problem.gn, scratch, edges, problem.depart_s)
         out.gain[r], out.time_s[r], out.length_m[r] = g, t, length
         max_slot = max(max_slot, ms)
     return max_slot
@@ -1175,9 +1178,7 @@ def _evaluate(
 ) -> tuple[float, float, float, int]:
     """``gains.eval_path`` of ``taxi``'s path: gain, time, length, largest slot reached."""
     mark(scratch.zmask, counted, taxi, True)
-    sid = scratch.next_stamp[0]
-    scratch.next_stamp[0] = sid + 1
-    g, _gq, t, length, ms = eval_path(road_edges, gains, scratch.zmask, scratch.stamp, sid, edges, depart_s)
+    g, t, length, ms = _eval_stamped(road_edges, gains, scratch, edges, depart_s)
     mark(scratch.zmask, counted, taxi, False)
     return g, t, length, ms
 
@@ -1234,9 +1235,7 @@ def _plan_one(
                 break
         else:
             continue
-        sid = scratch.next_stamp[0]
-        scratch.next_stamp[0] = sid + 1
-        g, _gq, t, length, ms = eval_path(net.ed, gains, scratch.zmask, scratch.stamp, sid, edges, depart_s)
+        g, t, length, ms = _eval_stamped(net.ed, gains, scratch, edges, depart_s)
         phi = g / t if t > 0 else 0.0
         if phi > best_phi:
             best_phi = phi
